@@ -1,0 +1,215 @@
+"""Configuration: a tree of dataclasses loaded from TOML, validated on load, dumpable.
+
+Every field has a documented default, so an empty file (or none) is a valid configuration.
+Unknown keys and wrong types are errors naming the file and the dotted key.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, TypeVar
+
+from fgloc.errors import InputError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on Python 3.10 only
+    import tomli as tomllib
+
+T = TypeVar("T")
+
+
+@dataclass
+class MapConfig:
+    """Target cloud (paper IV-A)."""
+
+    voxel_size: float = 0.5
+    """Voxel edge (m) for downsampling the road points."""
+    gamma: float = 0.01
+    """Menger-curvature threshold (1/m) separating turns from straights."""
+    road_classes: list[int] = field(default_factory=lambda: [2, 11])
+    """ASPRS classes that may be road surface (2 ground, 11 road surface)."""
+    crop_margin: float = 0.0
+    """Grow each lanelet polygon by this many metres before cropping."""
+
+
+@dataclass
+class CoarseConfig:
+    """Coarse localization: accumulated dynamic points + ICP (paper III-A, IV-B)."""
+
+    doppler_min: float = 0.5
+    """lambda: minimum |doppler| (m/s) for a detection to count as dynamic."""
+    voxel_size: float = 0.5
+    """Voxel edge (m) for the accumulated dynamic cloud."""
+    dbscan_eps: float = 1.5
+    """DBSCAN neighbourhood radius (m) of the noise filter."""
+    dbscan_min_points: int = 5
+    """DBSCAN core-point count of the noise filter."""
+    min_points: int = 200
+    """Fewer dynamic points after filtering than this is an error."""
+    icp_ranges: list[float] = field(default_factory=lambda: [20.0, 10.0, 5.0, 2.5, 1.5])
+    """Shrinking maximum correspondence distances (m), one ICP stage each."""
+    icp_iterations: int = 50
+    """Iterations per ICP stage."""
+    yaw_search_step_deg: float = 10.0
+    """Step of the global yaw search used when sensor.toml gives no yaw guess."""
+    position_search_radius: float = 10.0
+    """Half-width (m) of the grid of start positions around the approximate position."""
+    position_search_step: float = 5.0
+    """Grid step (m) of those start positions."""
+    default_height: float = 6.0
+    """Sensor height above the road (m) used when sensor.toml has no approx_height."""
+
+
+@dataclass
+class Config:
+    """The whole configuration (``fgloc config --dump`` writes it with every default)."""
+
+    seed: int = 0
+    """Seed of every random choice fgloc makes."""
+    map: MapConfig = field(default_factory=MapConfig)
+    coarse: CoarseConfig = field(default_factory=CoarseConfig)
+
+
+# --------------------------------------------------------------------------------------------
+# generic dataclass <-> dict with validation
+# --------------------------------------------------------------------------------------------
+def _type_ok(value: Any, tp: Any) -> tuple[bool, Any]:
+    """Check (and mildly coerce: int -> float) a TOML value against a type annotation."""
+    origin = typing.get_origin(tp)
+    if origin in (typing.Union, types.UnionType):
+        for arg in typing.get_args(tp):
+            if arg is type(None):
+                if value is None:
+                    return True, None
+                continue
+            ok, v = _type_ok(value, arg)
+            if ok:
+                return True, v
+        return False, value
+    if origin in (list, tuple):
+        if not isinstance(value, (list, tuple)):
+            return False, value
+        args = typing.get_args(tp)
+        if origin is tuple and args and args[-1] is not Ellipsis:
+            if len(value) != len(args):
+                return False, value
+            pairs = list(zip(value, args))
+        else:
+            pairs = [(v, args[0] if args else Any) for v in value]
+        out = []
+        for v, a in pairs:
+            ok, cv = _type_ok(v, a)
+            if not ok:
+                return False, value
+            out.append(cv)
+        return True, (tuple(out) if origin is tuple else out)
+    if tp is Any:
+        return True, value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            return False, value
+        return True, float(value)
+    if tp is int:
+        return (isinstance(value, int) and not isinstance(value, bool)), value
+    if tp is bool:
+        return isinstance(value, bool), value
+    if tp is str:
+        return isinstance(value, str), value
+    return isinstance(value, tp), value
+
+
+def _type_name(tp: Any) -> str:
+    return getattr(tp, "__name__", None) or str(tp).replace("typing.", "")
+
+
+def from_dict(cls: type[T], data: dict[str, Any], path: str | Path | None, prefix: str = "") -> T:
+    """Build dataclass ``cls`` from a TOML table, rejecting unknown keys and wrong types."""
+    if not isinstance(data, dict):
+        raise InputError(path, f"expected a table, got {type(data).__name__}", field=prefix or None)
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+    unknown = sorted(set(data) - names)
+    if unknown:
+        key = f"{prefix}{unknown[0]}"
+        raise InputError(path, f"unknown key (allowed: {', '.join(sorted(names))})", field=key)
+    kwargs: dict[str, Any] = {}
+    for name, value in data.items():
+        tp = hints[name]
+        key = f"{prefix}{name}"
+        if dataclasses.is_dataclass(tp):
+            kwargs[name] = from_dict(tp, value, path, prefix=f"{key}.")
+            continue
+        ok, coerced = _type_ok(value, tp)
+        if not ok:
+            raise InputError(
+                path, f"expected {_type_name(tp)}, got {type(value).__name__} {value!r}", field=key
+            )
+        kwargs[name] = coerced
+    return cls(**kwargs)
+
+
+def to_dict(obj: Any) -> dict[str, Any]:
+    """Dataclass -> plain dict (tuples become lists), dropping None values (TOML has no null)."""
+    out: dict[str, Any] = {}
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        if dataclasses.is_dataclass(v):
+            out[f.name] = to_dict(v)
+        elif v is not None:
+            out[f.name] = list(v) if isinstance(v, tuple) else v
+    return out
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """Parse a TOML file; syntax errors become :class:`InputError` with the line."""
+    p = Path(path)
+    try:
+        with p.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise InputError(p, "file not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise InputError(p, f"invalid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise InputError(p, f"not UTF-8 text: {exc}") from None
+
+
+def _toml_value(v: Any) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (int, float)):
+        return repr(v)
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    raise TypeError(f"cannot write {type(v).__name__} to TOML")
+
+
+def dumps_toml(data: dict[str, Any], _prefix: str = "") -> str:
+    """Write a nested dict of scalars/lists/tables as TOML (the subset fgloc uses)."""
+    lines = [f"{k} = {_toml_value(v)}" for k, v in data.items() if not isinstance(v, dict)]
+    for k, v in data.items():
+        if isinstance(v, dict):
+            name = f"{_prefix}{k}"
+            lines.append("")
+            lines.append(f"[{name}]")
+            lines.append(dumps_toml(v, f"{name}.").strip("\n"))
+    return "\n".join(lines).strip("\n") + "\n"
+
+
+def load_config(path: str | Path | None) -> Config:
+    """Load a fgloc config TOML (None: all defaults)."""
+    if path is None:
+        return Config()
+    return from_dict(Config, read_toml(path), path)
+
+
+def dump_config(cfg: Config) -> str:
+    return dumps_toml(to_dict(cfg))

@@ -1,0 +1,162 @@
+"""The in-memory scenario: typed containers for everything in a scenario directory.
+
+Every array is float64 in the local ENU frame ``L`` of :attr:`Scenario.frame` (world minus a
+rounded origin), except radar detections, which stay in the sensor frame ``S``, and the ALS
+coordinates, which are float32 in ``L`` (millimetre resolution over several kilometres).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from fgloc.geo import LocalFrame
+
+#: ASPRS LAS classification codes used by fgloc.
+ASPRS_CLASSES: dict[int, str] = {
+    0: "never classified",
+    1: "unclassified",
+    2: "ground",
+    3: "low vegetation",
+    4: "medium vegetation",
+    5: "high vegetation",
+    6: "building",
+    7: "low point (noise)",
+    9: "water",
+    11: "road surface",
+    17: "bridge deck",
+    20: "ignored ground",
+}
+
+
+@dataclass
+class RadarData:
+    """Radar detections in the sensor frame S.
+
+    t: (N,) s, non-decreasing. xyz: (N, 3) m in S. doppler: (N,) m/s range rate, positive away
+    from the sensor. rcs: (N,) dBsm or None. frame: (N,) int64 frame index or None (derived
+    from equal t when absent).
+    """
+
+    t: np.ndarray
+    xyz: np.ndarray
+    doppler: np.ndarray
+    rcs: np.ndarray | None = None
+    frame: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    @property
+    def duration(self) -> float:
+        return float(self.t[-1] - self.t[0]) if len(self) else 0.0
+
+    def frame_ids(self) -> np.ndarray:
+        """Frame index per detection: the ``frame`` column, else one frame per distinct t."""
+        if self.frame is not None:
+            return self.frame
+        if len(self) == 0:
+            return np.zeros(0, dtype=np.int64)
+        new = np.concatenate([[0], (np.diff(self.t) > 0).astype(np.int64)])
+        return np.cumsum(new)
+
+
+@dataclass
+class AlsCloud:
+    """Aerial laser scan in L. xyz: (N, 3) float32 m. classification: (N,) uint8 ASPRS code."""
+
+    xyz: np.ndarray
+    classification: np.ndarray
+    source_files: list[Path] = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return int(self.xyz.shape[0])
+
+
+@dataclass
+class Lanelet:
+    """One lanelet: left and right bounds as (n, 3) float64 polylines in L (z may be 0 when the
+    map has no elevation), plus the OSM tags of the relation."""
+
+    id: int
+    left: np.ndarray
+    right: np.ndarray
+    attributes: dict[str, str] = field(default_factory=dict)
+
+    def polygon(self) -> np.ndarray:
+        """Closed outline (left bound forward, right bound backward) as (m, 2)."""
+        return np.vstack([self.left[:, :2], self.right[::-1, :2]])
+
+    def centerline(self, n: int = 20) -> np.ndarray:
+        """(n, 2) centre line from arc-length-resampled bounds."""
+        return 0.5 * (resample_polyline(self.left[:, :2], n) + resample_polyline(self.right[:, :2], n))
+
+
+def resample_polyline(p: np.ndarray, n: int) -> np.ndarray:
+    """n points equally spaced in arc length along a polyline (m, d)."""
+    seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    if s[-1] <= 0:
+        return np.repeat(p[:1], n, axis=0)
+    q = np.linspace(0.0, s[-1], n)
+    return np.column_stack([np.interp(q, s, p[:, k]) for k in range(p.shape[1])])
+
+
+@dataclass
+class LaneletMap:
+    lanelets: list[Lanelet]
+
+    def __len__(self) -> int:
+        return len(self.lanelets)
+
+
+@dataclass
+class SensorConfig:
+    """sensor.toml. approx_position is (E, N) in the world CRS; angles in degrees as written."""
+
+    crs: str
+    approx_position: tuple[float, float]
+    approx_height: float | None = None
+    yaw_guess_deg: float | None = None
+    hfov_deg: float = 120.0
+    vfov_deg: float = 30.0
+    max_range: float = 250.0
+
+
+@dataclass
+class TrackTruth:
+    """A true vehicle. states: (n, 6) [t, x, y, yaw, v, yawrate] with x, y in L, yaw rad CCW
+    from grid east, v m/s, yawrate rad/s. length, width in metres."""
+
+    id: int
+    length: float
+    width: float
+    states: np.ndarray
+
+
+@dataclass
+class GroundTruth:
+    """Ground truth in L. sensor_pose: 4x4 transform S -> L."""
+
+    crs: str
+    sensor_pose: np.ndarray
+    tracks: list[TrackTruth] = field(default_factory=list)
+
+
+@dataclass
+class Scenario:
+    """A whole scenario directory, loaded. ``frame`` maps every L quantity back to the world."""
+
+    frame: LocalFrame
+    sensor: SensorConfig
+    radar: RadarData
+    als: AlsCloud
+    lanelets: LaneletMap
+    truth: GroundTruth | None = None
+    path: Path | None = None
+
+    @property
+    def crs(self) -> str:
+        return self.frame.crs
