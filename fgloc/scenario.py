@@ -114,10 +114,14 @@ class LaneletMap:
 
 @dataclass
 class SensorConfig:
-    """sensor.toml. approx_position is (E, N) in the world CRS; angles in degrees as written."""
+    """sensor.toml. approx_position is (E, N) in the world CRS; angles in degrees as written.
 
-    crs: str
+    ``crs`` is None when the file has none; the world CRS then comes from the ALS tiles and the
+    resolved value is :attr:`Scenario.crs`.
+    """
+
     approx_position: tuple[float, float]
+    crs: str | None = None
     approx_height: float | None = None
     yaw_guess_deg: float | None = None
     hfov_deg: float = 120.0
