@@ -36,6 +36,9 @@ class MapConfig:
     """ASPRS classes that may be road surface (2 ground, 11 road surface)."""
     crop_margin: float = 0.0
     """Grow each lanelet polygon by this many metres before cropping."""
+    sensor_margin: float = 50.0
+    """ALS points farther than sensor.max_range + this (m) from the approximate sensor position
+    are ignored (covers the position uncertainty and keeps big tiles cheap)."""
 
 
 @dataclass

@@ -76,7 +76,9 @@ def se3(R: np.ndarray, t: np.ndarray) -> np.ndarray:
     return T
 
 
-def se3_from_pose(x: float, y: float, z: float, yaw: float, pitch: float, roll: float) -> np.ndarray:
+def se3_from_pose(
+    x: float, y: float, z: float, yaw: float, pitch: float, roll: float
+) -> np.ndarray:
     """4x4 sensor-to-frame transform from position (m) and angles (rad)."""
     return se3(rot_from_ypr(yaw, pitch, roll), [x, y, z])
 
@@ -214,7 +216,9 @@ class LocalFrame:
     crs: str = "EPSG:25832"
 
     @staticmethod
-    def around(east: float, north: float, height: float = 0.0, crs: str = "EPSG:25832") -> "LocalFrame":
+    def around(
+        east: float, north: float, height: float = 0.0, crs: str = "EPSG:25832"
+    ) -> LocalFrame:
         return LocalFrame((float(round(east)), float(round(north)), float(round(height))), crs)
 
     def to_local(self, pts: np.ndarray) -> np.ndarray:

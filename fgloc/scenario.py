@@ -91,7 +91,9 @@ class Lanelet:
 
     def centerline(self, n: int = 20) -> np.ndarray:
         """(n, 2) centre line from arc-length-resampled bounds."""
-        return 0.5 * (resample_polyline(self.left[:, :2], n) + resample_polyline(self.right[:, :2], n))
+        return 0.5 * (
+            resample_polyline(self.left[:, :2], n) + resample_polyline(self.right[:, :2], n)
+        )
 
 
 def resample_polyline(p: np.ndarray, n: int) -> np.ndarray:

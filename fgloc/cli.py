@@ -1,0 +1,261 @@
+"""The ``fgloc`` command line: a thin layer that parses, calls the library and prints.
+
+Every :class:`fgloc.errors.FglocError` (bad input, impossible localization) ends the command with
+a one-line message on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import tempfile
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+
+from fgloc.errors import FglocError
+
+EXAMPLE_DIR = Path(__file__).resolve().parent.parent / "data" / "example"
+
+
+# --------------------------------------------------------------------------------------------
+# commands
+# --------------------------------------------------------------------------------------------
+def cmd_simulate(args: argparse.Namespace) -> int:
+    from fgloc.io import write_scenario
+    from fgloc.sim import simulate
+
+    scn = simulate(args.case, args.seed, duration=args.duration, vehicles=args.vehicles)
+    write_scenario(scn, args.out, radar_format=args.radar_format)
+    print(
+        f"wrote {args.case} scenario (seed {args.seed}, {len(scn.radar)} detections) to {args.out}"
+    )
+    return 0
+
+
+def scenario_summary(path: str | Path) -> str:
+    """One-screen text summary of a scenario directory (loads and validates it)."""
+    from fgloc.config import CoarseConfig, MapConfig
+    from fgloc.io import load_scenario
+    from fgloc.labels import NAMES
+    from fgloc.map import label_lanelet
+    from fgloc.scenario import ASPRS_CLASSES
+
+    scn = load_scenario(path)
+    r, s = scn.radar, scn.sensor
+    lam = CoarseConfig().doppler_min
+    dyn = float(np.mean(np.abs(r.doppler) >= lam)) if len(r) else 0.0
+    n_frames = len(np.unique(r.frame_ids()))
+    classes, counts = np.unique(scn.als.classification, return_counts=True)
+    cls_txt = ", ".join(
+        f"{ASPRS_CLASSES.get(int(c), f'class {int(c)}')} ({int(c)}): {n:,}"
+        for c, n in zip(classes, counts)
+    )
+    gamma = MapConfig().gamma
+    labels = [label_lanelet(ll, gamma) for ll in scn.lanelets.lanelets]
+    by_label = ", ".join(f"{NAMES[k]} {labels.count(k)}" for k in sorted(NAMES))
+    rate = len(r) / r.duration if r.duration > 0 else float("nan")
+    guess = (
+        "absent (global yaw search)" if s.yaw_guess_deg is None else f"{s.yaw_guess_deg:.2f} deg"
+    )
+    height = "absent" if s.approx_height is None else f"{s.approx_height:.2f} m"
+    lines = [
+        f"scenario      {scn.path}",
+        f"CRS           {scn.crs}",
+        f"approx pos    E {s.approx_position[0]:.2f}  N {s.approx_position[1]:.2f}"
+        f"  height {height}",
+        f"yaw guess     {guess}",
+        f"field of view {s.hfov_deg:g} x {s.vfov_deg:g} deg, max range {s.max_range:g} m",
+        f"radar         {len(r):,} detections in {n_frames:,} frames over {r.duration:.1f} s "
+        f"({rate:,.0f} /s); dynamic (|doppler| >= {lam:g} m/s): {100 * dyn:.1f} %",
+        f"ALS           {len(scn.als):,} points in {len(scn.als.source_files)} tile(s); {cls_txt}",
+        f"lanelets      {len(scn.lanelets)} ({by_label}; Menger gamma {gamma:g} 1/m)",
+        f"ground truth  {'yes' if scn.truth is not None else 'no'}"
+        + (f" ({len(scn.truth.tracks)} vehicles)" if scn.truth is not None else ""),
+    ]
+    return "\n".join(lines)
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    print(scenario_summary(args.scenario))
+    return 0
+
+
+def _load_for_localize(path: str | Path, ignore_yaw_guess: bool):
+    from fgloc.io import load_scenario
+
+    scn = load_scenario(path)
+    if ignore_yaw_guess:
+        scn.sensor.yaw_guess_deg = None
+    return scn
+
+
+def _print_result(res) -> None:
+    doc = res.to_json()
+    s = doc["sensor"]
+    print(f"method {res.method}: {'converged' if res.converged else 'NOT CONVERGED'}")
+    print(f"  E {s['x']:.3f}  N {s['y']:.3f}  z {s['z']:.3f}  ({res.crs})")
+    print(
+        f"  yaw {s['yaw_deg']:.3f} deg (true heading {doc['true_heading_deg']:.3f} deg)  "
+        f"pitch {s['pitch_deg']:.3f}  roll {s['roll_deg']:.3f}"
+    )
+    print("  stage times: " + ", ".join(f"{k} {v:.2f} s" for k, v in res.timings.items()))
+    for w in res.warnings:
+        print(f"  warning: {w}")
+    if not res.converged:
+        print(
+            "  WARNING: registration did not converge; see result.json diagnostics", file=sys.stderr
+        )
+
+
+def cmd_localize(args: argparse.Namespace) -> int:
+    from fgloc.config import load_config
+    from fgloc.outputs import write_localization
+    from fgloc.pipeline import localize
+
+    cfg = load_config(args.config)
+    scn = _load_for_localize(args.scenario, args.ignore_yaw_guess)
+    res = localize(scn, method=args.method, config=cfg)
+    written = write_localization(args.out, scn, res)
+    _print_result(res)
+    print("wrote " + ", ".join(str(p) for p in written))
+    return 0
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    from fgloc.evaluate import pose_error
+    from fgloc.geo import LocalFrame, same_crs
+    from fgloc.io import read_ground_truth
+    from fgloc.result import read_result_json
+
+    saved = read_result_json(args.result)
+    frame = LocalFrame.around(saved.T_utm[0, 3], saved.T_utm[1, 3], saved.T_utm[2, 3], saved.crs)
+    truth = read_ground_truth(args.ground_truth, frame)
+    if not same_crs(truth.crs, saved.crs):
+        raise FglocError(
+            f"{args.ground_truth}: CRS {truth.crs} differs from the result's {saved.crs}"
+        )
+    err = pose_error(frame.pose_to_local(saved.T_utm), truth.sensor_pose)
+    if args.json:
+        print(
+            json.dumps(
+                {"method": saved.method, "converged": saved.converged, "pose": err.to_json()}
+            )
+        )
+    else:
+        print(f"method {saved.method}{'' if saved.converged else ' (NOT CONVERGED)'}")
+        print(err.table())
+    return 0
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    from fgloc.evaluate import pose_error
+    from fgloc.io import load_scenario, write_scenario
+    from fgloc.outputs import write_localization
+    from fgloc.pipeline import localize
+    from fgloc.sim import simulate
+
+    if EXAMPLE_DIR.is_dir():
+        src = EXAMPLE_DIR
+    else:  # installed without the repository's data/: make the same scenario
+        src = Path(tempfile.mkdtemp(prefix="fgloc-demo-")) / "example"
+        write_scenario(simulate("intersection", 1, duration=30.0), src)
+    print(scenario_summary(src))
+    scn = load_scenario(src)
+    out = Path(args.out) if args.out else Path(tempfile.mkdtemp(prefix="fgloc-demo-out-"))
+    print()
+    res = localize(scn, method=args.method)
+    write_localization(out, scn, res)
+    _print_result(res)
+    if scn.truth is not None:
+        print("\nerror against ground truth (paper Table I row + vertical):")
+        print(pose_error(res.T_local, scn.truth.sensor_pose).table())
+    print(f"\noutputs in {out}")
+    return 0
+
+
+def cmd_config(args: argparse.Namespace) -> int:
+    from fgloc.config import dump_config, load_config
+
+    print(dump_config(load_config(args.config)), end="")
+    return 0
+
+
+# --------------------------------------------------------------------------------------------
+# parser
+# --------------------------------------------------------------------------------------------
+def build_parser() -> argparse.ArgumentParser:
+    from fgloc.pipeline import METHODS
+
+    p = argparse.ArgumentParser(prog="fgloc", description=__doc__.split("\n")[0])
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress messages")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    s = sub.add_parser("simulate", help="write a simulated scenario with ground truth")
+    s.add_argument(
+        "--case", required=True, choices=["intersection", "tjunction", "curve", "straight"]
+    )
+    s.add_argument("--seed", type=int, default=1)
+    s.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
+    s.add_argument(
+        "--vehicles", type=int, default=None, help="vehicle count (default: from duration)"
+    )
+    s.add_argument("--radar-format", choices=["csv", "npz"], default="csv")
+    s.add_argument("--out", required=True)
+    s.set_defaults(fn=cmd_simulate)
+
+    s = sub.add_parser("info", help="summarize and validate a scenario directory")
+    s.add_argument("scenario")
+    s.set_defaults(fn=cmd_info)
+
+    s = sub.add_parser("localize", help="localize the sensor of a scenario")
+    s.add_argument("scenario")
+    s.add_argument("--out", required=True, help="output directory")
+    s.add_argument("--method", choices=sorted(METHODS), default="icp")
+    s.add_argument("--config", default=None, help="fgloc config TOML (default: built-in defaults)")
+    s.add_argument(
+        "--ignore-yaw-guess",
+        action="store_true",
+        help="ignore sensor.toml's yaw_guess_deg (global yaw search)",
+    )
+    s.set_defaults(fn=cmd_localize)
+
+    s = sub.add_parser("evaluate", help="compare a result.json with a ground_truth.json")
+    s.add_argument("result")
+    s.add_argument("ground_truth")
+    s.add_argument("--json", action="store_true", help="machine-readable output")
+    s.set_defaults(fn=cmd_evaluate)
+
+    s = sub.add_parser("demo", help="run the pipeline on the built-in example and print errors")
+    s.add_argument("--out", default=None, help="output directory (default: a temporary one)")
+    s.add_argument("--method", choices=sorted(METHODS), default="icp")
+    s.set_defaults(fn=cmd_demo)
+
+    s = sub.add_parser("config", help="print the configuration with every default")
+    s.add_argument("--dump", action="store_true", help="(default action) print the full config")
+    s.add_argument("--config", default=None, help="a config TOML to validate and print merged")
+    s.set_defaults(fn=cmd_config)
+    return p
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    logging.basicConfig(
+        level=logging.WARNING if args.quiet else logging.INFO,
+        format="[fgloc] %(message)s",
+        stream=sys.stderr,
+    )
+    fn: Callable[[argparse.Namespace], int] = args.fn
+    try:
+        return fn(args)
+    except FglocError as exc:
+        print(f"fgloc: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,119 @@
+"""The localization result: the pose, its uncertainty, per-stage diagnostics; JSON in and out."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from fgloc.config import Config, to_dict
+from fgloc.errors import InputError
+from fgloc.geo import LocalFrame, pose_from_se3, to_latlon, true_heading_deg
+
+if TYPE_CHECKING:
+    from fgloc.map import TargetCloud
+
+
+@dataclass
+class LocalizationResult:
+    """What a localization method found.
+
+    T_local: 4x4 sensor frame S -> local frame L. covariance: 3x3 of (x [m], y [m], yaw [rad])
+    in L, or None when the method gives none. diagnostics: per stage, JSON-ready dicts.
+    source_xyz: (N, 3) float64 source points in L (after the final pose), for reports.
+    source_label: (N,) int label codes of those points (all STRAIGHT when unlabelled).
+    target: the labelled target cloud the pose was registered against (for reports).
+    """
+
+    method: str
+    frame: LocalFrame
+    T_local: np.ndarray
+    converged: bool
+    covariance: np.ndarray | None = None
+    diagnostics: dict[str, Any] = field(default_factory=dict)
+    timings: dict[str, float] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    config: Config = field(default_factory=Config)
+    source_xyz: np.ndarray | None = None
+    source_label: np.ndarray | None = None
+    target: TargetCloud | None = None
+
+    @property
+    def crs(self) -> str:
+        return self.frame.crs
+
+    @property
+    def T_utm(self) -> np.ndarray:
+        """4x4 sensor -> world (UTM) transform, float64."""
+        return self.frame.pose_to_world(self.T_local)
+
+    def to_json(self) -> dict[str, Any]:
+        """The result.json document (see docs/formats.md, "Outputs")."""
+        x, y, z, yaw, pitch, roll = pose_from_se3(self.T_utm)
+        lat, lon = to_latlon(self.crs, x, y)
+        doc: dict[str, Any] = {
+            "method": self.method,
+            "converged": bool(self.converged),
+            "crs": self.crs,
+            "sensor": {
+                "x": x,
+                "y": y,
+                "z": z,
+                "yaw_deg": math.degrees(yaw),
+                "pitch_deg": math.degrees(pitch),
+                "roll_deg": math.degrees(roll),
+            },
+            "T_utm": self.T_utm.tolist(),
+            "lat": lat,
+            "lon": lon,
+            "true_heading_deg": true_heading_deg(self.crs, x, y, yaw),
+            "covariance": None if self.covariance is None else np.asarray(self.covariance).tolist(),
+            "covariance_order": ["x_m", "y_m", "yaw_rad"],
+            "local_origin": list(self.frame.origin),
+            "diagnostics": self.diagnostics,
+            "timings_s": self.timings,
+            "warnings": self.warnings,
+            "config": to_dict(self.config),
+        }
+        return doc
+
+
+@dataclass(frozen=True)
+class SavedPose:
+    """The pose read back from a result.json: 4x4 sensor -> world and the CRS."""
+
+    crs: str
+    T_utm: np.ndarray
+    method: str
+    converged: bool
+
+
+def read_result_json(path: str | Path) -> SavedPose:
+    """Read the pose of a result.json written by fgloc (validated)."""
+    p = Path(path)
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(p, "file not found") from None
+    except json.JSONDecodeError as exc:
+        raise InputError(p, f"invalid JSON at line {exc.lineno}: {exc.msg}") from None
+    if not isinstance(doc, dict):
+        raise InputError(p, "expected a JSON object")
+    for key in ("crs", "T_utm"):
+        if key not in doc:
+            raise InputError(p, "missing key", field=key)
+    T = np.asarray(doc["T_utm"], dtype=float) if isinstance(doc["T_utm"], list) else None
+    if T is None or T.shape != (4, 4) or not np.all(np.isfinite(T)):
+        raise InputError(p, "expected a finite 4x4 matrix", field="T_utm")
+    if not isinstance(doc["crs"], str):
+        raise InputError(p, "expected a CRS string", field="crs")
+    return SavedPose(
+        crs=doc["crs"],
+        T_utm=T,
+        method=str(doc.get("method", "unknown")),
+        converged=bool(doc.get("converged", True)),
+    )
