@@ -1,0 +1,103 @@
+"""``sensor.toml`` <-> :class:`SensorConfig`.
+
+Top level: optional ``crs`` (the world CRS). Table ``[sensor]``: ``approx_position = [E, N]``
+(required, world CRS, m), optional ``approx_height`` (m above the road), ``yaw_guess_deg``
+(degrees CCW from grid east), ``hfov_deg`` / ``vfov_deg`` (degrees), ``max_range`` (m).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from fgloc.config import dumps_toml, from_dict, read_toml
+from fgloc.errors import InputError
+from fgloc.io._crs import canonical_world_crs
+from fgloc.io.atomic import write_text_atomic
+from fgloc.scenario import SensorConfig
+
+
+@dataclass
+class _SensorTable:
+    """The ``[sensor]`` table as written in the file (validated by fgloc.config.from_dict)."""
+
+    approx_position: tuple[float, float] | None = None
+    approx_height: float | None = None
+    yaw_guess_deg: float | None = None
+    hfov_deg: float = 120.0
+    vfov_deg: float = 30.0
+    max_range: float = 250.0
+
+
+@dataclass
+class _SensorFile:
+    crs: str | None = None
+    sensor: _SensorTable = field(default_factory=_SensorTable)
+
+
+def read_sensor_toml(path: str | Path) -> SensorConfig:
+    """Read and validate ``sensor.toml``.
+
+    Raises :class:`InputError` naming the dotted key for unknown keys, wrong types, a missing
+    ``[sensor] approx_position``, non-finite numbers, out-of-range fields of view or range
+    (0 < hfov_deg <= 360, 0 < vfov_deg <= 180, max_range > 0) and an invalid or non-projected
+    ``crs``. ``crs`` stays as written (None when absent).
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(p, "sensor file not found")
+    raw = from_dict(_SensorFile, read_toml(p), p)
+    s = raw.sensor
+    if s.approx_position is None:
+        raise InputError(p, "missing required key ([sensor] approx_position = [E, N])",
+                         field="sensor.approx_position")
+    if raw.crs is not None:
+        canonical_world_crs(raw.crs, p, "crs")
+    numbers = {
+        "approx_position": s.approx_position,
+        "approx_height": s.approx_height,
+        "yaw_guess_deg": s.yaw_guess_deg,
+        "hfov_deg": s.hfov_deg,
+        "vfov_deg": s.vfov_deg,
+        "max_range": s.max_range,
+    }
+    for key, value in numbers.items():
+        values = value if isinstance(value, tuple) else (value,)
+        if not all(v is None or math.isfinite(v) for v in values):
+            raise InputError(p, f"must be finite, got {value!r}", field=f"sensor.{key}")
+    ranges = {
+        "hfov_deg": (0.0 < s.hfov_deg <= 360.0, "in (0, 360]"),
+        "vfov_deg": (0.0 < s.vfov_deg <= 180.0, "in (0, 180]"),
+        "max_range": (s.max_range > 0.0, "> 0"),
+    }
+    for key, (ok, expected) in ranges.items():
+        if not ok:
+            raise InputError(p, f"must be {expected}, got {numbers[key]!r}", field=f"sensor.{key}")
+    return SensorConfig(
+        approx_position=s.approx_position,
+        crs=raw.crs,
+        approx_height=s.approx_height,
+        yaw_guess_deg=s.yaw_guess_deg,
+        hfov_deg=s.hfov_deg,
+        vfov_deg=s.vfov_deg,
+        max_range=s.max_range,
+    )
+
+
+def write_sensor_toml(path: str | Path, sensor: SensorConfig) -> None:
+    """Write ``sensor.toml`` atomically (optional fields that are None are left out)."""
+    table = {
+        "approx_position": [float(v) for v in sensor.approx_position],
+        "approx_height": sensor.approx_height,
+        "yaw_guess_deg": sensor.yaw_guess_deg,
+        "hfov_deg": sensor.hfov_deg,
+        "vfov_deg": sensor.vfov_deg,
+        "max_range": sensor.max_range,
+    }
+    data: dict[str, object] = {} if sensor.crs is None else {"crs": sensor.crs}
+    # float(): numpy scalars would otherwise be written as "np.float64(...)"
+    data["sensor"] = {
+        k: (v if isinstance(v, list) else float(v)) for k, v in table.items() if v is not None
+    }
+    write_text_atomic(path, dumps_toml(data))
