@@ -1,0 +1,186 @@
+"""Simulator configuration: a tree of dataclasses with documented defaults.
+
+Load from a TOML table with :func:`fgloc.config.from_dict` (``from_dict(SimConfig, table, path)``).
+Ranges are ``(low, high)`` pairs sampled uniformly per scenario (or per object) from the seed.
+Lengths in metres, angles in degrees, times in seconds, rates per second.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+
+@dataclass
+class SiteConfig:
+    """Where on Earth the scenario is placed (world CRS, default around Ingolstadt)."""
+
+    crs: str = "EPSG:25832"
+    """World CRS of the scenario (metres, E/N)."""
+    east: tuple[float, float] = (677000.0, 680000.0)
+    """Range of the junction's easting."""
+    north: tuple[float, float] = (5400000.0, 5403000.0)
+    """Range of the junction's northing."""
+    ground_height: tuple[float, float] = (365.0, 375.0)
+    """Range of the ground height (m above the vertical datum) at the junction."""
+
+
+@dataclass
+class RoadSimConfig:
+    """Road layout geometry."""
+
+    lane_width: float = 3.5
+    """Lane width (m)."""
+    lanes_per_direction: list[int] = field(default_factory=lambda: [1, 2])
+    """Choices for the number of lanes per direction of each road."""
+    crossing_angle_jitter_deg: float = 12.0
+    """Crossing/branching angle is 90 deg +- up to this (uniform)."""
+    arm_length: float = 150.0
+    """Length of each junction arm from the junction centre (m); also the half length of the
+    straight road and the length of the curve's straight legs beyond the arc's end."""
+    junction_margin: float = 8.0
+    """Stop line distance beyond the crossing road's edge (m); sets the junction turn radii
+    (about 8-16 m)."""
+    curve_radius: tuple[float, float] = (40.0, 90.0)
+    """Radius of the road centre line in the ``curve`` case (m). Keep < 100 m so the curve
+    lanelets label as turns with the Menger rule (gamma = 0.01 1/m)."""
+    curve_angle_deg: tuple[float, float] = (60.0, 100.0)
+    """Heading change over the arc in the ``curve`` case."""
+
+
+@dataclass
+class SensorSimConfig:
+    """Mounting of the radar and the prior a user would write into sensor.toml."""
+
+    mast_height: tuple[float, float] = (5.0, 8.0)
+    """Sensor height above the road (m)."""
+    pitch_deg: tuple[float, float] = (2.0, 6.0)
+    """Pitch (deg, > 0 = boresight down)."""
+    roll_deg: float = 1.5
+    """Roll is uniform in +- this (deg)."""
+    setback: tuple[float, float] = (2.0, 5.0)
+    """Distance of the mast from the road edge (m)."""
+    junction_distance: tuple[float, float] = (18.0, 32.0)
+    """Distance along an arm from the junction centre to the mast (m)."""
+    yaw_jitter_deg: float = 8.0
+    """Yaw deviates from 'looking at the junction / along the road' by up to +- this (deg)."""
+    approx_position_sigma: float = 3.0
+    """Std. dev. (m, per axis) of the approximate position written to sensor.toml."""
+    yaw_guess_sigma_deg: float = 3.0
+    """Std. dev. (deg) of the yaw guess written to sensor.toml."""
+
+
+@dataclass
+class RadarSimConfig:
+    """4D radar measurement model (one frame = one scan)."""
+
+    rate_hz: float = 20.0
+    """Frame rate (Hz)."""
+    hfov_deg: float = 120.0
+    """Horizontal field of view (deg, centred on the boresight)."""
+    vfov_deg: float = 30.0
+    """Vertical field of view (deg, centred on the boresight)."""
+    max_range: float = 200.0
+    """Maximum range (m)."""
+    sigma_range: float = 0.15
+    """Range noise std. dev. (m)."""
+    sigma_azimuth_deg: float = 0.2
+    """Azimuth noise std. dev. (deg)."""
+    sigma_elevation_deg: float = 0.7
+    """Elevation noise std. dev. (deg)."""
+    sigma_doppler: float = 0.07
+    """Doppler noise std. dev. (m/s)."""
+    points_per_degree: float = 14.0
+    """Expected vehicle detections per degree of the vehicle's angular extent seen from the
+    sensor (so the count falls roughly as 1/range), before the detection probability."""
+    corner_fraction: float = 0.4
+    """Fraction of vehicle detections concentrated at the corner nearest to the sensor."""
+    corner_spread: float = 0.6
+    """Std. dev. (m) of the distance of those corner detections from the corner."""
+    range_half_detection: float = 0.75
+    """Range (fraction of max_range) where the detection probability is 0.5."""
+    range_falloff: float = 12.0
+    """Width (m) of the logistic fall-off of the detection probability with range."""
+    clutter_per_frame: float = 180.0
+    """Expected static clutter detections per frame (curbs, poles, facades, trunks)."""
+    clutter_doppler_sigma: float = 0.03
+    """Std. dev. (m/s) of the true doppler of static clutter (vibration, multipath)."""
+    false_alarms_per_frame: float = 10.0
+    """Expected uniform false alarms per frame (random position in the FOV, random doppler)."""
+    false_alarm_doppler: float = 20.0
+    """False-alarm doppler is uniform in +- this (m/s)."""
+    rcs_sigma: float = 4.0
+    """Std. dev. (dB) of the per-detection RCS around the source's mean."""
+
+
+@dataclass
+class TrafficSimConfig:
+    """Vehicle arrivals, classes and driving behaviour."""
+
+    arrival_interval: float = 2.5
+    """Mean time between vehicle arrivals (s) when the vehicle count is not given."""
+    class_mix: tuple[float, float, float] = (0.7, 0.2, 0.1)
+    """Probabilities of car, van, truck."""
+    speed_straight: tuple[float, float] = (8.0, 15.0)
+    """Cruise speed range (m/s); trucks draw from the lower 60 %."""
+    speed_turn: tuple[float, float] = (5.0, 8.0)
+    """Speed range in junction turns (m/s)."""
+    turn_curvature: float = 0.02
+    """Path curvature (1/m) above which the turn speed applies."""
+    lateral_accel: float = 2.5
+    """Maximum lateral acceleration (m/s^2), caps the speed in curves."""
+    accel: float = 1.5
+    """Longitudinal acceleration (m/s^2)."""
+    decel: float = 2.0
+    """Longitudinal deceleration (m/s^2)."""
+    transition_length: float = 6.0
+    """Length (m) over which the path curvature ramps in and out (smooth yaw rate)."""
+    headway: float = 1.0
+    """Minimum time gap (s) between two vehicles using the same piece of road."""
+
+
+@dataclass
+class AlsSimConfig:
+    """Aerial laser scan synthesis."""
+
+    extent: float = 400.0
+    """Side of the square ALS tile centred on the sensor (m)."""
+    density: float = 6.0
+    """Point density (points per m^2)."""
+    height_sigma: float = 0.03
+    """Height noise std. dev. (m)."""
+    slope: tuple[float, float] = (0.005, 0.02)
+    """Ground slope range (dimensionless rise/run) in a random direction."""
+    road_raise: float = 0.1
+    """Road surface height above the surrounding ground (m)."""
+    buildings: int = 8
+    """Number of buildings (fewer when no free space is found)."""
+    building_height: tuple[float, float] = (8.0, 25.0)
+    """Building height range (m)."""
+    building_size: tuple[float, float] = (10.0, 30.0)
+    """Building side length range (m)."""
+    building_clearance: float = 6.0
+    """Minimum distance of buildings from the road edge (m)."""
+    trees: int = 40
+    """Number of trees."""
+    tree_height: tuple[float, float] = (6.0, 16.0)
+    """Tree height range (m)."""
+    crown_radius: tuple[float, float] = (2.0, 4.5)
+    """Tree crown radius range (m)."""
+    canopy_hit: float = 0.75
+    """Probability that an ALS pulse inside a crown returns from the crown."""
+    poles: int = 12
+    """Number of roadside poles (radar clutter; too thin for the ALS)."""
+    unclassified_fraction: float = 0.002
+    """Fraction of points left unclassified (class 1: wires, birds, noise)."""
+
+
+@dataclass
+class SimConfig:
+    """Every knob of the scenario simulator (see each section for units and defaults)."""
+
+    site: SiteConfig = field(default_factory=SiteConfig)
+    road: RoadSimConfig = field(default_factory=RoadSimConfig)
+    sensor: SensorSimConfig = field(default_factory=SensorSimConfig)
+    radar: RadarSimConfig = field(default_factory=RadarSimConfig)
+    traffic: TrafficSimConfig = field(default_factory=TrafficSimConfig)
+    als: AlsSimConfig = field(default_factory=AlsSimConfig)
