@@ -56,15 +56,53 @@ class CoarseConfig:
     min_points: int = 200
     """Fewer dynamic points after filtering than this is an error."""
     icp_ranges: list[float] = field(default_factory=lambda: [20.0, 10.0, 5.0, 2.5, 1.5])
-    """Shrinking maximum correspondence distances (m), one ICP stage each."""
+    """Shrinking maximum correspondence distances (m), one ICP stage each; the last one also
+    defines fitness and inlier RMSE."""
     icp_iterations: int = 50
     """Iterations per ICP stage."""
-    yaw_search_step_deg: float = 10.0
-    """Step of the global yaw search used when sensor.toml gives no yaw guess."""
-    position_search_radius: float = 10.0
+    yaw_search_step_deg: float = 1.0
+    """Yaw step (deg) of the hypothesis search (the whole circle without a yaw guess)."""
+    yaw_guess_window_deg: float = 10.0
+    """With a yaw guess, yaws within +- this (deg) of it are searched."""
+    position_search_radius: float = 12.0
     """Half-width (m) of the grid of start positions around the approximate position."""
-    position_search_step: float = 5.0
+    position_search_step: float = 1.0
     """Grid step (m) of those start positions."""
+    search_points: int = 600
+    """About this many source points (a regular subsample) score the hypotheses."""
+    refine_points: int = 10000
+    """About this many source points (a regular subsample) are used by the refinement."""
+    search_candidates: int = 6
+    """Best distinct hypotheses refined by ICP before choosing."""
+    score_tau: float = 3.0
+    """Distance (m) off the road at which a point stops counting in the hypothesis score."""
+    raster_cell: float = 0.5
+    """Cell (m) of the road distance raster used by the hypothesis search."""
+    reflection_height: float = 1.2
+    """Mean height (m) of the dynamic detections above the road (vehicle bodies; mixed traffic
+    with vans and trucks, whose larger sides return more detections)."""
+    lane_icp_ranges: list[float] = field(default_factory=lambda: [3.0, 2.0])
+    """Correspondence ranges (m) of the lane-centre refinement ICP stages."""
+    lane_sample_step: float = 0.25
+    """Spacing (m) of the samples on the lanelet centre lines."""
+    visible_side_offset: float = 0.3
+    """Mean lateral offset (m) of vehicle detections from the lane centre towards the sensor
+    (the radar sees the sensor-facing side and nearest corner of each vehicle)."""
+    height_residual_sigma: float = 0.7
+    """Std. dev. (m) of a dynamic point's height about road + reflection height (body height
+    spread and elevation noise) in the vertical fit."""
+    height_prior_sigma: float = 1.0
+    """Std. dev. (m) of the prior on the sensor height (road height + approx_height)."""
+    vertical_effective_points: float = 20.0
+    """The dynamic points weigh like this many independent height measurements in that fit."""
+    tilt_prior_sigma_deg: float = 5.0
+    """Std. dev. (deg) of the zero-mean prior on pitch and roll in the vertical fit."""
+    alternations: int = 3
+    """Rounds of horizontal ICP / vertical fit in the refinement."""
+    ambiguity_ratio: float = 0.97
+    """A different pose scoring at least this share of the best one's score is warned about."""
+    min_fitness: float = 0.5
+    """A final fitness below this marks the result as not converged."""
     default_height: float = 6.0
     """Sensor height above the road (m) used when sensor.toml has no approx_height."""
 

@@ -26,15 +26,17 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
+from matplotlib.path import Path as MplPath
+from scipy.spatial import cKDTree
 
 from fgloc.config import MapConfig
-from fgloc.errors import LocalizationError
-from fgloc.labels import LEFT, RIGHT, STRAIGHT
+from fgloc.errors import InputError, LocalizationError
+from fgloc.labels import LEFT, NAMES, RIGHT, STRAIGHT
 from fgloc.scenario import AlsCloud, Lanelet, LaneletMap, Scenario, resample_polyline
 
 #: ASPRS codes that mean "not classified"; an ALS holding only these has no class information.
 UNCLASSIFIED_CODES: tuple[int, ...] = (0, 1)
-#: Upper bound on the number of point-edge pairs evaluated at once by the polygon tests.
+#: Upper bound on the number of point-edge pairs evaluated at once by the boundary test.
 _PAIR_CHUNK = 4_000_000
 
 
@@ -65,6 +67,16 @@ class TargetCloud:
     def unique_xyz(self) -> np.ndarray:
         """(M, 3) points with the per-lanelet copies of overlapping lanelets merged."""
         return np.unique(self.xyz, axis=0)
+
+    def summary(self) -> dict[str, object]:
+        """JSON-ready counts: points in total and per label name, lanelets per label name."""
+        return {
+            "n_points": len(self),
+            "points_per_label": {NAMES[k]: int((self.label == k).sum()) for k in NAMES},
+            "lanelets_per_label": {
+                NAMES[k]: sum(v == k for v in self.lanelet_labels.values()) for k in NAMES
+            },
+        }
 
 
 # --------------------------------------------------------------------------------------------
@@ -125,16 +137,6 @@ def _edges(poly: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return p, np.roll(p, -1, axis=0)
 
 
-def _crossing_inside(xy: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Even-odd rule: a horizontal ray to +x crosses the boundary an odd number of times."""
-    px, py = xy[:, :1], xy[:, 1:2]
-    straddle = (a[None, :, 1] > py) != (b[None, :, 1] > py)
-    dy = b[:, 1] - a[:, 1]
-    dy = np.where(dy == 0.0, 1.0, dy)  # non-straddling edges only; value irrelevant
-    x_cross = a[None, :, 0] + (py - a[None, :, 1]) * ((b[:, 0] - a[:, 0]) / dy)[None, :]
-    return (np.count_nonzero(straddle & (px < x_cross), axis=1) % 2).astype(bool)
-
-
 def _boundary_distance(xy: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Distance (m) of every point to the nearest polygon edge."""
     ab = b - a
@@ -146,26 +148,35 @@ def _boundary_distance(xy: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarr
     return np.sqrt(np.min(np.einsum("pej,pej->pe", d, d), axis=1))
 
 
+def _densify(a: np.ndarray, b: np.ndarray, step: float) -> np.ndarray:
+    """Points (K, 2) along the edges a -> b, at most ``step`` m apart, ends included."""
+    n = np.maximum(1, np.ceil(np.linalg.norm(b - a, axis=1) / step).astype(np.int64))
+    edge = np.repeat(np.arange(len(a)), n + 1)
+    t = np.concatenate([np.linspace(0.0, 1.0, k + 1) for k in n])
+    return a[edge] + t[:, None] * (b - a)[edge]
+
+
 def points_in_polygon(xy: np.ndarray, poly: np.ndarray, margin: float = 0.0) -> np.ndarray:
     """Boolean mask of points (N, 2) inside a simple polygon (m, 2), concave allowed.
 
-    A point counts as inside when the even-odd crossing test says so or when it lies within
-    ``margin`` metres of the boundary (``margin = 0`` keeps points exactly on an edge, up to
-    1e-9 m). Vectorized over points x edges in bounded chunks.
+    A point counts as inside when it lies in the polygon's interior or within ``margin`` metres
+    of its boundary (``margin = 0`` keeps points exactly on an edge, up to 1e-9 m). The interior
+    test is matplotlib's (C speed, undefined exactly on the boundary); points near the boundary,
+    found with a KD-tree of boundary samples, are then decided by their exact distance to the
+    edges (vectorized over points x edges in bounded chunks).
     """
     xy = np.asarray(xy, dtype=float)[:, :2]
     a, b = _edges(poly)
     tol = max(float(margin), 1e-9)
-    out = np.zeros(xy.shape[0], dtype=bool)
-    step = max(1, _PAIR_CHUNK // max(1, a.shape[0]))
-    for s in range(0, xy.shape[0], step):
-        chunk = xy[s : s + step]
-        inside = _crossing_inside(chunk, a, b)
-        rest = ~inside
-        if rest.any():
-            inside[rest] = _boundary_distance(chunk[rest], a, b) <= tol
-        out[s : s + step] = inside
-    return out
+    inside = MplPath(a).contains_points(xy) if len(xy) else np.zeros(0, dtype=bool)
+    step = max(tol, 1.0)
+    d, _ = cKDTree(_densify(a, b, step)).query(xy, distance_upper_bound=tol + step / 2 + 1e-9)
+    near = np.flatnonzero(np.isfinite(d) & ~inside)
+    chunk = max(1, _PAIR_CHUNK // max(1, a.shape[0]))
+    for s in range(0, near.size, chunk):
+        idx = near[s : s + chunk]
+        inside[idx] = _boundary_distance(xy[idx], a, b) <= tol
+    return inside
 
 
 # --------------------------------------------------------------------------------------------
@@ -235,9 +246,31 @@ def voxel_centroids(
     return cent, group[first]
 
 
+def approx_position_local(scn: Scenario) -> np.ndarray:
+    """The sensor's approximate position (2,) in L (m)."""
+    return scn.frame.to_local(np.asarray(scn.sensor.approx_position, dtype=float))
+
+
+def check_inside_als(scn: Scenario) -> None:
+    """Raise :class:`InputError` when the approximate position lies outside the ALS extent."""
+    if len(scn.als) == 0:
+        raise InputError(scn.path, "the ALS point cloud is empty")
+    lo = scn.als.xyz[:, :2].min(axis=0).astype(float)
+    hi = scn.als.xyz[:, :2].max(axis=0).astype(float)
+    c = approx_position_local(scn)
+    if np.any(c < lo) or np.any(c > hi):
+        w_lo, w_hi = scn.frame.to_world(lo), scn.frame.to_world(hi)
+        raise InputError(
+            scn.path,
+            f"sensor approx_position {tuple(scn.sensor.approx_position)} lies outside the ALS "
+            f"extent E [{w_lo[0]:.1f}, {w_hi[0]:.1f}], N [{w_lo[1]:.1f}, {w_hi[1]:.1f}]",
+            field="sensor.approx_position",
+        )
+
+
 def _near_sensor(scn: Scenario, xy: np.ndarray, radius: float) -> np.ndarray:
     """Mask of points (N, 2) in L within ``radius`` m of the sensor's approximate position."""
-    c = scn.frame.to_local(np.asarray(scn.sensor.approx_position, dtype=float))
+    c = approx_position_local(scn)
     return np.einsum("ij,ij->i", xy - c, xy - c) <= radius * radius
 
 
@@ -256,9 +289,10 @@ def build_target_cloud(scn: Scenario, cfg: MapConfig) -> TargetCloud:
     """Target cloud in L from the scenario's ALS and lanelet map (see the module docstring).
 
     Only ALS points within ``sensor.max_range + cfg.sensor_margin`` metres of the approximate
-    sensor position are considered. Raises :class:`LocalizationError` when no road point lies
-    inside any lanelet there.
+    sensor position are considered. Raises :class:`InputError` when that position lies outside
+    the ALS and :class:`LocalizationError` when no road point lies inside any lanelet there.
     """
+    check_inside_als(scn)
     ids = [ll.id for ll in scn.lanelets.lanelets]
     curv = lanelet_curvatures(scn.lanelets.lanelets)
     codes = labels_from_curvature(curv, cfg.gamma)
@@ -270,7 +304,7 @@ def build_target_cloud(scn: Scenario, cfg: MapConfig) -> TargetCloud:
     xyz = np.asarray(scn.als.xyz, dtype=np.float64)
     keep = road & _near_sensor(scn, xyz[:, :2], radius)
     xyz = xyz[keep]
-    centre = scn.frame.to_local(np.asarray(scn.sensor.approx_position, dtype=float))
+    centre = approx_position_local(scn)
     near = _lanelets_near(scn.lanelets, centre, radius)
     pt, lj = crop_to_lanelets(xyz[:, :2], near, cfg.crop_margin)
     if pt.size == 0:

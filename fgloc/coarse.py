@@ -1,0 +1,537 @@
+"""Coarse localization (paper III-A, IV-B): accumulated dynamic radar points registered to the
+road points of the target cloud, giving ``T_coarse`` (sensor frame S -> local frame L, SE(3)).
+
+Method
+------
+1. Source: detections with ``|doppler| >= lambda`` from the whole recording, voxel-downsampled
+   and filtered by DBSCAN (Open3D) to drop isolated clutter.
+2. The pose is split as ``R = Rz(yaw) R_tilt`` with ``R_tilt = Ry(pitch) Rx(roll)``. Dynamic
+   points lie on vehicle bodies 0.3-1.5 m above the asphalt while the target is the asphalt, so a
+   3D point-to-point ICP would pull the sensor down by the reflection height. Instead:
+
+   * horizontal (x, y, yaw): a planar problem. The levelled source ``R_tilt p`` projected to the
+     ground must lie on the road, i.e. inside the lanelets, near target points in 2D;
+   * vertical (z, pitch, roll): the levelled source heights must equal the road height under
+     each point plus a mean reflection height (``CoarseConfig.reflection_height``), a linear
+     least-squares fit against the ALS road heights (ridge-regularized so a single straight road
+     cannot make the roll about it diverge).
+
+   The two alternate a few times in the refinement (step 4), starting at pitch = roll = 0.
+3. Start of the horizontal problem: an exhaustive, cheap search over yaw (the whole circle, or a
+   window around ``yaw_guess_deg``) x a grid of start positions around the approximate position.
+   Each hypothesis is scored by a robust fitness, the mean of ``clip(1 - d / tau, 0, 1)`` over the
+   source points, ``d`` being the distance to the nearest road cell read from a precomputed
+   raster (a point on the road scores 1, a point ``tau`` m or more off the road 0, so neither
+   outliers nor the luck of the first guess decide). The best distinct hypotheses are refined
+   with a planar point-to-point ICP against the road points (shrinking correspondence range, one
+   2D KD-tree) and re-scored with exact KD-tree distances; the best one wins.
+4. Lane-centre refinement. Inside the road the road-area fit is flat (every pose that keeps the
+   cloud on the asphalt fits equally well), which leaves about a metre of slack. Vehicles drive
+   along the lane centres, and the radar sees their sensor-facing side, so the last stage
+   registers the cloud to the lanelet centre lines (of the lanelets in the target cloud),
+   sampled every ``lane_sample_step`` m and shifted by ``visible_side_offset`` m towards the
+   current sensor position, alternating with the vertical fit.
+
+Fitness and inlier RMSE are planar (2D) quantities: the share of source points with a road point
+within the last correspondence range, and the RMS 2D distance of those points.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import distance_transform_edt
+from scipy.spatial import cKDTree
+
+from fgloc._open3d import open3d
+from fgloc.config import CoarseConfig
+from fgloc.errors import LocalizationError
+from fgloc.geo import pose_from_se3, rot_from_ypr, rot_z, se3, wrap_angle, ypr_from_rot
+from fgloc.map import TargetCloud, approx_position_local, check_inside_als, voxel_centroids
+from fgloc.scenario import Lanelet, RadarData, Scenario
+
+
+@dataclass
+class CoarseResult:
+    """Outcome of :func:`coarse_localize`.
+
+    T_coarse: 4x4 transform S -> L. pose: (x, y, z, yaw, pitch, roll) of T_coarse, m and rad.
+    fitness: share of source points with a road point within the last ICP range (2D).
+    inlier_rmse: RMS 2D distance (m) of those points. n_points_dynamic: detections with
+    ``|doppler| >= lambda``. n_points_used: after voxel + DBSCAN. yaw_search: (yaw_deg, best
+    score over the start positions) per searched yaw, None when not searched. timings: stage ->
+    seconds. source_xyz: (n_points_used, 3) filtered dynamic points in S.
+    """
+
+    T_coarse: np.ndarray
+    pose: tuple[float, float, float, float, float, float]
+    fitness: float
+    inlier_rmse: float
+    n_points_dynamic: int
+    n_points_used: int
+    converged: bool
+    message: str
+    yaw_search: list[tuple[float, float]] | None
+    timings: dict[str, float] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
+    source_xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+
+# --------------------------------------------------------------------------------------------
+# source cloud
+# --------------------------------------------------------------------------------------------
+def dynamic_points(radar: RadarData, cfg: CoarseConfig) -> tuple[np.ndarray, int]:
+    """Filtered dynamic cloud (M, 3) in S and the number of dynamic detections before filtering.
+
+    Keeps ``|doppler| >= cfg.doppler_min``, averages per ``cfg.voxel_size`` voxel and drops the
+    points DBSCAN (``dbscan_eps`` m, ``dbscan_min_points``) labels as noise.
+    """
+    dyn = np.asarray(radar.xyz, dtype=float)[np.abs(radar.doppler) >= cfg.doppler_min]
+    if dyn.shape[0] == 0:
+        return np.zeros((0, 3)), 0
+    pts, _ = voxel_centroids(dyn, np.zeros(dyn.shape[0], dtype=np.int64), cfg.voxel_size)
+    o3d = open3d()
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+    lab = np.asarray(pcd.cluster_dbscan(cfg.dbscan_eps, cfg.dbscan_min_points, False))
+    return pts[lab >= 0], int(dyn.shape[0])
+
+
+# --------------------------------------------------------------------------------------------
+# planar road model
+# --------------------------------------------------------------------------------------------
+@dataclass
+class PlanarTarget:
+    """Points (M, 2) in L with their KD-tree, the target of a planar ICP."""
+
+    xy: np.ndarray
+    tree: cKDTree
+
+    @classmethod
+    def of(cls, xy: np.ndarray) -> PlanarTarget:
+        return cls(xy=xy, tree=cKDTree(xy))
+
+
+@dataclass
+class RoadModel:
+    """Planar view of the road points: a 2D KD-tree with heights, and a score raster.
+
+    planar: unique road points in L (2D) and their tree; z: (M,) their heights (m). score:
+    float32 raster (nx, ny) of ``clip(1 - d / tau, 0, 1)``, d being the distance (m) from the
+    cell centre to the nearest occupied road cell; origin (2,) is the centre of cell (0, 0). The
+    raster extends ``pad`` m beyond the road, so its outer ``pad - tau`` m score 0.
+    """
+
+    planar: PlanarTarget
+    z: np.ndarray
+    score: np.ndarray
+    origin: np.ndarray
+    cell: float
+
+    @classmethod
+    def build(cls, target: TargetCloud, cell: float, pad: float, tau: float) -> RoadModel:
+        xyz = target.unique_xyz()
+        xy = xyz[:, :2]
+        origin = xy.min(axis=0) - pad
+        shape = np.ceil((xy.max(axis=0) + pad - origin) / cell).astype(int) + 1
+        occ = np.zeros(shape, dtype=bool)
+        ij = np.round((xy - origin) / cell).astype(int)
+        occ[ij[:, 0], ij[:, 1]] = True
+        dist = distance_transform_edt(~occ) * cell
+        score = np.clip(1.0 - dist / tau, 0.0, 1.0).astype(np.float32)
+        return cls(PlanarTarget.of(xy), z=xyz[:, 2], score=score, origin=origin, cell=cell)
+
+    def distance(self, xy: np.ndarray, upper: float = np.inf) -> np.ndarray:
+        """2D distance (m) of points (N, 2) to the nearest road point (inf beyond ``upper``)."""
+        return self.planar.tree.query(xy, distance_upper_bound=upper)[0]
+
+    def road_height(self, xy: np.ndarray, k: int = 4) -> tuple[np.ndarray, np.ndarray]:
+        """Mean height of the k nearest road points under each xy and the nearest distance (m)."""
+        d, i = self.planar.tree.query(xy, k=k)
+        return self.z[i].mean(axis=1), d[:, 0]
+
+
+@dataclass
+class LaneCentres:
+    """Lane centre lines sampled in L: points (K, 2) and unit left normals (K, 2)."""
+
+    xy: np.ndarray
+    normal: np.ndarray
+
+    @classmethod
+    def build(cls, lanelets: list[Lanelet], step: float) -> LaneCentres:
+        xy, normal = [], []
+        for ll in lanelets:
+            length = max(_length(ll.left[:, :2]), _length(ll.right[:, :2]))
+            c = ll.centerline(max(2, int(np.ceil(length / step)) + 1))
+            d = np.gradient(c, axis=0)
+            d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+            xy.append(c)
+            normal.append(np.column_stack([-d[:, 1], d[:, 0]]))
+        return cls(np.vstack(xy), np.vstack(normal))
+
+    def towards(self, sensor_xy: np.ndarray, offset: float) -> PlanarTarget:
+        """The centre lines shifted ``offset`` m sideways towards ``sensor_xy`` (2,)."""
+        side = np.sign(np.einsum("ij,ij->i", sensor_xy - self.xy, self.normal))
+        return PlanarTarget.of(self.xy + (offset * side)[:, None] * self.normal)
+
+
+def _length(p: np.ndarray) -> float:
+    """Length (m) of a polyline (n, 2)."""
+    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
+
+
+def robust_score(d: np.ndarray, tau: float) -> float:
+    """Mean of clip(1 - d / tau, 0, 1): 1 for a cloud entirely on the road, 0 for one off it."""
+    return float(np.clip(1.0 - np.asarray(d) / tau, 0.0, 1.0).mean()) if np.size(d) else 0.0
+
+
+def _planar(xy: np.ndarray, pose: np.ndarray) -> np.ndarray:
+    """Apply a planar pose (x, y, yaw) to (N, 2) points."""
+    c, s = np.cos(pose[2]), np.sin(pose[2])
+    return xy @ np.array([[c, s], [-s, c]]) + pose[:2]
+
+
+def _kabsch_2d(p: np.ndarray, q: np.ndarray) -> tuple[float, np.ndarray]:
+    """Rotation angle and translation (2,) best mapping points p onto q (both (N, 2))."""
+    pc, qc = p.mean(axis=0), q.mean(axis=0)
+    h = (p - pc).T @ (q - qc)
+    ang = float(np.arctan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1]))
+    c, s = np.cos(ang), np.sin(ang)
+    return ang, qc - np.array([[c, -s], [s, c]]) @ pc
+
+
+@dataclass
+class IcpOutcome:
+    """Planar ICP result: pose (x, y, yaw), whether the last stage converged, iterations run."""
+
+    pose: np.ndarray
+    converged: bool
+    iterations: int
+
+
+def icp_planar(
+    src: np.ndarray, target: PlanarTarget, pose0: np.ndarray, ranges: list[float],
+    iterations: int, tol: float = 1e-3,
+) -> IcpOutcome:
+    """Point-to-point planar ICP of source points (N, 2) (sensor-centred, levelled) against a
+    planar target, one stage per correspondence range (m); returns the pose mapping src to L.
+
+    A stage ends when the update moves the source by less than ``tol`` m (translation plus
+    rotation times the source radius) or after ``iterations`` steps.
+    """
+    pose = np.asarray(pose0, dtype=float).copy()
+    radius = float(np.sqrt((src**2).sum(axis=1).max())) if len(src) else 0.0
+    converged, total = False, 0
+    for rng in ranges:
+        converged = False
+        for _ in range(iterations):
+            total += 1
+            cur = _planar(src, pose)
+            d, idx = target.tree.query(cur, distance_upper_bound=rng)
+            ok = np.isfinite(d)
+            if ok.sum() < 3:
+                break
+            ang, t = _kabsch_2d(cur[ok], target.xy[idx[ok]])
+            c, s = np.cos(ang), np.sin(ang)
+            pose[:2] = np.array([[c, -s], [s, c]]) @ pose[:2] + t
+            pose[2] = wrap_angle(pose[2] + ang)
+            if np.hypot(*t) + abs(ang) * radius < tol:
+                converged = True
+                break
+    return IcpOutcome(pose=pose, converged=converged, iterations=total)
+
+
+# --------------------------------------------------------------------------------------------
+# global hypothesis search
+# --------------------------------------------------------------------------------------------
+def search_grid(
+    src: np.ndarray, road: RoadModel, centre: np.ndarray, yaws: np.ndarray, offs: np.ndarray
+) -> np.ndarray:
+    """Robust score (nyaw, n, n) of every (yaw, start position ``centre + (offs[i], offs[j])``)
+    hypothesis for source points (N, 2), read from the score raster.
+
+    offs must be multiples of the raster cell. Points off the raster are clamped into its
+    zero-score border (which needs the raster padded by at least 2 max|offs| + tau).
+    """
+    nx, ny = road.score.shape
+    flat = road.score.ravel()
+    k = np.round(offs / road.cell).astype(np.int64)
+    shift = (k[:, None] * ny + k[None, :]).ravel()
+    m = int(np.abs(k).max())
+    out = np.empty((len(yaws), shift.size), dtype=np.float32)
+    for a, yaw in enumerate(yaws):
+        ij = np.round((_planar(src, np.array([*centre, yaw])) - road.origin) / road.cell)
+        i = np.clip(ij[:, 0].astype(np.int64), m, nx - 1 - m)
+        j = np.clip(ij[:, 1].astype(np.int64), m, ny - 1 - m)
+        out[a] = np.take(flat, (i * ny + j)[:, None] + shift[None, :]).mean(axis=0)
+    return out.reshape(len(yaws), len(offs), len(offs))
+
+
+def distinct_peaks(
+    scores: np.ndarray, yaws: np.ndarray, offs: np.ndarray, k: int, yaw_sep: float,
+    pos_sep: float,
+) -> list[tuple[float, float, float, float]]:
+    """Up to k best hypotheses (score, yaw, dx, dy) at least yaw_sep rad or pos_sep m apart."""
+    order = np.argsort(scores, axis=None)[::-1]
+    picked: list[tuple[float, float, float, float]] = []
+    for flat in order:
+        a, i, j = np.unravel_index(flat, scores.shape)
+        yaw, dx, dy = float(yaws[a]), float(offs[i]), float(offs[j])
+        if all(
+            abs(wrap_angle(yaw - p[1])) >= yaw_sep or np.hypot(dx - p[2], dy - p[3]) >= pos_sep
+            for p in picked
+        ):
+            picked.append((float(scores[a, i, j]), yaw, dx, dy))
+            if len(picked) == k:
+                break
+    return picked
+
+
+# --------------------------------------------------------------------------------------------
+# vertical fit
+# --------------------------------------------------------------------------------------------
+def fit_vertical(
+    lev: np.ndarray, xy_l: np.ndarray, road: RoadModel, allowed: np.ndarray,
+    tilt: tuple[float, float], z_prior: float, cfg: CoarseConfig,
+) -> tuple[np.ndarray, float] | None:
+    """Small tilt (wx, wy) rad about the levelled axes and the sensor height z (m in L) that put
+    the levelled points ``lev`` (N, 3, sensor-centred) at road height + reflection height.
+
+    Solves ``lev_z + wx lev_y - wy lev_x + z = z_road(xy) + h`` over the ``allowed`` points
+    within ``cfg.icp_ranges[-1]`` of the road (dropping residuals beyond 3 MADs) with Gaussian
+    priors z ~ z_prior (``height_prior_sigma``) and total pitch, roll ~ 0
+    (``tilt_prior_sigma_deg``; ``tilt`` = current (pitch, roll) rad, to first order wy adds to
+    the pitch and wx to the roll). Height errors are largely systematic (body heights, field of
+    view), so the points together weigh as ``vertical_effective_points`` measurements of sigma
+    ``height_residual_sigma``; the priors then decide the directions the points barely
+    determine, e.g. the roll about a single straight road.
+    Returns None when fewer than 10 points lie on the road.
+    """
+    zr, dn = road.road_height(xy_l)
+    use = allowed & (dn <= cfg.icp_ranges[-1])
+    if use.sum() < 10:
+        return None
+    a = np.column_stack([lev[use, 1], -lev[use, 0], np.ones(int(use.sum()))])
+    b = zr[use] + cfg.reflection_height - lev[use, 2]
+    st = np.deg2rad(cfg.tilt_prior_sigma_deg)
+    a_prior = np.diag([1.0 / st, 1.0 / st, 1.0 / cfg.height_prior_sigma])
+    b_prior = np.array([-tilt[1] / st, -tilt[0] / st, z_prior / cfg.height_prior_sigma])
+    keep = np.ones(len(b), dtype=bool)
+    for _ in range(3):
+        wd = np.sqrt(cfg.vertical_effective_points / keep.sum()) / cfg.height_residual_sigma
+        aw = np.vstack([a[keep] * wd, a_prior])
+        bw = np.concatenate([b[keep] * wd, b_prior])
+        sol = np.linalg.lstsq(aw, bw, rcond=None)[0]
+        r = b - a @ sol
+        med = np.median(r)
+        keep = np.abs(r - med) <= 3.0 * 1.4826 * (np.median(np.abs(r - med)) + 1e-6)
+    return sol[:2], float(sol[2])
+
+
+def below_fov_floor(
+    src: np.ndarray, r_tilt: np.ndarray, z: float, z_road: np.ndarray, vfov_deg: float
+) -> np.ndarray:
+    """Mask of points (N, 3, in S) whose whole vertical extent above the road is in view.
+
+    Near the mast the lower edge of the vertical field of view (elevation -vfov/2 in S) passes
+    above the road, so only the upper parts of vehicles return detections there and their
+    heights are biased high. A point qualifies when, along its azimuth, that edge reaches the
+    road (height ``z_road`` (N,) m in L) before the point's horizontal distance, for the sensor at
+    height ``z`` (m in L) with tilt ``r_tilt``.
+    """
+    az = np.arctan2(src[:, 1], src[:, 0])
+    e = -0.5 * np.deg2rad(vfov_deg)
+    ce = np.cos(e)
+    ray = np.column_stack([ce * np.cos(az), ce * np.sin(az), np.full_like(az, np.sin(e))])
+    ray = ray @ r_tilt.T
+    lev = src @ r_tilt.T
+    rho = np.hypot(lev[:, 0], lev[:, 1])
+    edge = z + ray[:, 2] / np.maximum(np.hypot(ray[:, 0], ray[:, 1]), 1e-9) * rho
+    return edge <= z_road
+
+
+def _rodrigues(w: np.ndarray) -> np.ndarray:
+    """Rotation matrix of a rotation vector (rad)."""
+    th = float(np.linalg.norm(w))
+    if th < 1e-12:
+        return np.eye(3)
+    k = w / th
+    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
+    return np.eye(3) + np.sin(th) * kx + (1.0 - np.cos(th)) * kx @ kx
+
+
+# --------------------------------------------------------------------------------------------
+# driver
+# --------------------------------------------------------------------------------------------
+def _yaw_candidates(yaw_guess_deg: float | None, cfg: CoarseConfig) -> np.ndarray:
+    """Searched yaws (rad): the whole circle, or a window around the guess."""
+    step = np.deg2rad(cfg.yaw_search_step_deg)
+    if yaw_guess_deg is None:
+        return np.arange(-np.pi, np.pi, step)
+    w = np.deg2rad(cfg.yaw_guess_window_deg)
+    return np.deg2rad(yaw_guess_deg) + np.arange(-w, w + 1e-9, step)
+
+
+def _ambiguity_warnings(
+    refined: list[tuple[float, np.ndarray]], cfg: CoarseConfig
+) -> list[str]:
+    """A warning when a clearly different pose scores almost as well as the best one."""
+    best_score, best = refined[0]
+    for score, pose in refined[1:]:
+        far = np.hypot(*(pose[:2] - best[:2])) > 2.0 * cfg.icp_ranges[-1] or abs(
+            wrap_angle(pose[2] - best[2])
+        ) > np.deg2rad(3.0)
+        if far and score >= cfg.ambiguity_ratio * best_score:
+            return [
+                f"ambiguous coarse pose: a start {np.hypot(*(pose[:2] - best[:2])):.1f} m / "
+                f"{np.rad2deg(abs(wrap_angle(pose[2] - best[2]))):.1f} deg away scores "
+                f"{score:.3f} vs {best_score:.3f}; give sensor.yaw_guess_deg or a better "
+                "approx_position"
+            ]
+    return []
+
+
+def _start_height(road: RoadModel, centre: np.ndarray, height: float) -> float:
+    """Road height (median of the 50 road points nearest the approximate position) + height."""
+    _, idx = road.planar.tree.query(centre, k=min(50, len(road.z)))
+    return float(np.median(road.z[np.atleast_1d(idx)])) + height
+
+
+def _search(
+    sub: np.ndarray, road: RoadModel, centre: np.ndarray, yaw_guess_deg: float | None,
+    cfg: CoarseConfig,
+) -> tuple[list[tuple[float, np.ndarray]], np.ndarray, np.ndarray]:
+    """Hypothesis search + road ICP of the best distinct ones for source points (N, 2).
+
+    Returns the refined (score, pose) pairs best first, the searched yaws and their scores.
+    """
+    yaws = _yaw_candidates(yaw_guess_deg, cfg)
+    r = cfg.position_search_radius
+    offs = np.arange(-r, r + 1e-9, cfg.position_search_step)
+    scores = search_grid(sub, road, centre, yaws, offs)
+    peaks = distinct_peaks(
+        scores, yaws, offs, cfg.search_candidates, 3.5 * np.deg2rad(cfg.yaw_search_step_deg),
+        3.5 * cfg.position_search_step,
+    )
+    refined = []
+    for _, yaw, dx, dy in peaks:
+        pose0 = np.array([centre[0] + dx, centre[1] + dy, yaw])
+        pose = icp_planar(sub, road.planar, pose0, cfg.icp_ranges, cfg.icp_iterations).pose
+        refined.append((robust_score(road.distance(_planar(sub, pose)), cfg.icp_ranges[-1]), pose))
+    refined.sort(key=lambda item: -item[0])
+    return refined, yaws, scores
+
+
+@dataclass
+class _Refined:
+    """Refinement state: planar pose (x, y, yaw), tilt rotation, sensor height, last ICP."""
+
+    pose2d: np.ndarray
+    r_tilt: np.ndarray
+    z: float
+    icp: IcpOutcome
+
+
+def _refine(
+    src: np.ndarray, road: RoadModel, lanes: LaneCentres, pose2d: np.ndarray, z: float,
+    vfov_deg: float, cfg: CoarseConfig,
+) -> _Refined:
+    """Alternate the lane-centre planar ICP and the vertical fit (see the module docstring)."""
+    r_tilt = np.eye(3)
+    pitch = roll = 0.0
+    z_prior = z
+    out = IcpOutcome(pose2d, False, 0)
+    for _ in range(cfg.alternations):
+        lev = src @ r_tilt.T
+        target = lanes.towards(pose2d[:2], cfg.visible_side_offset)
+        out = icp_planar(lev[:, :2], target, pose2d, cfg.lane_icp_ranges, cfg.icp_iterations)
+        pose2d = out.pose
+        xy_l = _planar(lev[:, :2], pose2d)
+        seen = below_fov_floor(src, r_tilt, z, road.road_height(xy_l)[0], vfov_deg)
+        vertical = fit_vertical(lev, xy_l, road, seen, (pitch, roll), z_prior, cfg)
+        if vertical is None:
+            break
+        w, z = vertical
+        full = rot_z(pose2d[2]) @ _rodrigues(np.array([w[0], w[1], 0.0])) @ r_tilt
+        yaw, pitch, roll = ypr_from_rot(full)
+        pose2d = np.array([pose2d[0], pose2d[1], yaw])
+        r_tilt = rot_from_ypr(0.0, pitch, roll)
+    return _Refined(pose2d, r_tilt, z, out)
+
+
+def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig) -> CoarseResult:
+    """Coarse pose of the sensor (S -> L) from the accumulated dynamic detections.
+
+    Raises :class:`LocalizationError` for an empty target cloud or fewer than ``cfg.min_points``
+    filtered dynamic points, :class:`InputError` for an approximate position outside the ALS. A
+    registration that ends with a fitness below ``cfg.min_fitness`` or an ICP still moving at
+    its iteration limit is returned with ``converged=False`` and an explaining message.
+    """
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    if len(target) == 0:
+        raise LocalizationError("the target cloud is empty: no road points to register to")
+    check_inside_als(scn)
+    src, n_dyn = dynamic_points(scn.radar, cfg)
+    timings["source filter"] = time.perf_counter() - t0
+    if len(src) < cfg.min_points:
+        raise LocalizationError(
+            f"only {len(src)} dynamic points after voxel + DBSCAN filtering ({n_dyn} detections "
+            f"with |doppler| >= lambda = {cfg.doppler_min} m/s); at least {cfg.min_points} are "
+            "needed: record longer or with more traffic, or lower coarse.doppler_min"
+        )
+
+    t = time.perf_counter()
+    pad = 2.0 * (cfg.position_search_radius + cfg.score_tau)
+    road = RoadModel.build(target, cfg.raster_cell, pad, cfg.score_tau)
+    used = set(np.unique(target.lanelet_id).tolist())
+    lanes = LaneCentres.build(
+        [ll for ll in scn.lanelets.lanelets if ll.id in used], cfg.lane_sample_step
+    )
+    centre = approx_position_local(scn)
+    height = scn.sensor.approx_height
+    z0 = _start_height(road, centre, cfg.default_height if height is None else height)
+    timings["target models"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    sub = src[:: max(1, len(src) // cfg.search_points), :2]
+    refined, yaws, scores = _search(sub, road, centre, scn.sensor.yaw_guess_deg, cfg)
+    warnings = _ambiguity_warnings(refined, cfg)
+    timings["hypothesis search"] = time.perf_counter() - t
+
+    t = time.perf_counter()
+    fit = src[:: max(1, len(src) // cfg.refine_points)]
+    ref = _refine(fit, road, lanes, refined[0][1], z0, scn.sensor.vfov_deg, cfg)
+    timings["refinement"] = time.perf_counter() - t
+
+    T = se3(rot_z(ref.pose2d[2]) @ ref.r_tilt, [ref.pose2d[0], ref.pose2d[1], ref.z])
+    d = road.distance(_planar((src @ ref.r_tilt.T)[:, :2], ref.pose2d), cfg.icp_ranges[-1])
+    inl = np.isfinite(d)
+    fitness = float(inl.mean())
+    rmse = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("nan")
+    problems = []
+    if fitness < cfg.min_fitness:
+        problems.append(f"fitness {fitness:.2f} below coarse.min_fitness = {cfg.min_fitness}")
+    if not ref.icp.converged:
+        problems.append(f"lane-centre ICP still moving after {cfg.icp_iterations} iterations")
+    yaw_search = None
+    if scn.sensor.yaw_guess_deg is None:
+        per_yaw = scores.max(axis=(1, 2))
+        yaw_search = [(float(np.rad2deg(y)), float(s)) for y, s in zip(yaws, per_yaw)]
+    timings["total"] = time.perf_counter() - t0
+    return CoarseResult(
+        T_coarse=T,
+        pose=pose_from_se3(T),
+        fitness=fitness,
+        inlier_rmse=rmse,
+        n_points_dynamic=n_dyn,
+        n_points_used=int(len(src)),
+        converged=not problems,
+        message="; ".join(problems) if problems else "converged",
+        yaw_search=yaw_search,
+        timings=timings,
+        warnings=warnings,
+        source_xyz=src,
+    )

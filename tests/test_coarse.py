@@ -1,0 +1,101 @@
+"""Coarse localization on short simulated scenarios: accuracy from a 10 m-off start with and
+without a yaw guess, and the errors for unusable input."""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import cache
+
+import numpy as np
+import pytest
+
+from fgloc.coarse import coarse_localize
+from fgloc.config import CoarseConfig, MapConfig
+from fgloc.errors import FglocError, LocalizationError
+from fgloc.geo import pose_from_se3, wrap_angle
+from fgloc.map import TargetCloud, build_target_cloud
+from fgloc.scenario import Scenario
+from fgloc.sim import simulate
+
+DURATION = 30.0
+
+
+@cache
+def scenario(case: str, seed: int) -> Scenario:
+    return simulate(case, seed, duration=DURATION)
+
+
+def moved(scn: Scenario, offset: float, angle: float, yaw_guess: float | None) -> Scenario:
+    """Scenario whose approximate position is ``offset`` m from the true one (direction angle,
+    rad) and whose yaw guess is ``yaw_guess`` degrees (None: absent)."""
+    true_xy = scn.frame.to_world(scn.truth.sensor_pose[:2, 3])
+    pos = true_xy + offset * np.array([np.cos(angle), np.sin(angle)])
+    sensor = dataclasses.replace(
+        scn.sensor, approx_position=(float(pos[0]), float(pos[1])), yaw_guess_deg=yaw_guess
+    )
+    return dataclasses.replace(scn, sensor=sensor)
+
+
+def true_yaw_deg(scn: Scenario) -> float:
+    return float(np.rad2deg(pose_from_se3(scn.truth.sensor_pose)[3]))
+
+
+@pytest.mark.parametrize(
+    ("case", "seed", "yaw_offset"),
+    [("intersection", 1, 4.0), ("intersection", 1, None), ("tjunction", 2, -3.0),
+     ("tjunction", 2, None)],
+    ids=["intersection-guess", "intersection-noguess", "tjunction-guess", "tjunction-noguess"],
+)
+def test_recovers_pose_from_10m_off(case: str, seed: int, yaw_offset: float | None) -> None:
+    base = scenario(case, seed)
+    guess = None if yaw_offset is None else true_yaw_deg(base) + yaw_offset
+    scn = moved(base, 10.0, 0.7 + seed, guess)
+    res = coarse_localize(scn, build_target_cloud(scn, MapConfig()), CoarseConfig())
+    est, tru = pose_from_se3(res.T_coarse), pose_from_se3(scn.truth.sensor_pose)
+    assert np.hypot(est[0] - tru[0], est[1] - tru[1]) < 1.5
+    assert abs(np.rad2deg(wrap_angle(est[3] - tru[3]))) < 1.5
+    assert abs(est[2] - tru[2]) < 1.5
+    assert res.converged and res.message == "converged"
+    assert 0.5 <= res.fitness <= 1.0 and res.inlier_rmse < 1.5
+    assert res.n_points_dynamic > res.n_points_used >= CoarseConfig().min_points
+    assert (res.yaw_search is None) == (guess is not None)
+    np.testing.assert_allclose(res.T_coarse[3], [0, 0, 0, 1])
+    assert set(res.timings) >= {"source filter", "hypothesis search", "refinement", "total"}
+
+
+def test_too_few_dynamic_detections() -> None:
+    scn = scenario("intersection", 1)
+    radar = dataclasses.replace(scn.radar, doppler=np.where(
+        np.arange(len(scn.radar)) < 40, scn.radar.doppler, 0.0
+    ))
+    scn = dataclasses.replace(scn, radar=radar)
+    cfg = CoarseConfig()
+    with pytest.raises(LocalizationError, match=r"dynamic points.*lambda = 0\.5"):
+        coarse_localize(scn, build_target_cloud(scn, MapConfig()), cfg)
+
+
+def test_approx_position_outside_als() -> None:
+    scn = scenario("intersection", 1)
+    target = build_target_cloud(scn, MapConfig())
+    far = moved(scn, 5000.0, 0.0, None)
+    with pytest.raises(FglocError, match="outside the ALS extent"):
+        coarse_localize(far, target, CoarseConfig())
+
+
+def test_empty_target_cloud() -> None:
+    scn = scenario("intersection", 1)
+    empty = TargetCloud(np.zeros((0, 3)), np.zeros(0, np.int8), np.zeros(0, np.int64))
+    with pytest.raises(LocalizationError, match="target cloud is empty"):
+        coarse_localize(scn, empty, CoarseConfig())
+
+
+def test_poor_overlap_is_reported_not_raised() -> None:
+    """With most of the road removed from the target the result says it did not converge."""
+    scn = scenario("intersection", 1)
+    target = build_target_cloud(scn, MapConfig())
+    keep = np.isin(target.lanelet_id, np.unique(target.lanelet_id)[:1])
+    partial = dataclasses.replace(
+        target, xyz=target.xyz[keep], label=target.label[keep], lanelet_id=target.lanelet_id[keep]
+    )
+    res = coarse_localize(scn, partial, CoarseConfig())
+    assert not res.converged and "fitness" in res.message
