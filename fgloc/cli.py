@@ -25,10 +25,16 @@ EXAMPLE_DIR = Path(__file__).resolve().parent.parent / "data" / "example"
 # commands
 # --------------------------------------------------------------------------------------------
 def cmd_simulate(args: argparse.Namespace) -> int:
+    from fgloc.config import from_dict, read_toml
     from fgloc.io import write_scenario
-    from fgloc.sim import simulate
+    from fgloc.sim import SimConfig, simulate
 
-    scn = simulate(args.case, args.seed, duration=args.duration, vehicles=args.vehicles)
+    sim_cfg = None
+    if args.sim_config is not None:
+        sim_cfg = from_dict(SimConfig, read_toml(args.sim_config), args.sim_config)
+    scn = simulate(
+        args.case, args.seed, duration=args.duration, vehicles=args.vehicles, config=sim_cfg
+    )
     write_scenario(scn, args.out, radar_format=args.radar_format)
     print(
         f"wrote {args.case} scenario (seed {args.seed}, {len(scn.radar)} detections) to {args.out}"
@@ -204,6 +210,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--vehicles", type=int, default=None, help="vehicle count (default: from duration)"
     )
     s.add_argument("--radar-format", choices=["csv", "npz"], default="csv")
+    s.add_argument(
+        "--sim-config", default=None, help="simulator settings TOML (fgloc.sim.SimConfig)"
+    )
     s.add_argument("--out", required=True)
     s.set_defaults(fn=cmd_simulate)
 

@@ -95,6 +95,7 @@ def plot_overview(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.collections import PathCollection
 
     fig, ax = plt.subplots(figsize=(9, 9), dpi=110)
     for code, (c_t, _) in LABEL_COLOURS.items():
@@ -151,7 +152,10 @@ def plot_overview(
         f"{'' if res.converged else '  (NOT CONVERGED)'}\n{res.crs}",
         fontsize=10,
     )
-    ax.legend(loc="upper right", fontsize=7, markerscale=4)
+    legend = ax.legend(loc="upper right", fontsize=7)
+    for handle in legend.legend_handles:  # scatter dots are tiny; enlarge them in the legend only
+        if isinstance(handle, PathCollection):
+            handle.set_sizes([20.0])
     ax.grid(True, lw=0.3)
     fig.tight_layout()
     fig.savefig(path)

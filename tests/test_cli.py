@@ -1,0 +1,96 @@
+"""The command line end to end on a short simulated scenario: exit codes, outputs, errors."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fgloc.cli import main
+
+
+@pytest.fixture(scope="module")
+def scenario_dir(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("cli") / "tj"
+    assert (
+        main(
+            [
+                "-q",
+                "simulate",
+                "--case",
+                "tjunction",
+                "--seed",
+                "4",
+                "--duration",
+                "40",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
+    return out
+
+
+def test_info_valid(scenario_dir, capsys):
+    assert main(["-q", "info", str(scenario_dir)]) == 0
+    text = capsys.readouterr().out
+    assert "EPSG:25832" in text and "lanelets" in text and "detections" in text
+
+
+def test_info_corrupted_radar_exit_2(scenario_dir, tmp_path, capsys):
+    bad = tmp_path / "bad"
+    shutil.copytree(scenario_dir, bad)
+    lines = (bad / "radar.csv").read_text().splitlines()
+    cols = lines[5].split(",")
+    cols[1] = "nan"
+    lines[5] = ",".join(cols)
+    (bad / "radar.csv").write_text("\n".join(lines) + "\n")
+    assert main(["-q", "info", str(bad)]) == 2
+    err = capsys.readouterr().err
+    assert "radar.csv" in err and "row 6" in err
+
+
+def test_info_missing_map_exit_2(scenario_dir, tmp_path, capsys):
+    bad = tmp_path / "nomap"
+    shutil.copytree(scenario_dir, bad)
+    (bad / "map.osm").unlink()
+    assert main(["-q", "info", str(bad)]) == 2
+    assert "map.osm" in capsys.readouterr().err
+
+
+def test_localize_icp_and_evaluate(scenario_dir, tmp_path, capsys):
+    out = tmp_path / "res"
+    assert main(["-q", "localize", str(scenario_dir), "--out", str(out), "--method", "icp"]) == 0
+    for name in ("result.json", "target.ply", "source.ply", "sensor.geojson", "overview.png"):
+        assert (out / name).stat().st_size > 0, name
+    doc = json.loads((out / "result.json").read_text())
+    assert doc["method"] == "icp" and np.asarray(doc["T_utm"]).shape == (4, 4)
+    assert 47.0 < doc["lat"] < 50.0 and 10.0 < doc["lon"] < 13.0
+    capsys.readouterr()
+    gt = scenario_dir / "ground_truth.json"
+    assert main(["evaluate", str(out / "result.json"), str(gt), "--json"]) == 0
+    err = json.loads(capsys.readouterr().out)["pose"]
+    assert err["d2d"] < 1.5 and err["dyaw_deg"] < 1.5
+    geo = json.loads((out / "sensor.geojson").read_text())
+    assert [f["geometry"]["type"] for f in geo["features"]] == ["Point", "Polygon"]
+
+
+def test_localize_too_few_dynamic_points_writes_nothing(scenario_dir, tmp_path, capsys):
+    cfg = tmp_path / "strict.toml"
+    cfg.write_text("[coarse]\ndoppler_min = 500.0\n")  # no detection moves this fast
+    out = tmp_path / "never"
+    rc = main(["-q", "localize", str(scenario_dir), "--out", str(out), "--config", str(cfg)])
+    assert rc == 2
+    assert "dynamic" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_config_dump_round_trips(tmp_path, capsys):
+    assert main(["config", "--dump"]) == 0
+    p = tmp_path / "c.toml"
+    p.write_text(capsys.readouterr().out)
+    assert main(["config", "--config", str(p)]) == 0
