@@ -1,0 +1,71 @@
+"""Track types shared by the tracker, the smoothers, the registration and the evaluation.
+
+A state row is ``[x, y, v, a, yaw, yawrate, r_0, ..., r_{19}]``: centre (m) in the track set's
+frame, speed (m/s), longitudinal acceleration (m/s^2), yaw (rad, CCW from the frame's x axis),
+yaw rate (rad/s) and the star-convex contour radii (m) at angles ``2*pi*i/20`` in the vehicle
+frame (x along the heading, y to the left), measured from the centre.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: number of contour radii (the paper's n_theta)
+N_CONTOUR: int = 20
+#: index of each kinematic component in a state row
+X, Y, V, A, YAW, YAWRATE = range(6)
+N_KIN: int = 6
+N_STATE: int = N_KIN + N_CONTOUR
+
+
+def contour_angles(n: int = N_CONTOUR) -> np.ndarray:
+    """(n,) contour basis angles ``2*pi*i/n`` (rad) in the vehicle frame."""
+    return 2.0 * np.pi * np.arange(n) / n
+
+
+@dataclass
+class Track:
+    """One tracked vehicle.
+
+    t: (n,) s, increasing. states: (n, N_STATE). covariances: (n, N_STATE, N_STATE) or None.
+    labels: (n,) int8 label codes (fgloc.labels) from kappa = yawrate / v.
+    det_index: (m,) int64 indices into the scenario's RadarData of the detections this track
+    used; det_step: (m,) int64 index into ``t`` of the step that used each of them.
+    """
+
+    id: int
+    t: np.ndarray
+    states: np.ndarray
+    labels: np.ndarray
+    covariances: np.ndarray | None = None
+    det_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    det_step: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+    def __len__(self) -> int:
+        return int(self.t.shape[0])
+
+    def contour_points(self, k: int) -> np.ndarray:
+        """(N_CONTOUR, 2) contour points of step k in the track set's frame."""
+        s = self.states[k]
+        ang = contour_angles() + s[YAW]
+        r = s[N_KIN:]
+        return np.column_stack([s[X] + r * np.cos(ang), s[Y] + r * np.sin(ang)])
+
+
+@dataclass
+class TrackSet:
+    """All tracks of a recording, in one 2D frame.
+
+    frame: "C" (coarse frame: radar points after T_coarse, the tracker's frame) or "L" (local
+    ENU). T_frame_to_L: 3x3 SE(2) that maps this frame to L (identity when frame == "L").
+    """
+
+    tracks: list[Track]
+    frame: str = "C"
+    T_frame_to_L: np.ndarray = field(default_factory=lambda: np.eye(3))
+    diagnostics: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.tracks)
