@@ -15,6 +15,8 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from fgloc.errors import InputError
+from fgloc.registration.config import SicpConfig
+from fgloc.tracking.config import TrackingConfig
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -115,6 +117,8 @@ class Config:
     """Seed of every random choice fgloc makes."""
     map: MapConfig = field(default_factory=MapConfig)
     coarse: CoarseConfig = field(default_factory=CoarseConfig)
+    tracking: TrackingConfig = field(default_factory=TrackingConfig)
+    sicp: SicpConfig = field(default_factory=SicpConfig)
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,0 +1,1 @@
+"""GP-EOT tracking (UKF) of the vehicles a roadside radar sees, in the coarse frame C."""
