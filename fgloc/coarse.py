@@ -375,20 +375,34 @@ def _yaw_candidates(yaw_guess_deg: float | None, cfg: CoarseConfig) -> np.ndarra
 
 
 def _ambiguity_warnings(
-    refined: list[tuple[float, np.ndarray]], cfg: CoarseConfig
+    refined: list[tuple[float, np.ndarray]], final: _Refined, src: np.ndarray,
+    lanes: LaneCentres, cfg: CoarseConfig,
 ) -> list[str]:
-    """A warning when a clearly different pose scores almost as well as the best one."""
-    best_score, best = refined[0]
-    for score, pose in refined[1:]:
-        far = np.hypot(*(pose[:2] - best[:2])) > 2.0 * cfg.icp_ranges[-1] or abs(
-            wrap_angle(pose[2] - best[2])
-        ) > np.deg2rad(3.0)
-        if far and score >= cfg.ambiguity_ratio * best_score:
+    """A warning when a clearly different pose fits the lanes almost as well as the best one.
+
+    Runner-ups of the road-area search (which cannot tell poses a lane apart) are carried
+    through the lane-centre ICP; one that ends away from ``final`` with a lane-centre score of at
+    least ``cfg.ambiguity_ratio`` times the final pose's is reported.
+    """
+    lev = (src @ final.r_tilt.T)[:, :2]
+    target = lanes.towards(final.pose2d[:2], cfg.visible_side_offset)
+    tau = cfg.lane_icp_ranges[-1]
+
+    def lane_score(pose: np.ndarray) -> float:
+        return robust_score(target.tree.query(_planar(lev, pose), distance_upper_bound=tau)[0], tau)
+
+    best = lane_score(final.pose2d)
+    for _, pose in refined[1:]:
+        end = icp_planar(lev, target, pose, cfg.lane_icp_ranges, cfg.icp_iterations).pose
+        dist = float(np.hypot(*(end[:2] - final.pose2d[:2])))
+        dyaw = abs(wrap_angle(end[2] - final.pose2d[2]))
+        far = dist > 2.0 * cfg.icp_ranges[-1] or dyaw > np.deg2rad(3.0)
+        score = lane_score(end)
+        if far and score >= cfg.ambiguity_ratio * best:
             return [
-                f"ambiguous coarse pose: a start {np.hypot(*(pose[:2] - best[:2])):.1f} m / "
-                f"{np.rad2deg(abs(wrap_angle(pose[2] - best[2]))):.1f} deg away scores "
-                f"{score:.3f} vs {best_score:.3f}; give sensor.yaw_guess_deg or a better "
-                "approx_position"
+                f"ambiguous coarse pose: a pose {dist:.1f} m / {np.rad2deg(dyaw):.1f} deg away "
+                f"fits the lanes almost as well ({score:.3f} vs {best:.3f}); give "
+                "sensor.yaw_guess_deg or a better approx_position"
             ]
     return []
 
@@ -498,12 +512,12 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig) -> Co
     t = time.perf_counter()
     sub = src[:: max(1, len(src) // cfg.search_points), :2]
     refined, yaws, scores = _search(sub, road, centre, scn.sensor.yaw_guess_deg, cfg)
-    warnings = _ambiguity_warnings(refined, cfg)
     timings["hypothesis search"] = time.perf_counter() - t
 
     t = time.perf_counter()
     fit = src[:: max(1, len(src) // cfg.refine_points)]
     ref = _refine(fit, road, lanes, refined[0][1], z0, scn.sensor.vfov_deg, cfg)
+    warnings = _ambiguity_warnings(refined, ref, fit, lanes, cfg)
     timings["refinement"] = time.perf_counter() - t
 
     T = se3(rot_z(ref.pose2d[2]) @ ref.r_tilt, [ref.pose2d[0], ref.pose2d[1], ref.z])
