@@ -131,29 +131,69 @@ def cmd_localize(args: argparse.Namespace) -> int:
     return 0
 
 
+def _truth_frame(gt_path: Path):
+    """A local frame at the true sensor position of a ground_truth.json (its values are
+    validated again by read_ground_truth)."""
+    from fgloc.geo import LocalFrame
+
+    try:
+        doc = json.loads(gt_path.read_text(encoding="utf-8"))
+        s = doc["sensor"]
+        return LocalFrame.around(float(s["x"]), float(s["y"]), float(s["z"]), str(doc["crs"]))
+    except (OSError, ValueError, KeyError, TypeError):
+        return LocalFrame.around(0.0, 0.0)
+
+
+def evaluation_inputs(path: Path) -> tuple[Path | None, Path | None]:
+    """(result.json, tracks.csv) to evaluate: a file of either kind, or an output directory."""
+    if path.is_dir():
+        res, trk = path / "result.json", path / "tracks.csv"
+        found = (res if res.is_file() else None, trk if trk.is_file() else None)
+        if found == (None, None):
+            raise FglocError(f"{path}: neither result.json nor tracks.csv in this directory")
+        return found
+    if path.suffix.lower() == ".csv":
+        return None, path
+    return path, None
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from fgloc.evaluate import pose_error
-    from fgloc.geo import LocalFrame, same_crs
-    from fgloc.io import read_ground_truth
+    from fgloc.evaluate_tracking import evaluate_tracks
+    from fgloc.geo import same_crs
+    from fgloc.io import read_ground_truth, read_sensor_toml, read_tracks_csv
     from fgloc.result import read_result_json
+    from fgloc.scenario import SensorConfig
 
-    saved = read_result_json(args.result)
-    frame = LocalFrame.around(saved.T_utm[0, 3], saved.T_utm[1, 3], saved.T_utm[2, 3], saved.crs)
-    truth = read_ground_truth(args.ground_truth, frame)
-    if not same_crs(truth.crs, saved.crs):
-        raise FglocError(
-            f"{args.ground_truth}: CRS {truth.crs} differs from the result's {saved.crs}"
+    gt_path = Path(args.ground_truth)
+    result_path, tracks_path = evaluation_inputs(Path(args.result))
+    frame = _truth_frame(gt_path)
+    truth = read_ground_truth(gt_path, frame)
+    out: dict = {}
+    if result_path is not None:
+        saved = read_result_json(result_path)
+        if not same_crs(truth.crs, saved.crs):
+            raise FglocError(f"{gt_path}: CRS {truth.crs} differs from the result's {saved.crs}")
+        err = pose_error(frame.pose_to_local(saved.T_utm), truth.sensor_pose)
+        out.update(method=saved.method, converged=saved.converged, pose=err.to_json())
+        if not args.json:
+            print(f"method {saved.method}{'' if saved.converged else ' (NOT CONVERGED)'}")
+            print(err.table())
+    if tracks_path is not None:
+        toml = gt_path.parent / "sensor.toml"
+        sensor = read_sensor_toml(toml) if toml.is_file() else SensorConfig((0.0, 0.0))
+        metrics = evaluate_tracks(
+            read_tracks_csv(tracks_path, frame),
+            truth,
+            sensor_pose=truth.sensor_pose,
+            hfov_deg=sensor.hfov_deg,
+            max_range=sensor.max_range,
         )
-    err = pose_error(frame.pose_to_local(saved.T_utm), truth.sensor_pose)
+        out["tracking"] = metrics.to_json()
+        if not args.json:
+            print(("\n" if result_path is not None else "") + metrics.table())
     if args.json:
-        print(
-            json.dumps(
-                {"method": saved.method, "converged": saved.converged, "pose": err.to_json()}
-            )
-        )
-    else:
-        print(f"method {saved.method}{'' if saved.converged else ' (NOT CONVERGED)'}")
-        print(err.table())
+        print(json.dumps(out))
     return 0
 
 
@@ -232,8 +272,10 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.set_defaults(fn=cmd_localize)
 
-    s = sub.add_parser("evaluate", help="compare a result.json with a ground_truth.json")
-    s.add_argument("result")
+    s = sub.add_parser(
+        "evaluate", help="compare a result.json and/or tracks.csv with a ground_truth.json"
+    )
+    s.add_argument("result", help="result.json, tracks.csv, or an output directory with them")
     s.add_argument("ground_truth")
     s.add_argument("--json", action="store_true", help="machine-readable output")
     s.set_defaults(fn=cmd_evaluate)

@@ -38,7 +38,6 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from fgloc.geo import wrap_angle
-from fgloc.io.tracks_csv import to_local_frame
 from fgloc.map import labels_from_curvature
 from fgloc.scenario import GroundTruth, TrackTruth
 from fgloc.tracks import N_KIN, YAW, Track, TrackSet, contour_angles
@@ -381,7 +380,7 @@ def evaluate_tracks(
         masks = {tr.id: in_field_of_view(tr.states[:, 1:3], sensor_pose, *fov)
                  for tr in truth.tracks}
     truths = [_prepare_truth(tr, masks.get(tr.id), min_visible_s) for tr in truth.tracks]
-    local = to_local_frame(tracks).tracks
+    local = tracks.in_local().tracks
     assigned = _assign(_candidates(local, truths, gate, min_overlap_steps), local, len(truths))
 
     rows, err = [], []

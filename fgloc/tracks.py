@@ -12,6 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from fgloc.geo import se2_params
+
 #: number of contour radii (the paper's n_theta)
 N_CONTOUR: int = 20
 #: index of each kinematic component in a state row
@@ -69,3 +71,34 @@ class TrackSet:
 
     def __len__(self) -> int:
         return len(self.tracks)
+
+    def in_local(self) -> TrackSet:
+        """The same tracks expressed in L (applies ``T_frame_to_L``; a no-op copy for L).
+
+        Centres and covariances are rotated and translated, yaw is shifted by the rotation angle
+        (not wrapped); v, a, yaw rate, radii and labels are invariant under the rigid transform.
+        """
+        tx, ty, theta = se2_params(self.T_frame_to_L)
+        R = self.T_frame_to_L[:2, :2]
+        out = []
+        for tr in self.tracks:
+            s = np.array(tr.states, dtype=np.float64)
+            s[:, :2] = s[:, :2] @ R.T + (tx, ty)
+            s[:, YAW] += theta
+            cov = None
+            if tr.covariances is not None:
+                J = np.eye(s.shape[1])
+                J[:2, :2] = R
+                cov = J @ tr.covariances @ J.T
+            out.append(
+                Track(
+                    tr.id,
+                    tr.t.copy(),
+                    s,
+                    tr.labels.copy(),
+                    cov,
+                    tr.det_index.copy(),
+                    tr.det_step.copy(),
+                )
+            )
+        return TrackSet(out, frame="L", T_frame_to_L=np.eye(3), diagnostics=dict(self.diagnostics))

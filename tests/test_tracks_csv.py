@@ -9,7 +9,7 @@ import pytest
 
 from fgloc.errors import InputError
 from fgloc.geo import LocalFrame, se2, wrap_angle
-from fgloc.io.tracks_csv import COLUMNS, read_tracks_csv, to_local_frame, write_tracks_csv
+from fgloc.io.tracks_csv import COLUMNS, read_tracks_csv, write_tracks_csv
 from fgloc.tracks import N_STATE, YAW, Track, TrackSet
 
 FRAME = LocalFrame.around(677000.4, 5400000.6)
@@ -56,7 +56,7 @@ def test_round_trip_world_frame_exact_to_precision(tmp_path: Path):
 
     back = read_tracks_csv(path, FRAME)
     assert back.frame == "L" and np.array_equal(back.T_frame_to_L, np.eye(3))
-    ref = to_local_frame(ts)
+    ref = ts.in_local()
     assert [tr.id for tr in back.tracks] == [3, 7, 12]
     for a, b in zip(back.tracks, ref.tracks):
         np.testing.assert_allclose(a.t, b.t, rtol=0, atol=5.1e-7)
@@ -104,7 +104,7 @@ def test_to_local_frame_rotates_centres_yaw_and_covariances():
     cov = np.diag(np.r_[4.0, 1.0, np.full(N_STATE - 2, 0.5)])[None]
     ts = TrackSet([Track(1, np.zeros(1), s, np.zeros(1, np.int8), cov)], frame="C",
                   T_frame_to_L=se2(10.0, 20.0, np.pi / 2))
-    out = to_local_frame(ts).tracks[0]
+    out = ts.in_local().tracks[0]
     np.testing.assert_allclose(out.states[0, :2], [10.0, 21.0], atol=1e-12)
     assert out.states[0, YAW] == pytest.approx(0.25 + np.pi / 2)
     np.testing.assert_allclose(out.covariances[0, :2, :2], np.diag([1.0, 4.0]), atol=1e-12)

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from fgloc.errors import InputError
-from fgloc.geo import LocalFrame, se2_params, wrap_angle
+from fgloc.geo import LocalFrame, wrap_angle
 from fgloc.io.atomic import atomic_path
 from fgloc.labels import CODES, label_names
 from fgloc.tracks import N_CONTOUR, N_KIN, YAW, Track, TrackSet
@@ -48,29 +48,6 @@ _CHUNK_ROWS = 100_000
 # --------------------------------------------------------------------------------------------
 # frames
 # --------------------------------------------------------------------------------------------
-def to_local_frame(tracks: TrackSet) -> TrackSet:
-    """The same tracks expressed in L (applies ``tracks.T_frame_to_L``; a no-op copy for L).
-
-    Centres and covariances are rotated and translated, yaw is shifted by the rotation angle
-    (not wrapped); v, a, yaw rate, radii and labels are invariant under the rigid transform.
-    """
-    tx, ty, theta = se2_params(tracks.T_frame_to_L)
-    R = tracks.T_frame_to_L[:2, :2]
-    out = []
-    for tr in tracks.tracks:
-        s = np.array(tr.states, dtype=np.float64)
-        s[:, :2] = s[:, :2] @ R.T + (tx, ty)
-        s[:, YAW] += theta
-        cov = None
-        if tr.covariances is not None:
-            J = np.eye(s.shape[1])
-            J[:2, :2] = R
-            cov = J @ tr.covariances @ J.T
-        out.append(Track(tr.id, tr.t.copy(), s, tr.labels.copy(), cov,
-                         tr.det_index.copy(), tr.det_step.copy()))
-    return TrackSet(out, frame="L", T_frame_to_L=np.eye(3), diagnostics=dict(tracks.diagnostics))
-
-
 # --------------------------------------------------------------------------------------------
 # writing
 # --------------------------------------------------------------------------------------------
@@ -80,7 +57,7 @@ def write_tracks_csv(path: str | Path, tracks: TrackSet, frame: LocalFrame) -> N
     ``frame`` maps L to the world CRS. The file is replaced atomically; a track set without
     tracks gives a header-only file.
     """
-    local = to_local_frame(tracks)
+    local = tracks.in_local()
     n_rows = sum(len(tr) for tr in local.tracks)
     states = np.zeros((n_rows, N_KIN + N_CONTOUR))
     ids = np.zeros(n_rows, dtype=np.int64)

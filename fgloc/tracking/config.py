@@ -7,7 +7,121 @@ from dataclasses import dataclass
 
 @dataclass
 class TrackingConfig:
-    """GP-EOT tracker settings (paper III-B, IV-B)."""
+    """GP-EOT tracker settings (paper III-B, IV-B). Lengths in m, times in s, angles in deg
+    unless named ``*_rad``; all in the tracking frame C."""
 
     eta: float = 0.01
     """Curvature threshold (rad/m) for the left/right/straight state labels."""
+    label_min_speed: float = 1.0
+    """Below this speed (m/s) kappa = yawrate / v is unreliable and the state is 'straight'."""
+
+    # ---- detections and clustering -----------------------------------------------------------
+    doppler_min: float = 0.5
+    """lambda: detections with |doppler| (m/s) below this are static and ignored."""
+    cluster_eps: float = 1.5
+    """Single-linkage radius (m) for clustering unassociated detections into birth candidates."""
+    cluster_min_points: int = 3
+    """A birth candidate cluster needs at least this many detections."""
+
+    # ---- measurement model -------------------------------------------------------------------
+    measurement_model: str = "sensor-aware"
+    """'sensor-aware' (visible contour candidates + Hungarian) or 'plain' (angle from centre)."""
+    n_candidates: int = 72
+    """Dense contour samples for the sensor-aware candidates."""
+    candidate_capacity: int = 4
+    """Detections one candidate may take in the Hungarian association (raised if needed)."""
+    max_detections_per_update: int = 24
+    """At most this many detections (a regular subsample) enter one UKF update; all associated
+    detections are still recorded in the track."""
+    sigma_range: float = 0.25
+    """Radar range noise (m) in the position measurement covariance."""
+    sigma_azimuth_deg: float = 0.5
+    """Radar azimuth noise (deg) in the position measurement covariance."""
+    sigma_contour: float = 0.3
+    """Scatter (m) of the detections about the modelled contour (model error), isotropic."""
+    sigma_tangent: float = 1.0
+    """Extra std. dev. (m) along the contour tangent of a sensor-aware association (where on
+    the contour a detection lies is known only to the candidate assignment)."""
+    use_doppler: bool = True
+    """Use each detection's range rate as a measurement of the rigid-body point velocity."""
+    sigma_doppler: float = 0.3
+    """Doppler measurement noise (m/s), including model error."""
+
+    # ---- GP contour --------------------------------------------------------------------------
+    gp_sf: float = 0.5
+    """sigma_f (m): prior std. dev. of the contour radius about the mean shape."""
+    gp_length_rad: float = 0.5
+    """l (rad): periodic-kernel length scale (sin^2 divided by l^2 once)."""
+    gp_sr: float = 1.0
+    """sigma_r (m): prior std. dev. of a common radius offset (inside k, see factors.gp)."""
+    gp_symmetry: float = 0.8
+    """Weight in [0, 1] of the mirror-symmetric kernel part (0 = paper's kernel)."""
+    mean_length: float = 4.6
+    """Length (m) of the rectangle that is the prior mean contour (and the decay target)."""
+    mean_width: float = 1.9
+    """Width (m) of that rectangle."""
+    tau: float = 0.05
+    """Contour forgetting rate (1/s): f' = mu + exp(-tau dt) (f - mu), Q = (1-exp(-2 tau dt)) K."""
+
+    # ---- kinematics --------------------------------------------------------------------------
+    sigma_jerk: float = 2.0
+    """Std. dev. (m/s^3) of the discrete white jerk of the CTRA process noise."""
+    sigma_yaw_acc: float = 0.6
+    """Std. dev. (rad/s^2) of the discrete white yaw acceleration."""
+    sigma_pos: float = 0.3
+    """Position random walk (m/sqrt(s)) for model error."""
+    init_sigma_pos: float = 1.0
+    """Initial std. dev. (m) of the centre of a new track."""
+    init_sigma_speed: float = 3.0
+    """Initial speed std. dev. (m/s)."""
+    init_sigma_accel: float = 1.0
+    """Initial acceleration std. dev. (m/s^2)."""
+    init_sigma_yaw_deg: float = 15.0
+    """Initial yaw std. dev. (deg) when a lanelet gives the direction."""
+    init_sigma_yawrate: float = 0.15
+    """Initial yaw-rate std. dev. (rad/s)."""
+    default_speed: float = 8.0
+    """Initial speed (m/s) when the Doppler cannot give it (motion across the line of sight)."""
+    lane_search_radius: float = 6.0
+    """A lanelet centre line within this distance (m) of a new cluster gives its heading."""
+
+    # ---- UKF ---------------------------------------------------------------------------------
+    ukf_alpha: float = 1.0
+    """Unscented transform spread alpha."""
+    ukf_beta: float = 0.0
+    """Unscented transform beta (prior distribution knowledge)."""
+    ukf_kappa: float = 0.0
+    """Unscented transform kappa."""
+
+    # ---- association and management ----------------------------------------------------------
+    gate: float = 1.5
+    """A detection up to this far (m) outside a track's predicted contour may join it, plus up
+    to twice the track's centre std. dev. (capped at gate_max)."""
+    gate_max: float = 4.0
+    """Cap (m) of the whole association gate."""
+    confirm_hits_zone: int = 3
+    """A track born in a birth zone is confirmed after this many updates ..."""
+    confirm_window_zone: int = 5
+    """... within this many frames of its birth."""
+    birth_anywhere: bool = True
+    """Also start tracks outside the birth zones (vehicles present at t=0, out of occlusion)."""
+    confirm_hits_anywhere: int = 8
+    """A track born outside the zones is confirmed after this many updates ..."""
+    confirm_window_anywhere: int = 12
+    """... within this many frames of its birth."""
+    delete_after: float = 1.0
+    """A confirmed track missed for this long (s) is ended (its unmeasured tail is dropped)."""
+    fov_margin: float = 2.0
+    """A track whose centre is this far (m) outside the field of view is ended."""
+
+    # ---- birth zones -------------------------------------------------------------------------
+    birth_zones: list[list[float]] | None = None
+    """Explicit birth zones [x, y, radius, yaw_deg] in L; None = derived from the lanelet map
+    where lanelet centre lines enter the field of view."""
+    birth_zone_radius: float = 12.0
+    """Radius (m) of the derived birth zones."""
+    birth_zone_depth: float = 10.0
+    """Derived zones sit this far (m) into the field of view along the lanelet."""
+
+    store_covariances: bool = True
+    """Keep the per-step state covariances in the output tracks."""

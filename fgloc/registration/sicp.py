@@ -1,0 +1,420 @@
+"""Semantic ICP (SICP) in SE(2) (paper III-C, IV-B) and plain ICP as its label-blind case.
+
+The labelled source points (trajectory points, frame C) are registered to the labelled target
+points (road points, frame L); the result ``T`` maps source points into the target frame. Labels
+are the codes of :mod:`fgloc.labels` (straight, left, right).
+
+Algorithm (one call of :func:`sicp`)
+------------------------------------
+1. Label groups. A label with source points but fewer than ``min_points_per_label`` source or
+   target points is dropped with a warning; its source and target points take no part. In mode
+   "none" all points form one group (one KD-tree over every target point).
+2. Correspondences, vectorized per target label (at most three KD-tree queries, each over the
+   source points allowed to match that label), within the current maximum distance ``r``:
+
+   * "hard": a source point is matched only within its own label (compatibility = identity);
+   * "soft": every target label whose compatibility ``c`` with the source label is positive is
+     searched; the candidate of least cost ``d^2 / c`` wins (an incompatible target point looks
+     ``1/sqrt(c)`` times farther away) and enters the alignment with weight ``c`` (it also
+     pulls less). This is a heuristic, not one consistent objective: on clean data starting
+     near the solution it agrees with "hard";
+   * "none": plain point-to-point ICP.
+3. Alignment: the closed-form weighted 2D Procrustes (Kabsch) solution for the current pairs,
+   with weights = user weights x compatibility x robust-kernel weight of the current residual
+   (iteratively reweighted least squares; Huber ``min(1, k/d)``, Cauchy ``1/(1 + (d/k)^2)``).
+4. Schedule: ``r`` starts at ``max_correspondence`` (50 m) and is multiplied by ``range_decay``
+   per iteration down to ``min_correspondence``. Converged when, with ``r`` at its floor for two
+   consecutive iterations, the inlier RMSE changes by less than ``rmse_tol``; otherwise the call
+   stops after ``max_iterations`` alignments (``converged = False``).
+
+Uncertainty
+-----------
+At the solution, for every inlier i (transformed point ``q_i = R p_i + t``, residual
+``r_i = q_i - y_i``, alignment weight ``w_i`` normalised to mean 1),
+``J_i = [[1, 0, -(R p_i)_y], [0, 1, (R p_i)_x]]`` is the Jacobian of ``q_i`` w.r.t. the
+parameters (tx, ty, yaw) of ``T = se2(tx, ty, yaw)`` and
+
+    information = sum_i w_i J_i^T W_i J_i / sigma^2,
+    sigma^2 = max(sum_i w_i |r_i|^2 / (2 n - 3), sigma_floor^2)   (per-axis residual variance).
+
+``W_i`` (2x2, largest eigenvalue 1) shapes the point-to-point weight by the target's local
+spread: with ``C_i`` the covariance of the target points of the matched label within
+``info_shape_radius`` of the match, ``W_i = (l_min + e) (C_i + e I)^-1`` (``l_min`` the smaller
+eigenvalue of C_i, ``e = sigma_floor^2``): isotropic neighbourhoods give ``W_i = I`` (plain
+point-to-point), a lane strip gives little weight along the lane. Holding correspondences fixed,
+a plain ``J^T J`` would report sliding along a straight road as well determined as any other
+direction; ``W_i`` makes that degeneracy visible. ``covariance`` is its inverse (None when
+singular). ``degeneracy`` analyses the information re-expressed in metres: translation of the
+inlier centroid and rotation about it as arc length at the inliers' RMS radius, so rotation and
+translation are comparable and not mixed through the lever arm to the frame origin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from fgloc.geo import se2, transform_points
+from fgloc.labels import NAMES
+from fgloc.registration.config import KERNELS, MODES, SicpConfig
+
+#: Key of the KD-tree over all target points (mode "none").
+ALL: int = -1
+#: Above this condition number the information matrix counts as singular (no covariance).
+_SINGULAR_COND: float = 1e12
+
+
+@dataclass
+class SemanticTargets:
+    """Labelled target points with one KD-tree per label, each built once, on first use.
+
+    xy: (M, 2) float64 m in the target frame. label: (M,) int64 label codes. Reuse one object
+    across :func:`sicp` calls against the same target to build its trees only once.
+    """
+
+    xy: np.ndarray
+    label: np.ndarray
+    _trees: dict[int, tuple[np.ndarray, cKDTree]] = field(
+        default_factory=dict, init=False, repr=False
+    )
+
+    @classmethod
+    def build(cls, xy: np.ndarray, label: np.ndarray) -> SemanticTargets:
+        """Validate and wrap target points (M, 2) and labels (M,); trees come lazily."""
+        xy = np.asarray(xy, dtype=np.float64)
+        label = np.asarray(label, dtype=np.int64).reshape(-1)
+        if xy.ndim != 2 or xy.shape[1] != 2 or xy.shape[0] != label.shape[0]:
+            raise ValueError(f"target_xy must be (M, 2) matching target_label (M,), got "
+                             f"{xy.shape} and {label.shape}")
+        return cls(xy, label)
+
+    def count(self, code: int) -> int:
+        """Number of target points of label ``code`` (ALL: every point)."""
+        return int(self.xy.shape[0]) if code == ALL else int(np.count_nonzero(self.label == code))
+
+    def tree(self, code: int) -> tuple[np.ndarray, cKDTree]:
+        """(indices into xy, KD-tree over those points) of label ``code`` (ALL: every point)."""
+        if code not in self._trees:
+            idx = np.arange(self.xy.shape[0]) if code == ALL else np.flatnonzero(self.label == code)
+            self._trees[code] = (idx, cKDTree(self.xy[idx]))
+        return self._trees[code]
+
+
+@dataclass
+class Degeneracy:
+    """Eigen-analysis of the information in metric coordinates (u, v, a) about ``centre``.
+
+    centre: (2,) m, weighted centroid of the matched source points in the target frame.
+    radius: m, their weighted RMS distance from it; ``a = radius * yaw`` (arc length, m).
+    eigenvalues: (3,) ascending, 1/m^2. eigenvectors: (3, 3) unit columns in (u, v, a).
+    condition_number: largest / smallest eigenvalue (inf when the smallest is <= 0).
+    weakest_direction: (3,) unit (du, dv, da) of the smallest eigenvalue (largest variance).
+    """
+
+    centre: np.ndarray
+    radius: float
+    eigenvalues: np.ndarray
+    eigenvectors: np.ndarray
+    condition_number: float
+    weakest_direction: np.ndarray
+
+
+@dataclass
+class SicpResult:
+    """Outcome of :func:`sicp`.
+
+    T: 3x3 SE(2), source frame -> target frame. fitness: share of all source points with a
+    correspondence within ``final_range`` (m). inlier_rmse: RMS distance (m) of those pairs.
+    iterations: alignments performed. converged: stopped on the RMSE criterion (False on the
+    iteration limit or for lack of correspondences). stop_reason: "rmse_converged",
+    "max_iterations" or "too_few_correspondences". label_counts: label name -> number of
+    matched source points of that label. information: 3x3 of (tx, ty, yaw) (1/m^2, 1/(m rad),
+    1/rad^2), see the module docstring; covariance: its inverse or None when singular;
+    degeneracy: None without correspondences. sigma: residual std. dev. (m) used there.
+    target_index: (N,) index into the target of each source point's final match, -1 if none.
+    weights: (N,) final alignment weight of each source point (0 if unmatched).
+    dropped_labels: names of labels dropped for too few points; warnings: why.
+    """
+
+    T: np.ndarray
+    fitness: float
+    inlier_rmse: float
+    iterations: int
+    converged: bool
+    stop_reason: str
+    label_counts: dict[str, int]
+    information: np.ndarray
+    covariance: np.ndarray | None
+    degeneracy: Degeneracy | None
+    sigma: float
+    final_range: float
+    target_index: np.ndarray
+    weights: np.ndarray
+    dropped_labels: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
+@dataclass
+class _Groups:
+    """Label groups of one call: target label codes searched, each source point's group."""
+
+    codes: list[int]
+    source_group: np.ndarray
+    compat: np.ndarray
+    dropped: list[str]
+    warnings: list[str]
+
+
+@dataclass
+class _Matches:
+    """Correspondences: target index (-1 none), distance (m), compatibility, tree group."""
+
+    index: np.ndarray
+    dist: np.ndarray
+    compat: np.ndarray
+    group: np.ndarray
+
+    @property
+    def ok(self) -> np.ndarray:
+        return self.index >= 0
+
+
+def check_config(cfg: SicpConfig) -> None:
+    """Raise ValueError naming the first invalid SicpConfig field."""
+    compat = np.asarray(cfg.compatibility, dtype=float)
+    problems = {
+        "mode": cfg.mode not in MODES,
+        "kernel": cfg.kernel not in KERNELS,
+        "compatibility": compat.shape != (len(NAMES), len(NAMES))
+        or bool(np.any((compat < 0.0) | (compat > 1.0))),
+        "max_correspondence": not cfg.max_correspondence > 0.0,
+        "min_correspondence": not 0.0 < cfg.min_correspondence <= cfg.max_correspondence,
+        "range_decay": not 0.0 < cfg.range_decay <= 1.0,
+        "max_iterations": cfg.max_iterations < 0,
+        "rmse_tol": cfg.rmse_tol < 0.0,
+        "kernel_scale": not cfg.kernel_scale > 0.0,
+        "min_points_per_label": cfg.min_points_per_label < 1,
+        "sigma_floor": not cfg.sigma_floor > 0.0,
+        "info_shape_radius": cfg.info_shape_radius < 0.0,
+    }
+    bad = [k for k, v in problems.items() if v]
+    if bad:
+        raise ValueError(f"invalid sicp config field {bad[0]}: {getattr(cfg, bad[0])!r}")
+
+
+def _groups(source_label: np.ndarray, targets: SemanticTargets, cfg: SicpConfig) -> _Groups:
+    """Label groups, dropped labels and the compatibility matrix (source code x group)."""
+    n_min = cfg.min_points_per_label
+    if cfg.mode == "none":
+        ok = source_label.size >= n_min and targets.count(ALL) >= n_min
+        warn = [] if ok else [f"fewer than {n_min} source or target points: no registration"]
+        group = np.full(source_label.shape, 0 if ok else -1, dtype=np.int64)
+        return _Groups([ALL] if ok else [], group, np.ones((1, 1)), [], warn)
+    unknown = np.setdiff1d(source_label, list(NAMES))
+    if unknown.size:
+        raise ValueError(f"unknown source label codes {unknown.tolist()}")
+    codes, dropped, warnings = [], [], []
+    for code in sorted(NAMES):
+        n_src, n_tgt = int(np.count_nonzero(source_label == code)), targets.count(code)
+        if 0 < n_src and (n_src < n_min or n_tgt < n_min):
+            dropped.append(NAMES[code])
+            warnings.append(f"label {NAMES[code]!r} dropped: {n_src} source / {n_tgt} target "
+                            f"points (< min_points_per_label = {n_min})")
+        elif n_tgt >= n_min:
+            codes.append(code)
+    compat = np.eye(len(NAMES)) if cfg.mode == "hard" else np.asarray(cfg.compatibility, float)
+    kept = np.array([NAMES[c] not in dropped for c in sorted(NAMES)])
+    group = np.where(kept[source_label], source_label, -1)
+    return _Groups(codes, group, compat[:, codes], dropped, warnings)
+
+
+def _match(moved: np.ndarray, g: _Groups, targets: SemanticTargets, rmax: float) -> _Matches:
+    """Least-cost (d^2 / compatibility) correspondence of every source point within rmax (m)."""
+    n = moved.shape[0]
+    index, group = np.full(n, -1, dtype=np.int64), np.full(n, -1, dtype=np.int64)
+    dist, compat, cost = np.full(n, np.inf), np.zeros(n), np.full(n, np.inf)
+    src = np.flatnonzero(g.source_group >= 0)
+    for k, code in enumerate(g.codes):
+        c_all = g.compat[g.source_group[src], k]
+        q = src[c_all > 0.0]
+        idx, tree = targets.tree(code)
+        d, j = tree.query(moved[q], distance_upper_bound=rmax)
+        c = c_all[c_all > 0.0]
+        better = np.isfinite(d) & (d * d / c < cost[q])
+        q, d, j, c = q[better], d[better], j[better], c[better]
+        index[q], dist[q], compat[q], cost[q], group[q] = idx[j], d, c, d * d / c, k
+    return _Matches(index, dist, compat, group)
+
+
+def kernel_weights(d: np.ndarray, kernel: str, scale: float) -> np.ndarray:
+    """IRLS weights of residual distances d (m): none 1, Huber min(1, k/d), Cauchy 1/(1+(d/k)^2)."""
+    if kernel == "huber":
+        return np.minimum(1.0, scale / np.maximum(d, 1e-300))
+    if kernel == "cauchy":
+        return 1.0 / (1.0 + (d / scale) ** 2)
+    return np.ones_like(d)
+
+
+def weighted_procrustes(p: np.ndarray, q: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """3x3 SE(2) minimising sum w |T p - q|^2 over pairs of points p, q (n, 2), weights w (n,)."""
+    w = w / w.sum()
+    pc, qc = w @ p, w @ q
+    h = (p - pc).T @ ((q - qc) * w[:, None])
+    ang = float(np.arctan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1]))
+    c, s = np.cos(ang), np.sin(ang)
+    t = qc - np.array([[c, -s], [s, c]]) @ pc
+    return se2(t[0], t[1], ang)
+
+
+def _shape_weights(
+    target_idx: np.ndarray, group: np.ndarray, g: _Groups, targets: SemanticTargets,
+    cfg: SicpConfig,
+) -> np.ndarray:
+    """(n, 2, 2) weight matrices W_i from the matched label's target spread (module docstring)."""
+    n = target_idx.size
+    eps = cfg.sigma_floor**2
+    out = np.broadcast_to(np.eye(2), (n, 2, 2)).copy()
+    if cfg.info_shape_radius <= 0.0:
+        return out
+    for k, code in enumerate(g.codes):
+        sel = np.flatnonzero(group == k)
+        if sel.size == 0:
+            continue
+        centres, inv = np.unique(target_idx[sel], return_inverse=True)
+        idx, tree = targets.tree(code)
+        hood = tree.query_ball_point(targets.xy[centres], cfg.info_shape_radius)
+        size = np.fromiter(map(len, hood), dtype=np.int64, count=centres.size)
+        pts = targets.xy[idx[np.concatenate(hood).astype(np.int64)]]
+        owner = np.repeat(np.arange(centres.size), size)
+        mean = np.column_stack([np.bincount(owner, pts[:, a], centres.size) for a in (0, 1)])
+        dev = pts - mean[owner] / size[owner, None]
+        sxx, sxy, syy = (np.bincount(owner, dev[:, a] * dev[:, b], centres.size) / size
+                         for a, b in ((0, 0), (0, 1), (1, 1)))
+        half_tr, half_gap = (sxx + syy) / 2.0, np.hypot((sxx - syy) / 2.0, sxy)
+        lmin = half_tr - half_gap
+        a, b, c = sxx + eps, sxy, syy + eps
+        det = a * c - b * b
+        w = np.stack([np.stack([c, -b], -1), np.stack([-b, a], -1)], -2)
+        out[sel] = (w * ((lmin + eps) / det)[:, None, None])[inv]
+    return out
+
+
+def _degeneracy(info: np.ndarray, T: np.ndarray, moved: np.ndarray, w: np.ndarray) -> Degeneracy:
+    """Eigen-analysis of the information in metric coordinates about the inlier centroid."""
+    centre = (w @ moved) / w.sum()
+    radius = float(np.sqrt(w @ np.sum((moved - centre) ** 2, axis=1) / w.sum()))
+    radius = max(radius, 1e-9)
+    lever = T[:2, 2] - centre
+    # (tx, ty, yaw) = A (u, v, a): translating the centroid by (u, v) and turning by a / radius
+    a_mat = np.array([[1.0, 0.0, -lever[1] / radius], [0.0, 1.0, lever[0] / radius],
+                      [0.0, 0.0, 1.0 / radius]])
+    vals, vecs = np.linalg.eigh(a_mat.T @ info @ a_mat)
+    cond = float(vals[-1] / vals[0]) if vals[0] > 0.0 else float("inf")
+    return Degeneracy(centre, radius, vals, vecs, cond, vecs[:, 0])
+
+
+def _information(
+    T: np.ndarray, moved: np.ndarray, target_xy: np.ndarray, w: np.ndarray,
+    shape: np.ndarray, sigma_floor: float,
+) -> tuple[np.ndarray, float]:
+    """3x3 information of (tx, ty, yaw) and the residual std. dev. (m) (module docstring)."""
+    n = moved.shape[0]
+    w = w / w.mean()
+    res2 = np.sum((moved - target_xy) ** 2, axis=1)
+    sigma2 = max(float(w @ res2) / (2 * n - 3), sigma_floor**2) if n > 1 else sigma_floor**2
+    rot = moved - T[:2, 2]
+    jac = np.zeros((n, 2, 3))
+    jac[:, 0, 0] = jac[:, 1, 1] = 1.0
+    jac[:, 0, 2], jac[:, 1, 2] = -rot[:, 1], rot[:, 0]
+    info = np.einsum("n,nia,nij,njb->ab", w, jac, shape, jac) / sigma2
+    return info, float(np.sqrt(sigma2))
+
+
+def sicp(
+    source_xy: np.ndarray,
+    source_label: np.ndarray,
+    target_xy: np.ndarray | SemanticTargets,
+    target_label: np.ndarray | None,
+    T0: np.ndarray,
+    cfg: SicpConfig,
+    *,
+    weights: np.ndarray | None = None,
+) -> SicpResult:
+    """Register labelled source points to labelled target points in SE(2) (module docstring).
+
+    source_xy: (N, 2) m in the source frame; source_label: (N,) label codes. target_xy: (M, 2) m
+    in the target frame with target_label (M,), or a prebuilt :class:`SemanticTargets` (then
+    target_label is None) whose KD-trees are reused. T0: 3x3 initial source -> target
+    transform. weights: optional (N,) non-negative per-point weights. Plain ICP is
+    ``cfg.mode = "none"``. Raises ValueError on malformed input or config.
+    """
+    check_config(cfg)
+    if isinstance(target_xy, SemanticTargets):
+        if target_label is not None:
+            raise ValueError("pass target_label=None with a prebuilt SemanticTargets")
+        targets = target_xy
+    else:
+        targets = SemanticTargets.build(target_xy, target_label)
+    src = np.asarray(source_xy, dtype=np.float64)
+    lab = np.asarray(source_label, dtype=np.int64).reshape(-1)
+    if src.ndim != 2 or src.shape[1] != 2 or src.shape[0] != lab.shape[0]:
+        raise ValueError(f"source_xy must be (N, 2) matching source_label (N,), got {src.shape} "
+                         f"and {lab.shape}")
+    user_w = np.ones(src.shape[0]) if weights is None else np.asarray(weights, float).reshape(-1)
+    if user_w.shape != lab.shape or np.any(user_w < 0.0):
+        raise ValueError("weights must be (N,) and non-negative")
+    g = _groups(lab, targets, cfg)
+
+    T = np.asarray(T0, dtype=np.float64).copy()
+    rng, prev_rng, prev_rmse = cfg.max_correspondence, np.nan, np.nan
+    stop, iterations = "max_iterations", 0
+    while True:  # each pass matches at the current T and range, so m always belongs to T
+        moved = transform_points(T, src)
+        m = _match(moved, g, targets, rng)
+        ok = m.ok & (user_w > 0.0)
+        w_all = np.zeros(src.shape[0])
+        w_all[ok] = user_w[ok] * m.compat[ok] * kernel_weights(m.dist[ok], cfg.kernel,
+                                                               cfg.kernel_scale)
+        if np.count_nonzero(ok) < 3:
+            stop = "too_few_correspondences"
+            break
+        rmse = float(np.sqrt(np.mean(m.dist[ok] ** 2)))
+        if rng == prev_rng and abs(rmse - prev_rmse) < cfg.rmse_tol:
+            stop = "rmse_converged"
+            break
+        if iterations == cfg.max_iterations:
+            break
+        T = weighted_procrustes(moved[ok], targets.xy[m.index[ok]], w_all[ok]) @ T
+        iterations += 1
+        prev_rng, prev_rmse = rng, rmse
+        rng = max(cfg.min_correspondence, rng * cfg.range_decay)
+
+    n_ok = int(np.count_nonzero(ok))
+    counts = {name: int(np.count_nonzero(ok & (lab == code))) for code, name in NAMES.items()}
+    info, sigma, cov, degen = np.zeros((3, 3)), float("nan"), None, None
+    if n_ok >= 3 and w_all[ok].sum() > 0.0:
+        shape = _shape_weights(m.index[ok], m.group[ok], g, targets, cfg)
+        info, sigma = _information(T, moved[ok], targets.xy[m.index[ok]], w_all[ok], shape,
+                                   cfg.sigma_floor)
+        degen = _degeneracy(info, T, moved[ok], w_all[ok])
+        cov = np.linalg.inv(info) if degen.condition_number < _SINGULAR_COND else None
+    return SicpResult(
+        T=T,
+        fitness=n_ok / max(1, src.shape[0]),
+        inlier_rmse=float(np.sqrt(np.mean(m.dist[ok] ** 2))) if n_ok else float("nan"),
+        iterations=iterations,
+        converged=stop == "rmse_converged",
+        stop_reason=stop,
+        label_counts=counts,
+        information=info,
+        covariance=cov,
+        degeneracy=degen,
+        sigma=sigma,
+        final_range=rng,
+        target_index=np.where(ok, m.index, -1),
+        weights=w_all,
+        dropped_labels=g.dropped,
+        warnings=g.warnings,
+    )

@@ -1,0 +1,179 @@
+"""Field of view, birth zones, lane headings and the initial state of a new track (frame C).
+
+Frame C is the radar frame after ``T_coarse`` (S -> L estimate), so it approximates L within the
+coarse error: the lanelet map (L) is used in C as is, for birth zones and heading priors.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from fgloc.geo import wrap_angle
+from fgloc.scenario import Lanelet
+
+#: spacing (m) of the centre-line samples used for headings and FOV entries
+LANE_STEP: float = 1.0
+#: a lanelet starting within this distance (m) of another's end continues it
+CONNECT_TOL: float = 1.0
+
+
+@dataclass(frozen=True)
+class FieldOfView:
+    """Horizontal FOV sector in C: sensor position (2,), boresight yaw (rad), half angle (rad),
+    max range (m)."""
+
+    sensor: np.ndarray
+    boresight: float
+    half_angle: float
+    max_range: float
+
+    @staticmethod
+    def of(T_S_to_C: np.ndarray, hfov_deg: float, max_range: float) -> FieldOfView:
+        R = np.asarray(T_S_to_C)[:3, :3]
+        return FieldOfView(np.asarray(T_S_to_C, dtype=float)[:2, 3].copy(),
+                           float(np.arctan2(R[1, 0], R[0, 0])), np.deg2rad(hfov_deg) / 2.0,
+                           float(max_range))
+
+    def outside_distance(self, p: np.ndarray) -> np.ndarray:
+        """(n,) how far (m, about) the points (n, 2) are outside the sector (<= 0 inside)."""
+        d = np.asarray(p) - self.sensor
+        r = np.linalg.norm(d, axis=-1)
+        off = np.abs(wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - self.boresight))
+        lateral = r * np.sin(np.clip(off - self.half_angle, 0.0, np.pi / 2))
+        return np.maximum(np.where(off > self.half_angle, lateral, -np.inf),
+                          r - self.max_range)
+
+    def contains(self, p: np.ndarray) -> np.ndarray:
+        return self.outside_distance(p) <= 0.0
+
+
+@dataclass(frozen=True)
+class LaneHeadings:
+    """Lanelet centre-line samples (n, 2) in C with their driving direction (n,) rad."""
+
+    xy: np.ndarray
+    heading: np.ndarray
+    tree: cKDTree
+
+    @staticmethod
+    def of(lanelets: list[Lanelet]) -> LaneHeadings:
+        xy, hd = [], []
+        for ll in lanelets:
+            c = _centreline(ll)
+            d = np.gradient(c, axis=0)
+            xy.append(c)
+            hd.append(np.arctan2(d[:, 1], d[:, 0]))
+        pts = np.vstack(xy) if xy else np.zeros((0, 2))
+        return LaneHeadings(pts, np.concatenate(hd) if hd else np.zeros(0), cKDTree(pts))
+
+    def heading_near(self, p: np.ndarray, radius: float, los: np.ndarray,
+                     doppler: float) -> float | None:
+        """Heading (rad) of the nearest centre-line sample within radius (m) of p (2,) whose
+        direction agrees with the sign of the mean Doppler along the unit line of sight los
+        (2,) when that is informative; None if no lanelet is near."""
+        if len(self.xy) == 0:
+            return None
+        idx = self.tree.query_ball_point(p, radius)
+        if not idx:
+            return None
+        idx = np.asarray(idx)
+        dist = np.linalg.norm(self.xy[idx] - p, axis=1)
+        along = np.cos(self.heading[idx]) * los[0] + np.sin(self.heading[idx]) * los[1]
+        agree = (np.abs(along) < 0.3) | (np.sign(along) == np.sign(doppler))
+        if agree.any():
+            dist = np.where(agree, dist, np.inf)
+        return float(self.heading[idx[np.argmin(dist)]])
+
+
+def _centreline(ll: Lanelet) -> np.ndarray:
+    length = float(np.sum(np.linalg.norm(np.diff(ll.left[:, :2], axis=0), axis=1)))
+    return ll.centerline(max(2, int(np.ceil(length / LANE_STEP)) + 1))
+
+
+@dataclass(frozen=True)
+class BirthZones:
+    """Discs in C: centres (k, 2), radii (k,), yaw prior (k,) rad."""
+
+    centre: np.ndarray
+    radius: np.ndarray
+    yaw: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.centre.shape[0])
+
+    def locate(self, p: np.ndarray) -> int | None:
+        """Index of the zone containing p (2,) (nearest centre), or None."""
+        if len(self) == 0:
+            return None
+        d = np.linalg.norm(self.centre - p, axis=1)
+        i = int(np.argmin(d))
+        return i if d[i] <= self.radius[i] else None
+
+    @staticmethod
+    def explicit(zones: list[list[float]]) -> BirthZones:
+        """From [x, y, radius, yaw_deg] rows (L == C up to the coarse error)."""
+        z = np.asarray(zones, dtype=float).reshape(-1, 4)
+        return BirthZones(z[:, :2], z[:, 2], np.deg2rad(z[:, 3]))
+
+    @staticmethod
+    def from_map(lanelets: list[Lanelet], fov: FieldOfView, radius: float,
+                 depth: float) -> BirthZones:
+        """Zones where lanelet centre lines enter the FOV sector (the angular edges or the
+        range limit), ``depth`` m along the lane into it, and where a lanelet without a
+        predecessor starts inside the FOV; the yaw prior is the lane direction there."""
+        lines = [_centreline(ll) for ll in lanelets]
+        starts = np.array([c[0] for c in lines]) if lines else np.zeros((0, 2))
+        ends = np.array([c[-1] for c in lines]) if lines else np.zeros((0, 2))
+        end_tree = cKDTree(ends) if len(ends) else None
+        out: list[tuple[float, float, float]] = []
+        for c, s in zip(lines, starts):
+            inside = fov.contains(c)
+            prev_inside = np.concatenate([[False], inside[:-1]])
+            if end_tree is not None and inside[0]:
+                pred = end_tree.query_ball_point(s, CONNECT_TOL)
+                # continuation of an in-FOV predecessor: not an entry
+                prev_inside[0] = any(fov.contains(lines[j][-2:-1])[0] for j in pred)
+            seg = np.linalg.norm(np.diff(c, axis=0), axis=1)
+            arc = np.concatenate([[0.0], np.cumsum(seg)])
+            for i in np.flatnonzero(inside & ~prev_inside):
+                k = int(np.searchsorted(arc, arc[i] + depth))
+                k = min(k, len(c) - 1)
+                d = c[min(k + 1, len(c) - 1)] - c[max(k - 1, 0)]
+                out.append((c[k, 0], c[k, 1], float(np.arctan2(d[1], d[0]))))
+        if not out:
+            return BirthZones(np.zeros((0, 2)), np.zeros(0), np.zeros(0))
+        a = np.asarray(out)
+        return BirthZones(a[:, :2], np.full(len(a), radius), a[:, 2])
+
+
+
+def initial_kinematics(z: np.ndarray, doppler: np.ndarray, rng: np.ndarray, yaw: float,
+                       sensor: np.ndarray, length: float, width: float,
+                       default_speed: float) -> tuple[np.ndarray, float, float, np.ndarray]:
+    """Centre (2,), yaw (rad), speed (m/s) and box size (2,) (length, width; m) of a new track
+    from its first cluster.
+
+    z (k, 2) detections in C, doppler (k,) m/s, rng (k,) 3D ranges, yaw the heading prior.
+    Speed: median of doppler / (u(yaw) . line of sight) over detections where the heading is
+    not across the line of sight, else ``default_speed``; a negative speed flips the heading.
+    Centre: the box of size max(prior, cluster extent) per axis of the heading frame whose
+    sensor-side edges coincide with the cluster's (a radar sees the near sides only).
+    """
+    h = np.array([np.cos(yaw), np.sin(yaw)])
+    los = z - sensor
+    proj = (los @ h) / rng
+    ok = np.abs(proj) > 0.3
+    v = float(np.median(doppler[ok] / proj[ok])) if ok.any() else default_speed
+    if v < 0:
+        yaw, v, h = yaw + np.pi, -v, -h
+    axes = np.stack([h, [-h[1], h[0]]])                         # (2, 2): long, lateral
+    q = z @ axes.T
+    lo, hi = q.min(axis=0), q.max(axis=0)
+    size = np.maximum([length, width], hi - lo)
+    s = axes @ sensor
+    near_lo = s < 0.5 * (lo + hi)
+    mid = np.where(near_lo, lo + size / 2, hi - size / 2)
+    return mid @ axes, float(wrap_angle(yaw)), min(v, 40.0), size

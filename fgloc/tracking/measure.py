@@ -1,0 +1,140 @@
+"""Batched measurement model of the tracker: predicted detections (and Doppler) at sigma points.
+
+Per detection the measurement is ``[x, y]`` (m, frame C) and, with Doppler, its range rate
+(m/s): rows ``3 j .. 3 j + 2`` (or ``2 j, 2 j + 1``) of a track's stacked measurement vector.
+The contour radius at an angle comes from a lookup table of the GP conditional
+(:class:`ContourTable`), linearly interpolated, so the plain model can evaluate it for every
+sigma point cheaply.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from factors.gp import ContourGP
+from factors.measurement import contour_point, plain_angles, range_rate, unit
+from fgloc.tracks import N_KIN, V, X, YAW, YAWRATE, Y
+
+
+@dataclass(frozen=True)
+class ContourTable:
+    """GP conditional on a regular angle grid: H (B+1, n), mean (B+1,), var (B+1,)."""
+
+    gp: ContourGP
+    H: np.ndarray
+    mean: np.ndarray
+    var: np.ndarray
+
+    @staticmethod
+    def of(gp: ContourGP, bins: int = 720) -> ContourTable:
+        grid = 2.0 * np.pi * np.arange(bins + 1) / bins
+        H, var = gp.conditional(grid)
+        return ContourTable(gp, H, gp.mean(grid), var)
+
+    def _locate(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        bins = self.H.shape[0] - 1
+        pos = np.mod(theta, 2.0 * np.pi) * (bins / (2.0 * np.pi))
+        i = np.minimum(pos.astype(np.int64), bins - 1)
+        return i, pos - i
+
+    def interp(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """H (..., n), prior mean (...) and conditional variance (...) at angles theta (...)."""
+        i, fr = self._locate(np.asarray(theta, dtype=float))
+        H = self.H[i] * (1.0 - fr[..., None]) + self.H[i + 1] * fr[..., None]
+        mean = self.mean[i] * (1.0 - fr) + self.mean[i + 1] * fr
+        var = self.var[i] * (1.0 - fr) + self.var[i + 1] * fr
+        return H, mean, var
+
+    def radius(self, f: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        """Conditional-mean radius (m) for basis radii f (..., n) at angles theta (..., m)."""
+        H, mean, _ = self.interp(theta)
+        return mean + np.einsum("...mn,...n->...m", H, f - self.gp.mu)
+
+
+@dataclass
+class DetectionBatch:
+    """The detections of T tracks in one frame, padded to M per track.
+
+    z (T, M, 2) m in C; rng (T, M) 3D range (m) from the sensor; doppler (T, M) m/s;
+    valid (T, M); theta (T, M) contour angles from the sensor-aware association, or None for
+    the plain model (angles recomputed from each sigma point's centre); tangent (T, M, 2) unit
+    contour tangents (C) at the associated candidates (sensor-aware only).
+    """
+
+    z: np.ndarray
+    rng: np.ndarray
+    doppler: np.ndarray
+    valid: np.ndarray
+    theta: np.ndarray | None = None
+    tangent: np.ndarray | None = None
+
+    @property
+    def rows(self) -> int:
+        return self.z.shape[1]
+
+
+def predict_measurements(X_sig: np.ndarray, det: DetectionBatch, table: ContourTable,
+                         sensor: np.ndarray, use_doppler: bool) -> np.ndarray:
+    """Predicted measurement vectors (T, S, M k) of sigma points X_sig (T, S, n), k = 3 with
+    Doppler else 2; padded detections give zeros."""
+    centre = X_sig[..., [X, Y]]
+    yaw = X_sig[..., YAW]
+    f = X_sig[..., N_KIN:]
+    z = det.z[:, None, :, :]                                          # (T, 1, M, 2)
+    if det.theta is None:
+        theta = plain_angles(z, centre, yaw)                          # (T, S, M)
+    else:
+        theta = np.broadcast_to(det.theta[:, None, :], (*yaw.shape, det.rows))
+    r = table.radius(f, theta)
+    parts = [contour_point(centre, yaw, r, theta)]
+    if use_doppler:
+        d = range_rate(z, det.rng[:, None, :], centre, X_sig[..., V], yaw, X_sig[..., YAWRATE],
+                       sensor)
+        parts.append(d[..., None])
+    Z = np.concatenate(parts, axis=-1) * det.valid[:, None, :, None]
+    return Z.reshape(*Z.shape[:2], -1)
+
+
+def measurement_vector(det: DetectionBatch, use_doppler: bool) -> np.ndarray:
+    """Stacked measurements (T, M k) (zeros on padding)."""
+    parts = [det.z, det.doppler[..., None]] if use_doppler else [det.z]
+    zz = np.concatenate(parts, axis=-1) * det.valid[..., None]
+    return zz.reshape(zz.shape[0], -1)
+
+
+def measurement_noise(det: DetectionBatch, x: np.ndarray, table: ContourTable,
+                      sensor: np.ndarray, sigma_range: float, sigma_azimuth: float,
+                      sigma_contour: float, sigma_tangent: float,
+                      sigma_doppler: float | None) -> np.ndarray:
+    """Block-diagonal noise (T, M k, M k): radar range/azimuth noise at each detection, contour
+    scatter sigma_contour (isotropic), the GP interpolation variance along the contour ray
+    (at the mean state x (T, n)), sigma_tangent^2 along the contour tangent where the batch
+    has tangents (where on the contour a detection lies is only known to the candidate
+    spacing and the assignment, so the update acts mainly across the contour), and
+    sigma_doppler^2 when given (Doppler rows). Identity on padding."""
+    T, M = det.valid.shape
+    los = det.z - sensor
+    r2d = np.maximum(np.linalg.norm(los, axis=-1), 1e-6)
+    er = los / r2d[..., None]
+    et = np.stack([-er[..., 1], er[..., 0]], axis=-1)
+    theta = det.theta if det.theta is not None else plain_angles(det.z, x[:, [X, Y]], x[:, YAW])
+    _, _, var_f = table.interp(theta)
+    u = unit(theta + x[:, YAW, None])
+    Rp = (sigma_range**2 * er[..., :, None] * er[..., None, :]
+          + (sigma_azimuth * r2d)[..., None, None] ** 2 * et[..., :, None] * et[..., None, :]
+          + var_f[..., None, None] * u[..., :, None] * u[..., None, :]
+          + sigma_contour**2 * np.eye(2))
+    if det.tangent is not None:
+        Rp = Rp + sigma_tangent**2 * det.tangent[..., :, None] * det.tangent[..., None, :]
+    k = 2 if sigma_doppler is None else 3
+    blocks = np.zeros((T, M, k, k))
+    blocks[..., :2, :2] = Rp
+    if sigma_doppler is not None:
+        blocks[..., 2, 2] = sigma_doppler**2
+    blocks[~det.valid] = np.eye(k)
+    R = np.zeros((T, M, k, M, k))
+    idx = np.arange(M)
+    R[:, idx, :, idx, :] = np.moveaxis(blocks, 0, 1)
+    return R.reshape(T, M * k, M * k)

@@ -1,0 +1,394 @@
+"""The GP-EOT multi-object tracker (UKF per track, batched over tracks) in the coarse frame C.
+
+Per radar frame:
+
+1. dynamic detections (|doppler| >= doppler_min) in C (x, y after T_coarse);
+2. UKF prediction of every track (CTRA + contour decay), tracks leaving the FOV end;
+3. association per detection: each detection goes to the track whose predicted contour it is
+   deepest inside / least outside of (signed radial excess), within that track's gate; so
+   detections of vehicles side by side split at the gap between their contours;
+4. UKF update of every track with detections, batched (plain or sensor-aware angles);
+5. births: unassociated detections are clustered; a cluster in a birth zone starts a tentative
+   track confirmed after ``confirm_hits_zone`` updates within ``confirm_window_zone`` frames;
+   elsewhere (``birth_anywhere``) the stricter ``confirm_hits_anywhere`` / window applies;
+6. a track whose centre falls inside an older, more-hit track's contour is a duplicate and is
+   dropped; confirmed tracks missed for ``delete_after`` s end (the unmeasured tail is cut).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from factors.ctra import ctra_predict, ctra_process_noise
+from factors.gp import ContourGP, rectangle_radius
+from factors.measurement import associate_candidates, contour_candidates, contour_point
+from fgloc.labels import LEFT, RIGHT, STRAIGHT
+from fgloc.scenario import Scenario
+from fgloc.tracking import ukf
+from fgloc.tracking.birth import BirthZones, FieldOfView, LaneHeadings, initial_kinematics
+from fgloc.tracking.cluster import cluster_labels
+from fgloc.tracking.config import TrackingConfig
+from fgloc.tracking.measure import (
+    ContourTable,
+    DetectionBatch,
+    measurement_noise,
+    measurement_vector,
+    predict_measurements,
+)
+from fgloc.tracks import N_KIN, N_STATE, V, X, YAW, YAWRATE, Y, Track, TrackSet, contour_angles
+
+MODELS = ("sensor-aware", "plain")
+#: yaw std. dev. (rad) of a new track whose heading only comes from the Doppler sign
+LOS_YAW_SIGMA = np.deg2rad(45.0)
+
+
+def kappa_labels(states: np.ndarray, eta: float, min_speed: float) -> np.ndarray:
+    """(n,) int8 label codes from kappa = yawrate / v (rad/m): left above eta, right below
+    -eta, straight otherwise and when |v| < min_speed (m/s)."""
+    v = states[:, V]
+    fast = np.abs(v) >= min_speed
+    kappa = np.where(fast, states[:, YAWRATE] / np.where(fast, v, 1.0), 0.0)
+    out = np.full(len(v), STRAIGHT, dtype=np.int8)
+    out[kappa > eta] = LEFT
+    out[kappa < -eta] = RIGHT
+    return out
+
+
+@dataclass
+class _Record:
+    """History of one track while it is alive."""
+
+    id: int
+    birth_frame: int
+    in_zone: bool
+    last_update_t: float
+    hits: int = 0
+    confirmed: bool = False
+    last_update_step: int = -1
+    t: list[float] = field(default_factory=list)
+    states: list[np.ndarray] = field(default_factory=list)
+    covs: list[np.ndarray] = field(default_factory=list)
+    det_index: list[np.ndarray] = field(default_factory=list)
+    det_step: list[np.ndarray] = field(default_factory=list)
+
+
+@dataclass
+class _Frame:
+    """Dynamic detections of one frame in C: z (D, 2), rng (D,) 3D range, doppler (D,),
+    index (D,) into the RadarData."""
+
+    z: np.ndarray
+    rng: np.ndarray
+    doppler: np.ndarray
+    index: np.ndarray
+
+
+class Tracker:
+    """Stateful multi-object tracker; feed frames in time order with :meth:`step`."""
+
+    def __init__(self, cfg: TrackingConfig, fov: FieldOfView, zones: BirthZones,
+                 lanes: LaneHeadings) -> None:
+        if cfg.measurement_model not in MODELS:
+            raise ValueError(f"measurement_model must be one of {MODELS}, "
+                             f"got {cfg.measurement_model!r}")
+        self.cfg = cfg
+        self.fov = fov
+        self.zones = zones
+        self.lanes = lanes
+        self.gp = ContourGP(contour_angles(), cfg.gp_sf, cfg.gp_length_rad, cfg.gp_sr,
+                            cfg.gp_symmetry, cfg.mean_length, cfg.mean_width)
+        self.table = ContourTable.of(self.gp)
+        self.w = ukf.UnscentedWeights.of(N_STATE, cfg.ukf_alpha, cfg.ukf_beta, cfg.ukf_kappa)
+        self.cand_theta = 2.0 * np.pi * np.arange(cfg.n_candidates) / cfg.n_candidates
+        self.cand_H, self.cand_mean, _ = self.table.interp(self.cand_theta)
+        self.x = np.zeros((0, N_STATE))
+        self.P = np.zeros((0, N_STATE, N_STATE))
+        self.recs: list[_Record] = []
+        self.done: list[Track] = []
+        self.next_id = 0
+        self.frame = -1
+        self.t = 0.0
+
+    # ---------------------------------------------------------------------------------------
+    def step(self, t: float, det: _Frame) -> None:
+        """Advance to time t (s) and process one frame's dynamic detections."""
+        self.frame += 1
+        dt = t - self.t
+        self.t = t
+        if len(self.recs):
+            self._predict(dt)
+            self._end(self.fov.outside_distance(self.x[:, [X, Y]]) > self.cfg.fov_margin)
+        owner = self._associate(det.z)
+        updated = self._update(det, owner)
+        self._record(t, det, owner, updated)
+        self._births(det, owner < 0)
+        self._manage(t)
+
+    def finish(self) -> list[Track]:
+        """End every live track; the confirmed tracks so far, by id."""
+        self._end(np.ones(len(self.recs), dtype=bool))
+        return sorted(self.done, key=lambda tr: tr.id)
+
+    # ---------------------------------------------------------------------------------------
+    def _predict(self, dt: float) -> None:
+        cfg = self.cfg
+        Xs = ukf.sigma_points(self.x, self.P, self.w)
+        Xs = ctra_predict(Xs, dt)
+        f_new, Qc = self.gp.decay(Xs[..., N_KIN:], cfg.tau, dt)
+        Xs[..., N_KIN:] = f_new
+        Q = np.zeros_like(self.P)
+        Q[:, :N_KIN, :N_KIN] = ctra_process_noise(self.x, dt, cfg.sigma_jerk, cfg.sigma_yaw_acc,
+                                                  cfg.sigma_pos)
+        Q[:, N_KIN:, N_KIN:] = Qc
+        self.x, self.P = ukf.predict(Xs, Q, self.w)
+
+    def _excess(self, p: np.ndarray) -> np.ndarray:
+        """(T, D) radial distance (m) of points p (D, 2) outside each track's predicted contour
+        (negative inside)."""
+        d = p[None, :, :] - self.x[:, None, [X, Y]]
+        theta = np.arctan2(d[..., 1], d[..., 0]) - self.x[:, YAW, None]
+        return np.linalg.norm(d, axis=-1) - self.table.radius(self.x[:, N_KIN:], theta)
+
+    def _associate(self, z: np.ndarray) -> np.ndarray:
+        """Owner track index per detection (-1: none)."""
+        if not len(self.recs) or not len(z):
+            return np.full(len(z), -1, dtype=np.int64)
+        cfg = self.cfg
+        ex = self._excess(z)
+        sig = np.sqrt(np.trace(self.P[:, :2, :2], axis1=1, axis2=2))
+        gate = np.minimum(cfg.gate + 2.0 * sig, cfg.gate_max)
+        ex[ex > gate[:, None]] = np.inf
+        owner = np.argmin(ex, axis=0)
+        return np.where(np.isfinite(ex[owner, np.arange(len(z))]), owner, -1)
+
+    def _angles(self, i: int, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Sensor-aware contour angles (k,) of detections z (k, 2) of track i and the unit
+        contour tangents (k, 2) in C at the assigned candidates."""
+        xi = self.x[i]
+        r = self.cand_mean + (xi[N_KIN:] - self.gp.mu) @ self.cand_H.T
+        pts = contour_point(xi[[X, Y]], xi[YAW], r, self.cand_theta)
+        vis = contour_candidates(pts, self.fov.sensor)
+        if not vis.any():
+            vis[:] = True
+        j = np.flatnonzero(vis)[associate_candidates(z, pts[vis], self.cfg.candidate_capacity)]
+        tangent = np.roll(pts, -1, axis=0) - np.roll(pts, 1, axis=0)
+        tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-9)
+        return self.cand_theta[j], tangent[j]
+
+    def _update(self, det: _Frame, owner: np.ndarray) -> np.ndarray:
+        """UKF update of every track owning detections; returns their indices."""
+        cfg = self.cfg
+        tracks = np.unique(owner[owner >= 0])
+        if not len(tracks):
+            return tracks
+        M = cfg.max_detections_per_update
+        sel = []
+        for i in tracks:
+            idx = np.flatnonzero(owner == i)
+            if len(idx) > M:
+                idx = idx[np.linspace(0, len(idx) - 1, M).round().astype(np.int64)]
+            sel.append(idx)
+        M = max(len(s) for s in sel)
+        T = len(tracks)
+        z = np.zeros((T, M, 2))
+        rng = np.ones((T, M))
+        dop = np.zeros((T, M))
+        valid = np.zeros((T, M), dtype=bool)
+        aware = cfg.measurement_model == "sensor-aware"
+        theta = np.zeros((T, M)) if aware else None
+        tangent = np.zeros((T, M, 2)) if aware else None
+        for k, (i, idx) in enumerate(zip(tracks, sel)):
+            n = len(idx)
+            z[k, :n], rng[k, :n], dop[k, :n] = det.z[idx], det.rng[idx], det.doppler[idx]
+            valid[k, :n] = True
+            if aware:
+                theta[k, :n], tangent[k, :n] = self._angles(i, det.z[idx])
+        batch = DetectionBatch(z, rng, dop, valid, theta, tangent)
+        x, P = self.x[tracks], self.P[tracks]
+        Xs = ukf.sigma_points(x, P, self.w)
+        sensor = self.fov.sensor
+        Z = predict_measurements(Xs, batch, self.table, sensor, cfg.use_doppler)
+        R = measurement_noise(batch, x, self.table, sensor, cfg.sigma_range,
+                              np.deg2rad(cfg.sigma_azimuth_deg), cfg.sigma_contour,
+                              cfg.sigma_tangent,
+                              cfg.sigma_doppler if cfg.use_doppler else None)
+        self.x[tracks], self.P[tracks] = ukf.update(
+            x, P, Xs, Z, measurement_vector(batch, cfg.use_doppler), R, self.w)
+        return tracks
+
+    def _record(self, t: float, det: _Frame, owner: np.ndarray, updated: np.ndarray) -> None:
+        store = self.cfg.store_covariances
+        for i, rec in enumerate(self.recs):
+            rec.t.append(t)
+            rec.states.append(self.x[i].copy())
+            if store:
+                rec.covs.append(self.P[i].copy())
+        for i in updated:
+            rec = self.recs[i]
+            idx = det.index[owner == i]
+            step = len(rec.t) - 1
+            rec.det_index.append(idx)
+            rec.det_step.append(np.full(len(idx), step, dtype=np.int64))
+            rec.hits += 1
+            rec.last_update_t = self.t
+            rec.last_update_step = step
+
+    def _births(self, det: _Frame, free: np.ndarray) -> None:
+        cfg = self.cfg
+        idx = np.flatnonzero(free)
+        if not len(idx):
+            return
+        lab = cluster_labels(det.z[idx], cfg.cluster_eps, cfg.cluster_min_points)
+        sensor = self.fov.sensor
+        for c in range(int(lab.max(initial=-1)) + 1):
+            k = idx[lab == c]
+            z, dop, rng = det.z[k], det.doppler[k], det.rng[k]
+            centroid = z.mean(axis=0)
+            zone = self.zones.locate(centroid)
+            if zone is None and not cfg.birth_anywhere:
+                continue
+            los = (centroid - sensor) / max(float(np.linalg.norm(centroid - sensor)), 1e-6)
+            md = float(np.mean(dop))
+            yaw_sigma = np.deg2rad(cfg.init_sigma_yaw_deg)
+            yaw = (float(self.zones.yaw[zone]) if zone is not None
+                   else self.lanes.heading_near(centroid, cfg.lane_search_radius, los, md))
+            if yaw is None:
+                yaw = float(np.arctan2(los[1], los[0]) + (0.0 if md > 0 else np.pi))
+                yaw_sigma = LOS_YAW_SIGMA
+            centre, yaw, v, size = initial_kinematics(z, dop, rng, yaw, sensor, cfg.mean_length,
+                                                      cfg.mean_width, cfg.default_speed)
+            x0 = np.zeros(N_STATE)
+            x0[[X, Y]] = centre
+            x0[V], x0[YAW] = v, yaw
+            x0[N_KIN:] = rectangle_radius(self.gp.angles, size[0], size[1])
+            P0 = np.zeros((N_STATE, N_STATE))
+            P0[:N_KIN, :N_KIN] = np.diag(np.square([
+                cfg.init_sigma_pos, cfg.init_sigma_pos, cfg.init_sigma_speed,
+                cfg.init_sigma_accel, yaw_sigma, cfg.init_sigma_yawrate]))
+            P0[N_KIN:, N_KIN:] = self.gp.K
+            rec = _Record(self.next_id, self.frame, zone is not None, self.t)
+            self.next_id += 1
+            rec.t.append(self.t)
+            rec.states.append(x0.copy())
+            if cfg.store_covariances:
+                rec.covs.append(P0.copy())
+            rec.det_index.append(det.index[k])
+            rec.det_step.append(np.zeros(len(k), dtype=np.int64))
+            rec.hits, rec.last_update_step = 1, 0
+            self.recs.append(rec)
+            self.x = np.vstack([self.x, x0[None]])
+            self.P = np.concatenate([self.P, P0[None]])
+
+    def _manage(self, t: float) -> None:
+        cfg = self.cfg
+        n = len(self.recs)
+        if not n:
+            return
+        end = np.zeros(n, dtype=bool)
+        # duplicates: centre inside another track's contour -> the weaker one dies
+        ex = self._excess(self.x[:, [X, Y]])
+        np.fill_diagonal(ex, np.inf)
+        rank = np.array([(r.confirmed, r.hits, -r.id) for r in self.recs],
+                        dtype=[("c", bool), ("h", int), ("i", int)])
+        order = np.argsort(rank, order=("c", "h", "i"))[::-1]          # strongest first
+        pos = np.empty(n, dtype=np.int64)
+        pos[order] = np.arange(n)
+        for j in order:
+            end[j] = bool(np.any((ex[:, j] < 0) & ~end & (pos < pos[j])))
+        for i, rec in enumerate(self.recs):
+            if rec.confirmed:
+                end[i] |= t - rec.last_update_t > cfg.delete_after
+                continue
+            hits, window = ((cfg.confirm_hits_zone, cfg.confirm_window_zone) if rec.in_zone
+                            else (cfg.confirm_hits_anywhere, cfg.confirm_window_anywhere))
+            if rec.hits >= hits:
+                rec.confirmed = True
+            elif self.frame - rec.birth_frame >= window - 1:
+                end[i] = True
+        self._end(end)
+
+    def _end(self, mask: np.ndarray) -> None:
+        if not mask.any():
+            return
+        for i in np.flatnonzero(mask):
+            rec = self.recs[i]
+            if rec.confirmed:
+                self.done.append(self._to_track(rec))
+        keep = ~mask
+        self.recs = [r for r, k in zip(self.recs, keep) if k]
+        self.x, self.P = self.x[keep], self.P[keep]
+
+    def _to_track(self, rec: _Record) -> Track:
+        n = rec.last_update_step + 1
+        states = np.asarray(rec.states[:n])
+        return Track(
+            id=rec.id,
+            t=np.asarray(rec.t[:n]),
+            states=states,
+            labels=kappa_labels(states, self.cfg.eta, self.cfg.label_min_speed),
+            covariances=np.asarray(rec.covs[:n]) if self.cfg.store_covariances else None,
+            det_index=np.concatenate(rec.det_index).astype(np.int64),
+            det_step=np.concatenate(rec.det_step).astype(np.int64),
+        )
+
+
+def _frames(scn: Scenario, T: np.ndarray, doppler_min: float,
+            sensor3: np.ndarray) -> tuple[np.ndarray, list[_Frame]]:
+    """Frame times (F,) and each frame's dynamic detections in C."""
+    radar = scn.radar
+    fid = radar.frame_ids()
+    order = np.argsort(fid, kind="stable")
+    fid_sorted = fid[order]
+    first = np.flatnonzero(np.concatenate([[True], np.diff(fid_sorted) != 0]))
+    times = radar.t[order[first]]
+    bounds = np.append(first, len(order))
+    pC = radar.xyz @ T[:3, :3].T + T[:3, 3]
+    rng = np.linalg.norm(pC - sensor3, axis=1)
+    dyn = np.abs(radar.doppler) >= doppler_min
+    frames = []
+    for a, b in zip(bounds[:-1], bounds[1:]):
+        idx = order[a:b]
+        idx = idx[dyn[idx]]
+        frames.append(_Frame(pC[idx, :2], rng[idx], radar.doppler[idx], idx.astype(np.int64)))
+    return times, frames
+
+
+def track_scenario(scn: Scenario, T_coarse: np.ndarray, cfg: TrackingConfig | None = None, *,
+                   measurement_model: str | None = None) -> TrackSet:
+    """Track every vehicle of a scenario in the coarse frame C.
+
+    T_coarse: 4x4 S -> L estimate (pass the true sensor pose for oracle tracking: C == L).
+    Birth zones come from ``cfg.birth_zones`` (L) or the lanelet map and the FOV of
+    ``scn.sensor`` (hfov_deg, max_range) seen from T_coarse. Returns the confirmed tracks in
+    frame "C" with T_frame_to_L = identity (fine registration fills it later).
+    measurement_model ("sensor-aware" or "plain") overrides cfg.measurement_model.
+    """
+    t0 = time.perf_counter()
+    cfg = cfg or TrackingConfig()
+    if measurement_model is not None:
+        cfg = dataclasses.replace(cfg, measurement_model=measurement_model)
+    T = np.asarray(T_coarse, dtype=float)
+    fov = FieldOfView.of(T, scn.sensor.hfov_deg, scn.sensor.max_range)
+    lanelets = scn.lanelets.lanelets
+    zones = (BirthZones.explicit(cfg.birth_zones) if cfg.birth_zones is not None
+             else BirthZones.from_map(lanelets, fov, cfg.birth_zone_radius, cfg.birth_zone_depth))
+    tracker = Tracker(cfg, fov, zones, LaneHeadings.of(lanelets))
+    times, frames = _frames(scn, T, cfg.doppler_min, T[:3, 3])
+    if len(times):
+        tracker.t = float(times[0])
+    for t, det in zip(times, frames):
+        tracker.step(float(t), det)
+    tracks = tracker.finish()
+    diag = {
+        "measurement_model": cfg.measurement_model,
+        "frames": len(times),
+        "tracks": len(tracks),
+        "birth_zones": np.column_stack([zones.centre, zones.radius,
+                                        np.rad2deg(zones.yaw)]).tolist(),
+        "seconds": time.perf_counter() - t0,
+    }
+    return TrackSet(tracks, frame="C", T_frame_to_L=np.eye(3), diagnostics=diag)
