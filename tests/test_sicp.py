@@ -176,7 +176,7 @@ def test_information_matches_finite_differences():
     g = np.random.default_rng(4)
     txy = scattered(30, seed=1)
     T_true = se2(0.2, -0.1, 0.05)
-    cfg = SicpConfig(mode="none", info_shape_radius=0.0, min_correspondence=3.0)
+    cfg = SicpConfig(mode="none", info_window=0.0, min_correspondence=3.0)
 
     def cost_hessian(res, src, w, sigma):
         y = txy[res.target_index]
@@ -234,11 +234,11 @@ def test_straight_road_is_weak_along_the_road():
     assert res.covariance is not None
     # a wider neighbourhood sees more of the strip: sliding looks weaker still
     wide = sicp(src, np.zeros(200), txy, np.zeros(len(txy)), np.eye(3),
-                SicpConfig(info_shape_radius=15.0)).degeneracy
+                SicpConfig(info_window=15.0)).degeneracy
     assert abs(wide.weakest_direction[0]) > 0.99 and wide.condition_number > 10.0
     # without the target-shape weights the sliding direction looks as firm as any other
     iso = sicp(src, np.zeros(200), txy, np.zeros(len(txy)), np.eye(3),
-               SicpConfig(info_shape_radius=0.0)).degeneracy
+               SicpConfig(info_window=0.0)).degeneracy
     assert iso.condition_number < 1.5 and abs(iso.weakest_direction[0]) < 0.5
 
 
@@ -271,6 +271,8 @@ def test_bad_inputs_raise():
         sicp(sxy, sl, txy, tl, np.eye(3), SicpConfig(mode="fuzzy"))
     with pytest.raises(ValueError, match="compatibility"):
         sicp(sxy, sl, txy, tl, np.eye(3), SicpConfig(compatibility=[[1.0]]))
+    with pytest.raises(ValueError, match="compatibility"):
+        sicp(sxy, sl, txy, tl, np.eye(3), SicpConfig(compatibility=[[1.0], [1.0, 0.1]]))
     with pytest.raises(ValueError, match="label codes"):
         sicp(sxy, np.full(len(sxy), 7), txy, tl, np.eye(3), SicpConfig())
     with pytest.raises(ValueError, match="source_xy"):

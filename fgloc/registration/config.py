@@ -47,6 +47,7 @@ class SicpConfig:
     with a warning (its points take no part)."""
     sigma_floor: float = 0.05
     """Lower bound (m) of the residual standard deviation used for the information matrix."""
-    info_shape_radius: float = 8.0
-    """Radius (m) of the target neighbourhood whose spread shapes each correspondence's weight
-    matrix in the information (so sliding along a road shows as weak); 0 = isotropic."""
+    info_window: float = 8.0
+    """Half-width (m) of the square target neighbourhood whose spread shapes each
+    correspondence's weight matrix in the information (so sliding along a road shows as weak);
+    0 = isotropic (plain point-to-point information)."""

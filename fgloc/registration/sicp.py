@@ -38,12 +38,15 @@ parameters (tx, ty, yaw) of ``T = se2(tx, ty, yaw)`` and
     sigma^2 = max(sum_i w_i |r_i|^2 / (2 n - 3), sigma_floor^2)   (per-axis residual variance).
 
 ``W_i`` (2x2, largest eigenvalue 1) shapes the point-to-point weight by the target's local
-spread: with ``C_i`` the covariance of the target points of the matched label within
-``info_shape_radius`` of the match, ``W_i = (l_min + e) (C_i + e I)^-1`` (``l_min`` the smaller
-eigenvalue of C_i, ``e = sigma_floor^2``): isotropic neighbourhoods give ``W_i = I`` (plain
-point-to-point), a lane strip gives little weight along the lane. Holding correspondences fixed,
-a plain ``J^T J`` would report sliding along a straight road as well determined as any other
-direction; ``W_i`` makes that degeneracy visible. ``covariance`` is its inverse (None when
+spread: with ``C_i`` the covariance of the target points of the matched label in a square
+window of half-width ``info_window`` around the match, ``W_i = (l_min + e) (C_i + e I)^-1``
+(``l_min`` the smaller eigenvalue of C_i, ``e = sigma_floor^2``): isotropic neighbourhoods give
+``W_i = I`` (plain point-to-point), a lane strip gives little weight along the lane. The window
+sums come from summed-area tables of the target's point moments on a grid of cell
+``info_window / 4`` (at least 0.5 m; window edges snap to it), built once per label and cached
+in :class:`SemanticTargets`, so the cost does not grow with the window. Holding correspondences
+fixed, a plain ``J^T J`` would report sliding along a straight road as well determined as any
+other direction; ``W_i`` makes that degeneracy visible. ``covariance`` is its inverse (None when
 singular). ``degeneracy`` analyses the information re-expressed in metres: translation of the
 inlier centroid and rotation about it as arc length at the inliers' RMS radius, so rotation and
 translation are comparable and not mixed through the lever arm to the frame origin.
@@ -62,6 +65,8 @@ from fgloc.registration.config import KERNELS, MODES, SicpConfig
 
 #: Key of the KD-tree over all target points (mode "none").
 ALL: int = -1
+#: Smallest grid cell (m) of the summed-area tables of the target moments.
+_MIN_CELL: float = 0.5
 #: Above this condition number the information matrix counts as singular (no covariance).
 _SINGULAR_COND: float = 1e12
 
@@ -77,6 +82,9 @@ class SemanticTargets:
     xy: np.ndarray
     label: np.ndarray
     _trees: dict[int, tuple[np.ndarray, cKDTree]] = field(
+        default_factory=dict, init=False, repr=False
+    )
+    _moments: dict[tuple[int, float], _Moments] = field(
         default_factory=dict, init=False, repr=False
     )
 
@@ -100,6 +108,51 @@ class SemanticTargets:
             idx = np.arange(self.xy.shape[0]) if code == ALL else np.flatnonzero(self.label == code)
             self._trees[code] = (idx, cKDTree(self.xy[idx]))
         return self._trees[code]
+
+    def moments(self, code: int, cell: float) -> _Moments:
+        """Summed-area tables of the moments of label ``code``'s points on a grid of ``cell`` m."""
+        key = (code, cell)
+        if key not in self._moments:
+            pts = self.xy if code == ALL else self.xy[self.label == code]
+            self._moments[key] = _Moments.build(pts, self.xy.min(axis=0), cell,
+                                                self.xy.max(axis=0))
+        return self._moments[key]
+
+
+@dataclass
+class _Moments:
+    """Summed-area tables (6, nx + 1, ny + 1) of 1, x, y, xx, xy, yy of points binned on a grid
+    of ``cell`` m anchored at ``origin`` (2,); coordinates relative to origin."""
+
+    origin: np.ndarray
+    cell: float
+    table: np.ndarray
+
+    @classmethod
+    def build(cls, pts: np.ndarray, origin: np.ndarray, cell: float, top: np.ndarray) -> _Moments:
+        shape = np.floor((top - origin) / cell).astype(np.int64) + 1
+        rel = pts - origin
+        ij = np.floor(rel / cell).astype(np.int64)
+        flat = ij[:, 0] * shape[1] + ij[:, 1]
+        x, y = rel[:, 0], rel[:, 1]
+        table = np.zeros((6, shape[0] + 1, shape[1] + 1))
+        for k, v in enumerate((np.ones_like(x), x, y, x * x, x * y, y * y)):
+            grid = np.bincount(flat, v, shape[0] * shape[1]).reshape(shape)
+            table[k, 1:, 1:] = grid.cumsum(axis=0).cumsum(axis=1)
+        return cls(origin, cell, table)
+
+    def covariance(self, xy: np.ndarray, half: float) -> tuple[np.ndarray, ...]:
+        """(sxx, sxy, syy) of the points in the square window of half-width ``half`` m (snapped
+        to the grid) around each of xy (n, 2), which must lie inside the grid."""
+        h = int(round(half / self.cell))
+        ij = np.floor((xy - self.origin) / self.cell).astype(np.int64)
+        nx, ny = self.table.shape[1] - 1, self.table.shape[2] - 1
+        i0, i1 = np.clip(ij[:, 0] - h, 0, nx), np.clip(ij[:, 0] + h + 1, 0, nx)
+        j0, j1 = np.clip(ij[:, 1] - h, 0, ny), np.clip(ij[:, 1] + h + 1, 0, ny)
+        t = self.table
+        n, sx, sy, sxx, sxy, syy = t[:, i1, j1] - t[:, i0, j1] - t[:, i1, j0] + t[:, i0, j0]
+        mx, my = sx / n, sy / n
+        return sxx / n - mx * mx, sxy / n - mx * my, syy / n - my * my
 
 
 @dataclass
@@ -183,7 +236,10 @@ class _Matches:
 
 def check_config(cfg: SicpConfig) -> None:
     """Raise ValueError naming the first invalid SicpConfig field."""
-    compat = np.asarray(cfg.compatibility, dtype=float)
+    try:
+        compat = np.asarray(cfg.compatibility, dtype=float)
+    except ValueError:  # ragged rows
+        compat = np.zeros(0)
     problems = {
         "mode": cfg.mode not in MODES,
         "kernel": cfg.kernel not in KERNELS,
@@ -197,7 +253,7 @@ def check_config(cfg: SicpConfig) -> None:
         "kernel_scale": not cfg.kernel_scale > 0.0,
         "min_points_per_label": cfg.min_points_per_label < 1,
         "sigma_floor": not cfg.sigma_floor > 0.0,
-        "info_shape_radius": cfg.info_shape_radius < 0.0,
+        "info_window": cfg.info_window < 0.0,
     }
     bad = [k for k, v in problems.items() if v]
     if bad:
@@ -274,30 +330,20 @@ def _shape_weights(
 ) -> np.ndarray:
     """(n, 2, 2) weight matrices W_i from the matched label's target spread (module docstring)."""
     n = target_idx.size
-    eps = cfg.sigma_floor**2
     out = np.broadcast_to(np.eye(2), (n, 2, 2)).copy()
-    if cfg.info_shape_radius <= 0.0:
+    if cfg.info_window <= 0.0:
         return out
+    eps = cfg.sigma_floor**2
+    cell = max(cfg.info_window / 4.0, _MIN_CELL)
     for k, code in enumerate(g.codes):
         sel = np.flatnonzero(group == k)
-        if sel.size == 0:
-            continue
-        centres, inv = np.unique(target_idx[sel], return_inverse=True)
-        idx, tree = targets.tree(code)
-        hood = tree.query_ball_point(targets.xy[centres], cfg.info_shape_radius)
-        size = np.fromiter(map(len, hood), dtype=np.int64, count=centres.size)
-        pts = targets.xy[idx[np.concatenate(hood).astype(np.int64)]]
-        owner = np.repeat(np.arange(centres.size), size)
-        mean = np.column_stack([np.bincount(owner, pts[:, a], centres.size) for a in (0, 1)])
-        dev = pts - mean[owner] / size[owner, None]
-        sxx, sxy, syy = (np.bincount(owner, dev[:, a] * dev[:, b], centres.size) / size
-                         for a, b in ((0, 0), (0, 1), (1, 1)))
-        half_tr, half_gap = (sxx + syy) / 2.0, np.hypot((sxx - syy) / 2.0, sxy)
-        lmin = half_tr - half_gap
-        a, b, c = sxx + eps, sxy, syy + eps
-        det = a * c - b * b
-        w = np.stack([np.stack([c, -b], -1), np.stack([-b, a], -1)], -2)
-        out[sel] = (w * ((lmin + eps) / det)[:, None, None])[inv]
+        cxx, cxy, cyy = targets.moments(code, cell).covariance(targets.xy[target_idx[sel]],
+                                                               cfg.info_window)
+        lmin = (cxx + cyy) / 2.0 - np.hypot((cxx - cyy) / 2.0, cxy)
+        a, c = cxx + eps, cyy + eps
+        scale = (np.maximum(lmin, 0.0) + eps) / (a * c - cxy * cxy)
+        inv = np.stack([np.stack([c, -cxy], -1), np.stack([-cxy, a], -1)], -2)
+        out[sel] = inv * scale[:, None, None]
     return out
 
 
