@@ -23,19 +23,32 @@ CONNECT_TOL: float = 1.0
 @dataclass(frozen=True)
 class FieldOfView:
     """Horizontal FOV sector in C: sensor position (2,), boresight yaw (rad), half angle (rad),
-    max range (m)."""
+    max range (m), and the near blind range (m): closer than min_range the lower edge of the
+    vertical FOV passes above the vehicle bodies (the mast looks over them)."""
 
     sensor: np.ndarray
     boresight: float
     half_angle: float
     max_range: float
+    min_range: float = 0.0
 
     @staticmethod
-    def of(T_S_to_C: np.ndarray, hfov_deg: float, max_range: float) -> FieldOfView:
-        R = np.asarray(T_S_to_C)[:3, :3]
-        return FieldOfView(np.asarray(T_S_to_C, dtype=float)[:2, 3].copy(),
-                           float(np.arctan2(R[1, 0], R[0, 0])), np.deg2rad(hfov_deg) / 2.0,
-                           float(max_range))
+    def of(T_S_to_C: np.ndarray, hfov_deg: float, max_range: float, vfov_deg: float = 180.0,
+           reflection_height: float = 0.0) -> FieldOfView:
+        """From the S -> C pose; min_range from the sensor height above C's z = 0 (the road
+        near the mast in L) minus reflection_height (m), the boresight depression and
+        vfov_deg."""
+        T = np.asarray(T_S_to_C, dtype=float)
+        R = T[:3, :3]
+        lower = np.arcsin(np.clip(-R[2, 0], -1.0, 1.0)) + np.deg2rad(vfov_deg) / 2.0
+        drop = T[2, 3] - reflection_height
+        min_range = drop / np.tan(lower) if 0.0 < lower < np.pi / 2 and drop > 0 else 0.0
+        return FieldOfView(T[:2, 3].copy(), float(np.arctan2(R[1, 0], R[0, 0])),
+                           np.deg2rad(hfov_deg) / 2.0, float(max_range), float(min_range))
+
+    def blind(self, p: np.ndarray) -> np.ndarray:
+        """(n,) points (n, 2) in the near blind range."""
+        return np.linalg.norm(np.asarray(p) - self.sensor, axis=-1) < self.min_range
 
     def outside_distance(self, p: np.ndarray) -> np.ndarray:
         """(n,) how far (m, about) the points (n, 2) are outside the sector (<= 0 inside)."""

@@ -39,12 +39,12 @@ class TrackingConfig:
     """Radar azimuth noise (deg) in the position measurement covariance."""
     sigma_contour: float = 0.3
     """Scatter (m) of the detections about the modelled contour (model error), isotropic."""
-    sigma_tangent: float = 1.0
-    """Extra std. dev. (m) along the contour tangent of a sensor-aware association (where on
-    the contour a detection lies is known only to the candidate assignment)."""
+    sigma_slide: float = 3.0
+    """Sensor-aware model: extra std. dev. (m) across the detection's residual direction, i.e.
+    along the contour (where on a face a detection lies carries no information)."""
     use_doppler: bool = True
     """Use each detection's range rate as a measurement of the rigid-body point velocity."""
-    sigma_doppler: float = 0.3
+    sigma_doppler: float = 1.0
     """Doppler measurement noise (m/s), including model error."""
 
     # ---- GP contour --------------------------------------------------------------------------
@@ -56,6 +56,10 @@ class TrackingConfig:
     """sigma_r (m): prior std. dev. of a common radius offset (inside k, see factors.gp)."""
     gp_symmetry: float = 0.8
     """Weight in [0, 1] of the mirror-symmetric kernel part (0 = paper's kernel)."""
+    gp_sl: float = 2.0
+    """Std. dev. (m) of the vehicle length about mean_length (size mode of the kernel)."""
+    gp_sw: float = 0.3
+    """Std. dev. (m) of the vehicle width about mean_width (size mode of the kernel)."""
     mean_length: float = 4.6
     """Length (m) of the rectangle that is the prior mean contour (and the decay target)."""
     mean_width: float = 1.9
@@ -85,6 +89,15 @@ class TrackingConfig:
     lane_search_radius: float = 6.0
     """A lanelet centre line within this distance (m) of a new cluster gives its heading."""
 
+    max_speed: float = 40.0
+    """Speeds (m/s) are clipped to [0, max_speed] after each update (no reversing)."""
+    max_accel: float = 6.0
+    """|a| (m/s^2) is clipped to this after each update."""
+    max_yawrate: float = 1.0
+    """|yaw rate| (rad/s) is clipped to this after each update."""
+    min_radius: float = 0.3
+    """Contour radii (m) are kept at least this after each update."""
+
     # ---- UKF ---------------------------------------------------------------------------------
     ukf_alpha: float = 1.0
     """Unscented transform spread alpha."""
@@ -99,6 +112,11 @@ class TrackingConfig:
     to twice the track's centre std. dev. (capped at gate_max)."""
     gate_max: float = 4.0
     """Cap (m) of the whole association gate."""
+    gate_long_extra: float = 0.0
+    """Extra gate (m) along the vehicle's heading (a truck's contour grows into its length)."""
+    duplicate_long: float = 4.0
+    """A track whose centre is within gate (m) sideways and this (m) lengthwise of a stronger
+    track's contour extent is a duplicate (e.g. on a truck's front) and is dropped."""
     confirm_hits_zone: int = 3
     """A track born in a birth zone is confirmed after this many updates ..."""
     confirm_window_zone: int = 5
@@ -111,6 +129,11 @@ class TrackingConfig:
     """... within this many frames of its birth."""
     delete_after: float = 1.0
     """A confirmed track missed for this long (s) is ended (its unmeasured tail is dropped)."""
+    delete_after_blind: float = 3.0
+    """The same while the track's centre is in the near blind range under the mast."""
+    reflection_height: float = 0.8
+    """Typical detection height (m) above the road: with the sensor height and the vertical FOV
+    it sets the near blind range, whose contour points are not candidates."""
     fov_margin: float = 2.0
     """A track whose centre is this far (m) outside the field of view is ended."""
 

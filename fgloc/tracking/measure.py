@@ -15,7 +15,7 @@ import numpy as np
 
 from factors.gp import ContourGP
 from factors.measurement import contour_point, plain_angles, range_rate, unit
-from fgloc.tracks import N_KIN, V, X, YAW, YAWRATE, Y
+from fgloc.tracks import N_KIN, YAW, YAWRATE, V, X, Y
 
 
 @dataclass(frozen=True)
@@ -48,9 +48,10 @@ class ContourTable:
         return H, mean, var
 
     def radius(self, f: np.ndarray, theta: np.ndarray) -> np.ndarray:
-        """Conditional-mean radius (m) for basis radii f (..., n) at angles theta (..., m)."""
+        """Conditional-mean radius (m) for basis radii f (..., S, n) at angles theta
+        (..., m) shared by the S rows of f (e.g. sigma points): shape (..., S, m)."""
         H, mean, _ = self.interp(theta)
-        return mean + np.einsum("...mn,...n->...m", H, f - self.gp.mu)
+        return mean[..., None, :] + (f - self.gp.mu) @ np.swapaxes(H, -1, -2)
 
 
 @dataclass
@@ -59,8 +60,8 @@ class DetectionBatch:
 
     z (T, M, 2) m in C; rng (T, M) 3D range (m) from the sensor; doppler (T, M) m/s;
     valid (T, M); theta (T, M) contour angles from the sensor-aware association, or None for
-    the plain model (angles recomputed from each sigma point's centre); tangent (T, M, 2) unit
-    contour tangents (C) at the associated candidates (sensor-aware only).
+    the plain model (angles recomputed from each sigma point's centre); direction (T, M, 2)
+    unit residual directions of the sensor-aware projection (None for the plain model).
     """
 
     z: np.ndarray
@@ -68,7 +69,7 @@ class DetectionBatch:
     doppler: np.ndarray
     valid: np.ndarray
     theta: np.ndarray | None = None
-    tangent: np.ndarray | None = None
+    direction: np.ndarray | None = None
 
     @property
     def rows(self) -> int:
@@ -85,9 +86,10 @@ def predict_measurements(X_sig: np.ndarray, det: DetectionBatch, table: ContourT
     z = det.z[:, None, :, :]                                          # (T, 1, M, 2)
     if det.theta is None:
         theta = plain_angles(z, centre, yaw)                          # (T, S, M)
+        r = table.radius(f[..., None, :], theta)[..., 0, :]
     else:
-        theta = np.broadcast_to(det.theta[:, None, :], (*yaw.shape, det.rows))
-    r = table.radius(f, theta)
+        r = table.radius(f, det.theta)                                # (T, S, M)
+        theta = det.theta[:, None, :]
     parts = [contour_point(centre, yaw, r, theta)]
     if use_doppler:
         d = range_rate(z, det.rng[:, None, :], centre, X_sig[..., V], yaw, X_sig[..., YAWRATE],
@@ -106,14 +108,14 @@ def measurement_vector(det: DetectionBatch, use_doppler: bool) -> np.ndarray:
 
 def measurement_noise(det: DetectionBatch, x: np.ndarray, table: ContourTable,
                       sensor: np.ndarray, sigma_range: float, sigma_azimuth: float,
-                      sigma_contour: float, sigma_tangent: float,
+                      sigma_contour: float, sigma_slide: float,
                       sigma_doppler: float | None) -> np.ndarray:
     """Block-diagonal noise (T, M k, M k): radar range/azimuth noise at each detection, contour
     scatter sigma_contour (isotropic), the GP interpolation variance along the contour ray
-    (at the mean state x (T, n)), sigma_tangent^2 along the contour tangent where the batch
-    has tangents (where on the contour a detection lies is only known to the candidate
-    spacing and the assignment, so the update acts mainly across the contour), and
-    sigma_doppler^2 when given (Doppler rows). Identity on padding."""
+    (at the mean state x (T, n)), sigma_slide^2 across the residual direction where the batch
+    has directions (a detection's position along a face is random: only its offset from the
+    contour is measured, like point-to-plane ICP), and sigma_doppler^2 when given (Doppler
+    rows). Identity on padding."""
     T, M = det.valid.shape
     los = det.z - sensor
     r2d = np.maximum(np.linalg.norm(los, axis=-1), 1e-6)
@@ -126,8 +128,9 @@ def measurement_noise(det: DetectionBatch, x: np.ndarray, table: ContourTable,
           + (sigma_azimuth * r2d)[..., None, None] ** 2 * et[..., :, None] * et[..., None, :]
           + var_f[..., None, None] * u[..., :, None] * u[..., None, :]
           + sigma_contour**2 * np.eye(2))
-    if det.tangent is not None:
-        Rp = Rp + sigma_tangent**2 * det.tangent[..., :, None] * det.tangent[..., None, :]
+    if det.direction is not None:
+        across = np.stack([-det.direction[..., 1], det.direction[..., 0]], axis=-1)
+        Rp = Rp + sigma_slide**2 * across[..., :, None] * across[..., None, :]
     k = 2 if sigma_doppler is None else 3
     blocks = np.zeros((T, M, k, k))
     blocks[..., :2, :2] = Rp

@@ -11,8 +11,9 @@ Per radar frame:
 5. births: unassociated detections are clustered; a cluster in a birth zone starts a tentative
    track confirmed after ``confirm_hits_zone`` updates within ``confirm_window_zone`` frames;
    elsewhere (``birth_anywhere``) the stricter ``confirm_hits_anywhere`` / window applies;
-6. a track whose centre falls inside an older, more-hit track's contour is a duplicate and is
-   dropped; confirmed tracks missed for ``delete_after`` s end (the unmeasured tail is cut).
+6. a track whose centre lies next to a stronger (confirmed, more updates) track's contour --
+   within ``gate`` sideways, ``duplicate_long`` lengthwise -- is a duplicate and is dropped;
+   confirmed tracks missed for ``delete_after`` s end (the unmeasured tail is cut).
 """
 
 from __future__ import annotations
@@ -25,7 +26,12 @@ import numpy as np
 
 from factors.ctra import ctra_predict, ctra_process_noise
 from factors.gp import ContourGP, rectangle_radius
-from factors.measurement import associate_candidates, contour_candidates, contour_point
+from factors.measurement import (
+    associate_candidates,
+    contour_candidates,
+    contour_point,
+    project_on_contour,
+)
 from fgloc.labels import LEFT, RIGHT, STRAIGHT
 from fgloc.scenario import Scenario
 from fgloc.tracking import ukf
@@ -39,7 +45,19 @@ from fgloc.tracking.measure import (
     measurement_vector,
     predict_measurements,
 )
-from fgloc.tracks import N_KIN, N_STATE, V, X, YAW, YAWRATE, Y, Track, TrackSet, contour_angles
+from fgloc.tracks import (
+    N_KIN,
+    N_STATE,
+    YAW,
+    YAWRATE,
+    A,
+    Track,
+    TrackSet,
+    V,
+    X,
+    Y,
+    contour_angles,
+)
 
 MODELS = ("sensor-aware", "plain")
 #: yaw std. dev. (rad) of a new track whose heading only comes from the Doppler sign
@@ -100,7 +118,8 @@ class Tracker:
         self.zones = zones
         self.lanes = lanes
         self.gp = ContourGP(contour_angles(), cfg.gp_sf, cfg.gp_length_rad, cfg.gp_sr,
-                            cfg.gp_symmetry, cfg.mean_length, cfg.mean_width)
+                            cfg.gp_symmetry, cfg.mean_length, cfg.mean_width, cfg.gp_sl,
+                            cfg.gp_sw)
         self.table = ContourTable.of(self.gp)
         self.w = ukf.UnscentedWeights.of(N_STATE, cfg.ukf_alpha, cfg.ukf_beta, cfg.ukf_kappa)
         self.cand_theta = 2.0 * np.pi * np.arange(cfg.n_candidates) / cfg.n_candidates
@@ -146,38 +165,58 @@ class Tracker:
         Q[:, N_KIN:, N_KIN:] = Qc
         self.x, self.P = ukf.predict(Xs, Q, self.w)
 
-    def _excess(self, p: np.ndarray) -> np.ndarray:
-        """(T, D) radial distance (m) of points p (D, 2) outside each track's predicted contour
-        (negative inside)."""
+    def _local(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Points p (D, 2) in every track's vehicle frame: longitudinal, lateral offsets (T, D)
+        (m) and the radial excess (T, D) (m) outside the predicted contour (< 0 inside)."""
         d = p[None, :, :] - self.x[:, None, [X, Y]]
-        theta = np.arctan2(d[..., 1], d[..., 0]) - self.x[:, YAW, None]
-        return np.linalg.norm(d, axis=-1) - self.table.radius(self.x[:, N_KIN:], theta)
+        c, s = np.cos(self.x[:, YAW, None]), np.sin(self.x[:, YAW, None])
+        lo = c * d[..., 0] + s * d[..., 1]
+        la = -s * d[..., 0] + c * d[..., 1]
+        r = self.table.radius(self.x[:, None, N_KIN:], np.arctan2(la, lo))[:, 0]
+        excess = np.hypot(lo, la) - r
+        return lo, la, excess
+
+    def _outside(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For points p (D, 2) and every track: the distance (m) outside the contour's
+        axis-aligned extent in the vehicle frame along (T, D) and across (T, D) the heading,
+        and the radial excess (T, D) (m) outside the contour (< 0 inside)."""
+        lo, la, ex = self._local(p)
+        axes = self.table.radius(self.x[:, N_KIN:], np.arange(4) * (np.pi / 2))
+        out_long = np.maximum(np.maximum(lo - axes[:, :1], -axes[:, 2:3] - lo), 0.0)
+        out_lat = np.maximum(np.maximum(la - axes[:, 1:2], -axes[:, 3:4] - la), 0.0)
+        return out_long, out_lat, ex
 
     def _associate(self, z: np.ndarray) -> np.ndarray:
-        """Owner track index per detection (-1: none)."""
+        """Owner track index per detection (-1: none): least radial excess among the tracks
+        whose gate holds it. The gate is the contour's axis-aligned extent in the vehicle frame
+        grown by gate + 2 sigma_centre (<= gate_max) sideways and by gate_long_extra more
+        lengthwise (a vehicle longer than its contour so far, e.g. a truck, grows into it)."""
         if not len(self.recs) or not len(z):
             return np.full(len(z), -1, dtype=np.int64)
         cfg = self.cfg
-        ex = self._excess(z)
+        out_long, out_lat, ex = self._outside(z)
         sig = np.sqrt(np.trace(self.P[:, :2, :2], axis1=1, axis2=2))
-        gate = np.minimum(cfg.gate + 2.0 * sig, cfg.gate_max)
-        ex[ex > gate[:, None]] = np.inf
+        gate = np.minimum(cfg.gate + 2.0 * sig, cfg.gate_max)[:, None]
+        ex[(out_lat > gate) | (out_long > gate + cfg.gate_long_extra)] = np.inf
         owner = np.argmin(ex, axis=0)
         return np.where(np.isfinite(ex[owner, np.arange(len(z))]), owner, -1)
 
     def _angles(self, i: int, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Sensor-aware contour angles (k,) of detections z (k, 2) of track i and the unit
-        contour tangents (k, 2) in C at the assigned candidates."""
+        """Sensor-aware contour angles (k,) of detections z (k, 2) of track i: Hungarian
+        assignment to the contour samples visible from the sensor (facing it, not
+        self-occluded, inside the FOV and beyond the blind range), then projected onto the
+        contour next to the assigned sample; and the residual directions (k, 2)."""
         xi = self.x[i]
         r = self.cand_mean + (xi[N_KIN:] - self.gp.mu) @ self.cand_H.T
         pts = contour_point(xi[[X, Y]], xi[YAW], r, self.cand_theta)
         vis = contour_candidates(pts, self.fov.sensor)
+        in_fov = self.fov.contains(pts) & ~self.fov.blind(pts)
+        if (vis & in_fov).any():
+            vis &= in_fov
         if not vis.any():
             vis[:] = True
         j = np.flatnonzero(vis)[associate_candidates(z, pts[vis], self.cfg.candidate_capacity)]
-        tangent = np.roll(pts, -1, axis=0) - np.roll(pts, 1, axis=0)
-        tangent /= np.maximum(np.linalg.norm(tangent, axis=1, keepdims=True), 1e-9)
-        return self.cand_theta[j], tangent[j]
+        return project_on_contour(z, pts, self.cand_theta, j)
 
     def _update(self, det: _Frame, owner: np.ndarray) -> np.ndarray:
         """UKF update of every track owning detections; returns their indices."""
@@ -200,25 +239,37 @@ class Tracker:
         valid = np.zeros((T, M), dtype=bool)
         aware = cfg.measurement_model == "sensor-aware"
         theta = np.zeros((T, M)) if aware else None
-        tangent = np.zeros((T, M, 2)) if aware else None
+        direction = np.zeros((T, M, 2)) if aware else None
         for k, (i, idx) in enumerate(zip(tracks, sel)):
             n = len(idx)
             z[k, :n], rng[k, :n], dop[k, :n] = det.z[idx], det.rng[idx], det.doppler[idx]
             valid[k, :n] = True
             if aware:
-                theta[k, :n], tangent[k, :n] = self._angles(i, det.z[idx])
-        batch = DetectionBatch(z, rng, dop, valid, theta, tangent)
+                theta[k, :n], direction[k, :n] = self._angles(i, det.z[idx])
+        batch = DetectionBatch(z, rng, dop, valid, theta, direction)
         x, P = self.x[tracks], self.P[tracks]
         Xs = ukf.sigma_points(x, P, self.w)
         sensor = self.fov.sensor
         Z = predict_measurements(Xs, batch, self.table, sensor, cfg.use_doppler)
         R = measurement_noise(batch, x, self.table, sensor, cfg.sigma_range,
                               np.deg2rad(cfg.sigma_azimuth_deg), cfg.sigma_contour,
-                              cfg.sigma_tangent,
+                              cfg.sigma_slide,
                               cfg.sigma_doppler if cfg.use_doppler else None)
-        self.x[tracks], self.P[tracks] = ukf.update(
-            x, P, Xs, Z, measurement_vector(batch, cfg.use_doppler), R, self.w)
+        x, self.P[tracks] = ukf.update(x, P, Xs, Z, measurement_vector(batch, cfg.use_doppler),
+                                       R, self.w)
+        self.x[tracks] = self._plausible(x)
         return tracks
+
+    def _plausible(self, x: np.ndarray) -> np.ndarray:
+        """States (T, n) clipped to road-vehicle limits: 0 <= v <= max_speed, |a| <= max_accel,
+        |yawrate| <= max_yawrate, radii >= min_radius (a UKF update can overshoot them)."""
+        cfg = self.cfg
+        x = x.copy()
+        x[:, V] = np.clip(x[:, V], 0.0, cfg.max_speed)
+        x[:, A] = np.clip(x[:, A], -cfg.max_accel, cfg.max_accel)
+        x[:, YAWRATE] = np.clip(x[:, YAWRATE], -cfg.max_yawrate, cfg.max_yawrate)
+        x[:, N_KIN:] = np.maximum(x[:, N_KIN:], cfg.min_radius)
+        return x
 
     def _record(self, t: float, det: _Frame, owner: np.ndarray, updated: np.ndarray) -> None:
         store = self.cfg.store_covariances
@@ -289,19 +340,23 @@ class Tracker:
         if not n:
             return
         end = np.zeros(n, dtype=bool)
-        # duplicates: centre inside another track's contour -> the weaker one dies
-        ex = self._excess(self.x[:, [X, Y]])
-        np.fill_diagonal(ex, np.inf)
+        # duplicates: a centre within gate sideways / duplicate_long lengthwise of a stronger
+        # track's contour extent -> the weaker one dies
+        out_long, out_lat, _ = self._outside(self.x[:, [X, Y]])
+        dup = (out_lat <= cfg.gate) & (out_long <= cfg.duplicate_long)
+        np.fill_diagonal(dup, False)
         rank = np.array([(r.confirmed, r.hits, -r.id) for r in self.recs],
                         dtype=[("c", bool), ("h", int), ("i", int)])
         order = np.argsort(rank, order=("c", "h", "i"))[::-1]          # strongest first
         pos = np.empty(n, dtype=np.int64)
         pos[order] = np.arange(n)
         for j in order:
-            end[j] = bool(np.any((ex[:, j] < 0) & ~end & (pos < pos[j])))
+            end[j] = bool(np.any(dup[:, j] & ~end & (pos < pos[j])))
+        blind = self.fov.blind(self.x[:, [X, Y]])
         for i, rec in enumerate(self.recs):
             if rec.confirmed:
-                end[i] |= t - rec.last_update_t > cfg.delete_after
+                patience = cfg.delete_after_blind if blind[i] else cfg.delete_after
+                end[i] |= t - rec.last_update_t > patience
                 continue
             hits, window = ((cfg.confirm_hits_zone, cfg.confirm_window_zone) if rec.in_zone
                             else (cfg.confirm_hits_anywhere, cfg.confirm_window_anywhere))
@@ -372,7 +427,8 @@ def track_scenario(scn: Scenario, T_coarse: np.ndarray, cfg: TrackingConfig | No
     if measurement_model is not None:
         cfg = dataclasses.replace(cfg, measurement_model=measurement_model)
     T = np.asarray(T_coarse, dtype=float)
-    fov = FieldOfView.of(T, scn.sensor.hfov_deg, scn.sensor.max_range)
+    fov = FieldOfView.of(T, scn.sensor.hfov_deg, scn.sensor.max_range, scn.sensor.vfov_deg,
+                         cfg.reflection_height)
     lanelets = scn.lanelets.lanelets
     zones = (BirthZones.explicit(cfg.birth_zones) if cfg.birth_zones is not None
              else BirthZones.from_map(lanelets, fov, cfg.birth_zone_radius, cfg.birth_zone_depth))

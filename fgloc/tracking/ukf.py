@@ -67,13 +67,13 @@ def state_mean(X: np.ndarray, w: UnscentedWeights) -> tuple[np.ndarray, np.ndarr
     ref = X[:, :1, YAW]
     Xw = X.copy()
     Xw[:, :, YAW] = ref + wrap_angle(X[:, :, YAW] - ref)
-    mean = np.einsum("s,tsn->tn", w.wm, Xw)
+    mean = w.wm @ Xw
     return mean, Xw - mean[:, None, :]
 
 
 def covariance(dA: np.ndarray, dB: np.ndarray, w: UnscentedWeights) -> np.ndarray:
     """(T, a, b) weighted cross covariance of deviations dA (T, S, a) and dB (T, S, b)."""
-    return np.einsum("s,tsa,tsb->tab", w.wc, dA, dB)
+    return np.swapaxes(dA * w.wc[:, None], -1, -2) @ dB
 
 
 def predict(X: np.ndarray, Q: np.ndarray, w: UnscentedWeights) -> tuple[np.ndarray, np.ndarray]:
@@ -89,12 +89,12 @@ def update(x: np.ndarray, P: np.ndarray, X: np.ndarray, Z: np.ndarray, z: np.nda
     from them, their predicted measurements Z (T, S, m), measurements z (T, m) and noise R
     (T, m, m). Padded measurement rows must have Z = z = 0 and R = identity there."""
     _, dx = state_mean(X, w)
-    zhat = np.einsum("s,tsm->tm", w.wm, Z)
+    zhat = w.wm @ Z
     dz = Z - zhat[:, None, :]
     S = covariance(dz, dz, w) + R
     Pxz = covariance(dx, dz, w)
     K = np.swapaxes(np.linalg.solve(S, np.swapaxes(Pxz, -1, -2)), -1, -2)   # Pxz S^-1
-    x_new = x + np.einsum("tnm,tm->tn", K, z - zhat)
+    x_new = x + (K @ (z - zhat)[..., None])[..., 0]
     x_new[:, YAW] = wrap_angle(x_new[:, YAW])
     P_new = P - K @ S @ np.swapaxes(K, -1, -2)
     return x_new, 0.5 * (P_new + np.swapaxes(P_new, -1, -2))

@@ -1,0 +1,148 @@
+"""Measurement models of a star-convex GP object seen by a radar at a known position (2D).
+
+Frames: everything in one 2D tracking frame; angles ``theta`` are in the object frame (rad,
+x along the heading) and measured from the object centre.
+
+* :func:`contour_point` -- the star-convex model: a detection whose contour angle is ``theta*``
+  is predicted at ``c + u(theta* + yaw) f(theta*)`` with ``f(theta*) | f`` from the GP
+  conditional (``u(a) = [cos a, sin a]``).
+* plain model -- ``theta*`` is the angle of the detection seen from the (predicted) centre,
+  :func:`plain_angles`.
+* sensor-position-aware model (after Kellner-style "GP improved" trackers) -- from the sensor
+  position, :func:`contour_candidates` samples the contour densely, keeps the points a radar can
+  see (outward normal facing the sensor and line of sight not crossing the contour), and
+  :func:`associate_candidates` assigns the detections to them with the Hungarian method
+  (scipy.optimize.linear_sum_assignment on squared distances; each candidate may take up to
+  ``capacity`` detections by replication), giving each detection the candidate's ``theta*``.
+  Detections then pull on the part of the contour they can physically come from instead of the
+  part that happens to lie in their direction from a possibly wrong centre.
+  :func:`project_on_contour` then slides each ``theta*`` to the closest point of the contour
+  next to its candidate, so the residual has no along-contour part from the candidate spacing
+  or the capacity limit (like point-to-closest-point ICP, it still pulls an end of the visible
+  contour out to detections beyond it).
+* :func:`range_rate` -- Doppler of a detection on a rigid body moving with CTRA kinematics.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+
+def unit(a: np.ndarray) -> np.ndarray:
+    """``(..., 2)`` unit vectors ``[cos a, sin a]``."""
+    return np.stack([np.cos(a), np.sin(a)], axis=-1)
+
+
+def contour_point(centre: np.ndarray, yaw: np.ndarray, radius: np.ndarray,
+                  theta: np.ndarray) -> np.ndarray:
+    """Star-convex point(s) ``centre + u(theta + yaw) radius``: centre (..., 2), yaw (...),
+    radius and theta (..., m) -> (..., m, 2)."""
+    yaw = np.asarray(yaw)[..., None]
+    return np.asarray(centre)[..., None, :] + unit(theta + yaw) * np.asarray(radius)[..., None]
+
+
+def contour_point_jacobian(yaw: float, radius: np.ndarray, theta: np.ndarray,
+                           H: np.ndarray) -> np.ndarray:
+    """``(m, 2, 3 + n)`` Jacobian of :func:`contour_point` (with ``radius = mu* + H (f - mu)``)
+    w.r.t. ``[x, y, yaw, f_1..f_n]`` for fixed ``theta*`` (m,); ``H`` (m, n) from the GP
+    conditional."""
+    u = unit(theta + yaw)                                      # (m, 2)
+    m, n = H.shape
+    J = np.zeros((m, 2, 3 + n))
+    J[:, 0, 0] = J[:, 1, 1] = 1.0
+    J[:, :, 2] = np.stack([-u[:, 1], u[:, 0]], axis=-1) * radius[:, None]
+    J[:, :, 3:] = u[:, :, None] * H[:, None, :]
+    return J
+
+
+def plain_angles(z: np.ndarray, centre: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """Contour angle (rad, object frame) of detections z (..., m, 2) seen from the centre
+    (..., 2) of an object with heading yaw (...): shape (..., m)."""
+    d = np.asarray(z) - np.asarray(centre)[..., None, :]
+    return np.arctan2(d[..., 1], d[..., 0]) - np.asarray(yaw)[..., None]
+
+
+def range_rate(z: np.ndarray, rng: np.ndarray, centre: np.ndarray, v: np.ndarray,
+               yaw: np.ndarray, yawrate: np.ndarray, sensor: np.ndarray) -> np.ndarray:
+    """Doppler (m/s, positive away from the sensor) of detections at z (..., m, 2) with 3D
+    ranges rng (..., m) on a rigid body with centre (..., 2), speed v, heading yaw and yaw rate
+    (...): ``(v u(yaw) + yawrate e_z x (z - c)) . (z - s) / rng``. Shape (..., m)."""
+    z = np.asarray(z)
+    arm = z - np.asarray(centre)[..., None, :]
+    los = z - np.asarray(sensor)
+    w = np.asarray(yawrate)[..., None]
+    vx = (np.asarray(v) * np.cos(yaw))[..., None] - w * arm[..., 1]
+    vy = (np.asarray(v) * np.sin(yaw))[..., None] + w * arm[..., 0]
+    return (vx * los[..., 0] + vy * los[..., 1]) / rng
+
+
+def contour_candidates(points: np.ndarray, sensor: np.ndarray) -> np.ndarray:
+    """Mask (m,) of the contour points (m, 2) (a closed CCW polygon, dense) visible from the
+    sensor position (2,): the outward normal (central difference) faces the sensor and the line
+    of sight crosses no contour edge before reaching the point. (Field-of-view limits are the
+    caller's: AND this with them.)"""
+    p = np.asarray(points, dtype=float)
+    s = np.asarray(sensor, dtype=float)
+    tangent = np.roll(p, -1, axis=0) - np.roll(p, 1, axis=0)
+    normal = np.stack([tangent[:, 1], -tangent[:, 0]], axis=1)      # outward for CCW
+    facing = np.sum(normal * (s - p), axis=1) > 0
+    # self-occlusion: segment s -> p_i against edges (p_j, p_j+1) not adjacent to i
+    a = p
+    e = np.roll(p, -1, axis=0) - p
+    d = p - s                                                       # (m, 2) line of sight
+    ac = a[None, :, :] - s                                          # (1, m, 2)
+    den = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (ac[..., 0] * e[None, :, 1] - ac[..., 1] * e[None, :, 0]) / den
+        w = (ac[..., 0] * d[:, None, 1] - ac[..., 1] * d[:, None, 0]) / den
+    m = len(p)
+    idx = np.arange(m)
+    adjacent = (idx[None, :] == idx[:, None]) | (idx[None, :] == (idx[:, None] - 1) % m)
+    hit = (t > 0) & (t < 1 - 1e-9) & (w >= 0) & (w <= 1) & ~adjacent
+    return facing & ~hit.any(axis=1)
+
+
+def associate_candidates(z: np.ndarray, candidates: np.ndarray, capacity: int) -> np.ndarray:
+    """Index (k,) of the candidate (c, 2) assigned to each detection z (k, 2) by the Hungarian
+    method on squared distances, every candidate replicated ``capacity`` times (raised to
+    ``ceil(k / c)`` when needed so that every detection is assigned)."""
+    k, c = len(z), len(candidates)
+    rep = max(int(capacity), -(-k // c))
+    d2 = np.sum((z[:, None, :] - candidates[None, :, :]) ** 2, axis=2)
+    rows, cols = linear_sum_assignment(np.tile(d2, (1, rep)))
+    out = np.empty(k, dtype=np.int64)
+    out[rows] = cols % c
+    return out
+
+
+def project_on_contour(z: np.ndarray, points: np.ndarray, theta: np.ndarray,
+                       idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Contour angle (k,) of the point closest to each detection z (k, 2) on the two edges of
+    the closed polygon ``points`` (m, 2) -- sampled at the equally spaced angles ``theta``
+    (m,) -- that meet at its assigned sample ``idx`` (k,), and the unit direction (k, 2) of the
+    residual from that point to the detection (the outward edge normal when they coincide):
+    across the contour, except beyond an end of the visible part, where it points outward
+    along the contour."""
+    m = len(points)
+    step = 2.0 * np.pi / m
+    a = points[idx]
+    best_d = np.full(len(z), np.inf)
+    out = theta[idx].astype(float)
+    res = np.zeros_like(z)
+    normal = np.zeros_like(z)
+    for side in (-1, 1):
+        e = points[(idx + side) % m] - a
+        u = np.clip(np.sum((z - a) * e, axis=1) / np.maximum(np.sum(e * e, axis=1), 1e-12),
+                    0.0, 1.0)
+        r = z - (a + u[:, None] * e)
+        d = np.linalg.norm(r, axis=1)
+        better = (d < best_d)[:, None]
+        best_d = np.where(better[:, 0], d, best_d)
+        out = np.where(better[:, 0], theta[idx] + side * u * step, out)
+        res = np.where(better, r, res)
+        normal = np.where(better, side * np.stack([e[:, 1], -e[:, 0]], axis=1), normal)
+    tiny = best_d < 1e-6
+    direction = np.where(tiny[:, None], normal, res)
+    direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-12)
+    return out, direction
