@@ -6,7 +6,8 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import asdict
+from dataclasses import asdict, dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -17,8 +18,57 @@ from fgloc.labels import STRAIGHT
 from fgloc.progress import Timer
 from fgloc.result import LocalizationResult
 from fgloc.scenario import Scenario
+from fgloc.tracks import TrackSet
+
+if TYPE_CHECKING:
+    from fgloc.coarse import CoarseResult
 
 MethodFn = Callable[[Scenario, Config, Timer], LocalizationResult]
+
+
+@dataclass
+class TrackingRun:
+    """Tracks of a scenario and the pose that placed the detections.
+
+    T_placement: 4x4 S -> L used to place the detections (T_coarse, or the true pose with
+    ``oracle_pose``); tracks are in frame C of that placement. coarse: the coarse result, or
+    None with ``oracle_pose``.
+    """
+
+    tracks: TrackSet
+    T_placement: np.ndarray
+    coarse: CoarseResult | None
+    timings: dict[str, float] = field(default_factory=dict)
+
+
+def track(
+    scenario: Scenario, config: Config | None = None, *, oracle_pose: bool = False
+) -> TrackingRun:
+    """Track the vehicles of ``scenario`` with the GP-EOT filter.
+
+    The detections are placed with T_coarse from the coarse stage, or, with ``oracle_pose``,
+    with the ground-truth sensor pose, to measure tracking alone (paper section V-A).
+    """
+    from fgloc.coarse import coarse_localize
+    from fgloc.map import build_target_cloud
+    from fgloc.tracking import track_scenario
+
+    cfg = config or Config()
+    timer = Timer()
+    coarse = None
+    if oracle_pose:
+        if scenario.truth is None:
+            raise FglocError("--oracle-pose needs the scenario's ground_truth.json")
+        T = scenario.truth.sensor_pose
+    else:
+        with timer.stage("target cloud"):
+            target = build_target_cloud(scenario, cfg.map)
+        with timer.stage("coarse ICP"):
+            coarse = coarse_localize(scenario, target, cfg.coarse)
+        T = coarse.T_coarse
+    with timer.stage("tracking"):
+        tracks = track_scenario(scenario, T, cfg.tracking)
+    return TrackingRun(tracks, T, coarse, dict(timer.seconds))
 
 
 def _json_ready(d: dict) -> dict:
