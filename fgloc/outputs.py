@@ -44,9 +44,10 @@ def write_json(path: Path, doc: object) -> None:
 
 
 def write_localization(out_dir: str | Path, scn: Scenario, res: LocalizationResult) -> list[Path]:
-    """Write result.json, target.ply, source.ply, sensor.geojson and overview.png; returns the
-    written paths (in ``out_dir``)."""
+    """Write result.json, target.ply, source.ply, sensor.geojson, overview.png and, when the
+    method tracked vehicles, tracks.csv; returns the written paths (in ``out_dir``)."""
     from fgloc.io.ply import write_labelled_ply
+    from fgloc.io.tracks_csv import write_tracks_csv
 
     names: list[str] = []
     with staged_dir(out_dir) as tmp:
@@ -62,6 +63,9 @@ def write_localization(out_dir: str | Path, scn: Scenario, res: LocalizationResu
                 lab = np.full(len(res.source_xyz), STRAIGHT, dtype=np.int8)
             write_labelled_ply(tmp / "source.ply", scn.frame.to_world(res.source_xyz), lab)
             names.append("source.ply")
+        if res.tracks is not None:
+            write_tracks_csv(tmp / "tracks.csv", res.tracks, scn.frame)
+            names.append("tracks.csv")
         s = scn.sensor
         write_json(tmp / "sensor.geojson", sensor_geojson(res, s.hfov_deg, s.max_range))
         names.append("sensor.geojson")

@@ -16,6 +16,7 @@ from fgloc.geo import LocalFrame, pose_from_se3, to_latlon, true_heading_deg
 
 if TYPE_CHECKING:
     from fgloc.map import TargetCloud
+    from fgloc.tracks import TrackSet
 
 
 @dataclass
@@ -27,6 +28,7 @@ class LocalizationResult:
     source_xyz: (N, 3) float64 source points in L (after the final pose), for reports.
     source_label: (N,) int label codes of those points (all STRAIGHT when unlabelled).
     target: the labelled target cloud the pose was registered against (for reports).
+    tracks: the vehicle tracks the method used (with ``T_frame_to_L`` set), or None.
     """
 
     method: str
@@ -41,6 +43,7 @@ class LocalizationResult:
     source_xyz: np.ndarray | None = None
     source_label: np.ndarray | None = None
     target: TargetCloud | None = None
+    tracks: TrackSet | None = None
 
     @property
     def crs(self) -> str:
