@@ -77,8 +77,9 @@ class TrackingMetrics:
     mean absolute wrapped yaw difference. iou: mean IoU of the 20-point star-convex contour
     polygon with the true length x width rectangle at the true pose. label_accuracy: share of
     scored states whose label equals the one from the true curvature kappa = yawrate / v
-    (kappa = 0 where v = 0). The paper's "average RMS" (V-A) is the mean of the per-track
-    ``rows[k].centre_rms``; the pooled centre_rms weights every state equally instead.
+    (kappa = 0 where v = 0). centre_rms_track_mean (m): the paper's "average RMS" (V-A), the
+    mean of the per-track ``rows[k].centre_rms`` over matched and fragment tracks; the pooled
+    centre_rms weights every state equally instead.
     Metrics without any scored state are NaN (``None`` in JSON).
     """
 
@@ -91,6 +92,7 @@ class TrackingMetrics:
     tracked_share: float
     n_states: int
     centre_rms: float
+    centre_rms_track_mean: float
     yaw_error_deg: float
     iou: float
     label_accuracy: float
@@ -104,11 +106,12 @@ class TrackingMetrics:
     def table(self, per_track: bool = False) -> str:
         """Two-line text table (header + values), optionally followed by one line per track."""
         head = (f"{'true':>5} {'tracks':>6} {'matched':>7} {'missed':>6} {'false':>5} "
-                f"{'frag':>4} {'share':>6} {'RMS m':>7} {'yaw deg':>8} {'IoU':>6} {'label':>6}")
+                f"{'frag':>4} {'share':>6} {'RMS m':>7} {'trkRMS':>7} {'yaw deg':>8} {'IoU':>6} "
+                f"{'label':>6}")
         row = (f"{self.n_true:5d} {self.n_tracks:6d} {self.n_matched:7d} {self.missed:6d} "
                f"{self.false_tracks:5d} {self.fragments:4d} {self.tracked_share:6.3f} "
-               f"{self.centre_rms:7.3f} {self.yaw_error_deg:8.3f} {self.iou:6.3f} "
-               f"{self.label_accuracy:6.3f}")
+               f"{self.centre_rms:7.3f} {self.centre_rms_track_mean:7.3f} "
+               f"{self.yaw_error_deg:8.3f} {self.iou:6.3f} {self.label_accuracy:6.3f}")
         lines = [head, row]
         if per_track:
             lines.append(f"{'track':>6} {'truth':>6} {'role':>8} {'n':>6} {'RMS m':>7} "
@@ -410,12 +413,19 @@ def evaluate_tracks(
         tracked_share=n_matched / n_true if n_true else math.nan,
         n_states=int(all_err.shape[0]),
         centre_rms=rms,
+        centre_rms_track_mean=_mean_track_rms(rows),
         yaw_error_deg=yaw_deg,
         iou=iou,
         label_accuracy=label_acc,
         missed_ids=missed,
         rows=tuple(rows),
     )
+
+
+def _mean_track_rms(rows: list[TrackRow]) -> float:
+    """Mean of the per-track centre RMS over tracks that follow a vehicle (NaN if none)."""
+    vals = [r.centre_rms for r in rows if r.role != "false" and np.isfinite(r.centre_rms)]
+    return float(np.mean(vals)) if vals else math.nan
 
 
 def _state_errors(tr: Track, gt: _Truth, pair: _Pair, eta: float) -> np.ndarray:

@@ -279,3 +279,13 @@ def test_iou_batches_match_single_evaluations():
     single = [iou_polygon_rectangle(base[k : k + 1], np.zeros((1, 2)), yaw[k : k + 1],
                                     lengths[k : k + 1], widths[k : k + 1])[0] for k in range(7)]
     np.testing.assert_allclose(batch, np.asarray(single)[idx], atol=1e-12)
+
+
+def test_paper_average_rms_is_the_mean_of_per_track_rms():
+    # vehicle 1 off by 0.3 m, vehicles 2 and 3 perfect: per-track RMS 0.3, 0, 0
+    tracks = [_track(1, _times(1), dxy=(0.3, 0.0)), _track(2, _times(2)), _track(3, _times(3))]
+    m = evaluate_tracks(_in_c(tracks), _truth(20.0))
+    assert m.centre_rms_track_mean == pytest.approx(0.1, abs=1e-9)
+    n1 = len(_times(1))
+    pooled = np.sqrt(0.09 * n1 / sum(len(_times(v)) for v in (1, 2, 3)))
+    assert m.centre_rms == pytest.approx(pooled, abs=1e-9)
