@@ -252,6 +252,15 @@ def cmd_config(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------------------------
 # parser
 # --------------------------------------------------------------------------------------------
+def _scenario_command(sub, name: str, help_text: str) -> argparse.ArgumentParser:
+    """A subcommand that reads SCENARIO, writes into --out DIR and takes --config."""
+    s = sub.add_parser(name, help=help_text)
+    s.add_argument("scenario")
+    s.add_argument("--out", required=True, help="output directory")
+    s.add_argument("--config", default=None, help="fgloc config TOML (default: built-in defaults)")
+    return s
+
+
 def build_parser() -> argparse.ArgumentParser:
     from fgloc.pipeline import METHODS
 
@@ -279,11 +288,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("scenario")
     s.set_defaults(fn=cmd_info)
 
-    s = sub.add_parser("localize", help="localize the sensor of a scenario")
-    s.add_argument("scenario")
-    s.add_argument("--out", required=True, help="output directory")
+    s = _scenario_command(sub, "localize", "localize the sensor of a scenario")
     s.add_argument("--method", choices=sorted(METHODS), default="icp")
-    s.add_argument("--config", default=None, help="fgloc config TOML (default: built-in defaults)")
     s.add_argument(
         "--ignore-yaw-guess",
         action="store_true",
@@ -291,10 +297,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.set_defaults(fn=cmd_localize)
 
-    s = sub.add_parser("track", help="track the vehicles (GP-EOT filter), write tracks.csv")
-    s.add_argument("scenario")
-    s.add_argument("--out", required=True, help="output directory")
-    s.add_argument("--config", default=None, help="fgloc config TOML")
+    s = _scenario_command(sub, "track", "track the vehicles (GP-EOT filter), write tracks.csv")
     s.add_argument(
         "--oracle-pose",
         action="store_true",

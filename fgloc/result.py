@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -13,6 +12,7 @@ import numpy as np
 from fgloc.config import Config, to_dict
 from fgloc.errors import InputError
 from fgloc.geo import LocalFrame, pose_from_se3, to_latlon, true_heading_deg
+from fgloc.io.json_file import read_json
 
 if TYPE_CHECKING:
     from fgloc.map import TargetCloud
@@ -98,12 +98,7 @@ class SavedPose:
 def read_result_json(path: str | Path) -> SavedPose:
     """Read the pose of a result.json written by fgloc (validated)."""
     p = Path(path)
-    try:
-        doc = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(p, "file not found") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(p, f"invalid JSON at line {exc.lineno}: {exc.msg}") from None
+    doc = read_json(p)
     if not isinstance(doc, dict):
         raise InputError(p, "expected a JSON object")
     for key in ("crs", "T_utm"):

@@ -24,6 +24,7 @@ import numpy as np
 from fgloc.errors import InputError
 from fgloc.geo import LocalFrame, parse_crs, pose_from_se3, same_crs, se3_from_pose
 from fgloc.io.atomic import write_text_atomic
+from fgloc.io.json_file import read_json
 from fgloc.scenario import GroundTruth, TrackTruth
 
 SENSOR_KEYS: tuple[str, ...] = ("x", "y", "z", "yaw_deg", "pitch_deg", "roll_deg")
@@ -38,15 +39,7 @@ def read_ground_truth(path: str | Path, frame: LocalFrame) -> GroundTruth:
     bad JSON, missing keys, wrong types, non-finite numbers or states not shaped (n, 6).
     """
     p = Path(path)
-    try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(p, "file not found") from None
-    except json.JSONDecodeError as exc:
-        raise InputError(p, f"invalid JSON: {exc.msg} (column {exc.colno})", row=exc.lineno) \
-            from None
-    except UnicodeDecodeError as exc:
-        raise InputError(p, f"not UTF-8 text: {exc}") from None
+    data = read_json(p)
     _require_keys(p, data, ("crs", "sensor"), "")
     crs = data["crs"]
     if not isinstance(crs, str):
