@@ -48,17 +48,17 @@ class TrackingConfig:
     """Doppler measurement noise (m/s), including model error."""
 
     # ---- GP contour --------------------------------------------------------------------------
-    gp_sf: float = 0.5
+    gp_sf: float = 0.15
     """sigma_f (m): prior std. dev. of the contour radius about the mean shape."""
     gp_length_rad: float = 0.5
     """l (rad): periodic-kernel length scale (sin^2 divided by l^2 once)."""
-    gp_sr: float = 1.0
+    gp_sr: float = 0.1
     """sigma_r (m): prior std. dev. of a common radius offset (inside k, see factors.gp)."""
     gp_symmetry: float = 0.8
     """Weight in [0, 1] of the mirror-symmetric kernel part (0 = paper's kernel)."""
-    gp_sl: float = 2.0
+    gp_sl: float = 1.5
     """Std. dev. (m) of the vehicle length about mean_length (size mode of the kernel)."""
-    gp_sw: float = 0.3
+    gp_sw: float = 0.2
     """Std. dev. (m) of the vehicle width about mean_width (size mode of the kernel)."""
     mean_length: float = 4.6
     """Length (m) of the rectangle that is the prior mean contour (and the decay target)."""
@@ -72,7 +72,7 @@ class TrackingConfig:
     """Std. dev. (m/s^3) of the discrete white jerk of the CTRA process noise."""
     sigma_yaw_acc: float = 0.6
     """Std. dev. (rad/s^2) of the discrete white yaw acceleration."""
-    sigma_pos: float = 0.3
+    sigma_pos: float = 0.05
     """Position random walk (m/sqrt(s)) for model error."""
     init_sigma_pos: float = 1.0
     """Initial std. dev. (m) of the centre of a new track."""
@@ -99,9 +99,9 @@ class TrackingConfig:
     """Contour radii (m) are kept at least this after each update."""
 
     # ---- UKF ---------------------------------------------------------------------------------
-    ukf_alpha: float = 1.0
+    ukf_alpha: float = 0.1
     """Unscented transform spread alpha."""
-    ukf_beta: float = 0.0
+    ukf_beta: float = 2.0
     """Unscented transform beta (prior distribution knowledge)."""
     ukf_kappa: float = 0.0
     """Unscented transform kappa."""
@@ -134,6 +134,19 @@ class TrackingConfig:
     reflection_height: float = 0.8
     """Typical detection height (m) above the road: with the sensor height and the vertical FOV
     it sets the near blind range, whose contour points are not candidates."""
+    min_output_hits: int = 10
+    """A confirmed track with fewer updates than this when it ends is not reported (a short-lived
+    duplicate, e.g. on a truck's far end, that the duplicate rule removed soon after)."""
+    diverge_excess: float = 1.0
+    """Divergence: a track whose associated detections lie farther than this (m, median of the
+    absolute radial excess about its predicted contour, smoothed over ``diverge_time``) from
+    its contour no longer fits its vehicle and is ended (its detections start a new track)."""
+    diverge_time: float = 0.5
+    """Time constant (s) of the exponential smoothing of that misfit."""
+    birth_blind_margin: float = 8.0
+    """No track starts closer to the sensor than the near blind range plus this (m): under the
+    mast only the tops of the vehicles are seen and a new track's heading and extent are
+    unreliable there; the vehicle gets its track once it is farther out."""
     fov_margin: float = 2.0
     """A track whose centre is this far (m) outside the field of view is ended."""
 

@@ -87,6 +87,7 @@ class _Record:
     hits: int = 0
     confirmed: bool = False
     last_update_step: int = -1
+    misfit: float = 0.0
     t: list[float] = field(default_factory=list)
     states: list[np.ndarray] = field(default_factory=list)
     covs: list[np.ndarray] = field(default_factory=list)
@@ -141,7 +142,8 @@ class Tracker:
         if len(self.recs):
             self._predict(dt)
             self._end(self.fov.outside_distance(self.x[:, [X, Y]]) > self.cfg.fov_margin)
-        owner = self._associate(det.z)
+        owner, excess = self._associate(det.z)
+        self._misfit(owner, excess, dt)
         updated = self._update(det, owner)
         self._record(t, det, owner, updated)
         self._births(det, owner < 0)
@@ -186,20 +188,33 @@ class Tracker:
         out_lat = np.maximum(np.maximum(la - axes[:, 1:2], -axes[:, 3:4] - la), 0.0)
         return out_long, out_lat, ex
 
-    def _associate(self, z: np.ndarray) -> np.ndarray:
-        """Owner track index per detection (-1: none): least radial excess among the tracks
+    def _associate(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Owner track index per detection (-1: none) and its radial excess (m) about that
+        track's contour: least radial excess among the tracks
         whose gate holds it. The gate is the contour's axis-aligned extent in the vehicle frame
         grown by gate + 2 sigma_centre (<= gate_max) sideways and by gate_long_extra more
         lengthwise (a vehicle longer than its contour so far, e.g. a truck, grows into it)."""
         if not len(self.recs) or not len(z):
-            return np.full(len(z), -1, dtype=np.int64)
+            return np.full(len(z), -1, dtype=np.int64), np.zeros(len(z))
         cfg = self.cfg
         out_long, out_lat, ex = self._outside(z)
         sig = np.sqrt(np.trace(self.P[:, :2, :2], axis1=1, axis2=2))
         gate = np.minimum(cfg.gate + 2.0 * sig, cfg.gate_max)[:, None]
         ex[(out_lat > gate) | (out_long > gate + cfg.gate_long_extra)] = np.inf
         owner = np.argmin(ex, axis=0)
-        return np.where(np.isfinite(ex[owner, np.arange(len(z))]), owner, -1)
+        best = ex[owner, np.arange(len(z))]
+        return np.where(np.isfinite(best), owner, -1), best
+
+    def _misfit(self, owner: np.ndarray, excess: np.ndarray, dt: float) -> None:
+        """Smoothed median |radial excess| (m) of each track's associated detections about its
+        predicted contour (the divergence monitor of :meth:`_manage`)."""
+        if not len(self.recs):
+            return
+        g = 1.0 - np.exp(-max(dt, 0.0) / max(self.cfg.diverge_time, 1e-6))
+        for i in np.unique(owner[owner >= 0]):
+            m = float(np.median(np.abs(excess[owner == i])))
+            rec = self.recs[i]
+            rec.misfit += g * (m - rec.misfit)
 
     def _angles(self, i: int, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Sensor-aware contour angles (k,) of detections z (k, 2) of track i: Hungarian
@@ -299,6 +314,9 @@ class Tracker:
             k = idx[lab == c]
             z, dop, rng = det.z[k], det.doppler[k], det.rng[k]
             centroid = z.mean(axis=0)
+            if (np.linalg.norm(centroid - sensor)
+                    < self.fov.min_range + cfg.birth_blind_margin):
+                continue
             zone = self.zones.locate(centroid)
             if zone is None and not cfg.birth_anywhere:
                 continue
@@ -354,6 +372,9 @@ class Tracker:
             end[j] = bool(np.any(dup[:, j] & ~end & (pos < pos[j])))
         blind = self.fov.blind(self.x[:, [X, Y]])
         for i, rec in enumerate(self.recs):
+            if rec.misfit > cfg.diverge_excess:
+                end[i] = True
+                continue
             if rec.confirmed:
                 patience = cfg.delete_after_blind if blind[i] else cfg.delete_after
                 end[i] |= t - rec.last_update_t > patience
@@ -371,7 +392,7 @@ class Tracker:
             return
         for i in np.flatnonzero(mask):
             rec = self.recs[i]
-            if rec.confirmed:
+            if rec.confirmed and rec.hits >= self.cfg.min_output_hits:
                 self.done.append(self._to_track(rec))
         keep = ~mask
         self.recs = [r for r, k in zip(self.recs, keep) if k]
