@@ -18,13 +18,16 @@ from pathlib import Path
 
 import numpy as np
 
+from fgloc.config import Config, load_config
 from fgloc.evaluate import pose_error
 from fgloc.io import load_scenario, write_scenario
 from fgloc.pipeline import METHODS, localize
 from fgloc.sim import simulate
 
 
-def run(case: str, seed: int, duration: float, methods: list[str], work: Path) -> list[dict]:
+def run(
+    case: str, seed: int, duration: float, methods: list[str], work: Path, cfg: Config
+) -> list[dict]:
     d = work / f"{case}-{seed}"
     write_scenario(simulate(case, seed, duration=duration), d)
     rows = []
@@ -34,7 +37,7 @@ def run(case: str, seed: int, duration: float, methods: list[str], work: Path) -
             scn.sensor = dataclasses.replace(scn.sensor, yaw_guess_deg=None)
         for method in methods:
             t0 = time.perf_counter()
-            res = localize(scn, method=method)
+            res = localize(scn, method=method, config=cfg)
             dt = time.perf_counter() - t0
             err = pose_error(res.T_local, scn.truth.sensor_pose)
             rows.append(
@@ -59,7 +62,9 @@ def main() -> int:
     ap.add_argument("--methods", nargs="+", default=["icp"], choices=sorted(METHODS))
     ap.add_argument("--duration", type=float, default=60.0)
     ap.add_argument("--json", default=None, help="also write all rows to this JSON file")
+    ap.add_argument("--config", default=None, help="fgloc config TOML (default: all defaults)")
     args = ap.parse_args()
+    cfg = load_config(args.config)
 
     print(
         f"{'case':<13}{'seed':>4} {'guess':<6}{'method':<14}{'|dx|':>7}{'|dy|':>7}{'2D':>7}"
@@ -69,7 +74,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for case in args.cases:
             for seed in args.seeds:
-                for r in run(case, seed, args.duration, args.methods, Path(tmp)):
+                for r in run(case, seed, args.duration, args.methods, Path(tmp), cfg):
                     rows.append(r)
                     print(
                         f"{case:<13}{seed:>4} {'yes' if r['guess'] else 'no':<6}"

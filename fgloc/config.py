@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any, TypeVar
 
 from fgloc.errors import InputError
-from fgloc.registration.config import SicpConfig
+from fgloc.registration.config import FineConfig, SicpConfig
 from fgloc.tracking.config import TrackingConfig
 
 if sys.version_info >= (3, 11):
@@ -119,6 +119,7 @@ class Config:
     coarse: CoarseConfig = field(default_factory=CoarseConfig)
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     sicp: SicpConfig = field(default_factory=SicpConfig)
+    fine: FineConfig = field(default_factory=FineConfig)
 
 
 # --------------------------------------------------------------------------------------------

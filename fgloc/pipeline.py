@@ -13,6 +13,7 @@ import numpy as np
 
 from fgloc.config import Config
 from fgloc.errors import FglocError
+from fgloc.fine import run_filter_sicp
 from fgloc.geo import transform_points
 from fgloc.labels import STRAIGHT
 from fgloc.progress import Timer
@@ -113,7 +114,7 @@ def _run_icp(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
 
 
 #: method name -> implementation; ``fgloc localize --method`` offers exactly these keys.
-METHODS: dict[str, MethodFn] = {"icp": _run_icp}
+METHODS: dict[str, MethodFn] = {"icp": _run_icp, "filter-sicp": run_filter_sicp}
 
 
 def localize(

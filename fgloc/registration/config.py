@@ -51,3 +51,52 @@ class SicpConfig:
     """Half-width (m) of the square target neighbourhood whose spread shapes each
     correspondence's weight matrix in the information (so sliding along a road shows as weak);
     0 = isotropic (plain point-to-point information)."""
+
+
+#: What the source cloud of filter-sicp is made of (see :mod:`fgloc.source`).
+SOURCE_KINDS: tuple[str, ...] = ("detections", "centres", "contours")
+#: What the source cloud of filter-sicp is registered to (see :mod:`fgloc.fine`).
+TARGET_KINDS: tuple[str, ...] = ("road-points", "lane-centres", "visible-sides")
+
+
+@dataclass
+class FineConfig:
+    """Fine stage of ``--method filter-sicp`` (``[fine]``): the labelled source cloud built from
+    the tracks (paper III-C), the labelled target it is registered to, and the start of the SICP
+    schedule. Distances in metres.
+
+    The other paper parameters of this stage live where the stage that uses them is configured:
+    lambda (doppler threshold, 0.5 m/s) is ``coarse.doppler_min`` and ``tracking.doppler_min``;
+    eta (kappa = yawrate / v threshold of the source labels, 0.01 rad/m) is ``tracking.eta``;
+    gamma (Menger-curvature threshold of the target labels, 0.01 1/m) is ``map.gamma``; the SICP
+    schedule and stop rule (50 m, 100 iterations, dRMSE < 1e-4 m) are ``[sicp]``, except that
+    ``start_range`` below overrides ``sicp.max_correspondence`` for this method.
+    """
+
+    source: str = "detections"
+    """Source points: "detections" = the radar detections each track used, placed in C with
+    T_coarse, labelled by their track's state (the paper); "centres" = the tracked vehicle
+    centres (GP-EOT state x, y), which follow the lane centres; "contours" = the 20 contour
+    points of every tracked state."""
+    target: str = "visible-sides"
+    """Target points: "road-points" = the labelled ALS road points of the target cloud (the
+    paper); "lane-centres" = the centre lines of the target cloud's lanelets, sampled every
+    ``lane_sample_step`` m, each sample labelled with its lanelet's label; "visible-sides" =
+    those centre lines shifted ``coarse.visible_side_offset`` m towards the sensor (where the
+    radar sees a vehicle's side on average; the target for "detections")."""
+    lane_sample_step: float = 0.25
+    """Spacing (m) of the samples on the lanelet centre lines (target "lane-centres")."""
+    n_trajectories: int | None = None
+    """Use at most this many trajectories (tracks), chosen at random with ``Config.seed`` (the
+    paper uses 20 of 80 and 50 of 146); None = all."""
+    trajectory_share: float = 1.0
+    """Use this share (0, 1] of the trajectories, chosen at random with ``Config.seed``; with
+    n_trajectories both limits apply."""
+    voxel_size: float | None = None
+    """Edge (m) of the per-label voxel grid the source points are averaged on (paper: the
+    target's voxel size); None = ``map.voxel_size``."""
+    start_range: float = 5.0
+    """First maximum correspondence distance (m) of SICP for this method, overriding
+    ``sicp.max_correspondence`` (50 m in the paper, meant for a start far from the solution);
+    0 = use ``sicp.max_correspondence``. The coarse pose is within about a metre, and a wide
+    first range lets far, wrong correspondences bias the result (docs/benchmarks.md)."""

@@ -1,0 +1,218 @@
+"""``--method filter-sicp``: the labelled source cloud from tracks, the fine stage's warnings,
+covariance and tracks, and accuracy end to end on a short simulated scenario."""
+
+from __future__ import annotations
+
+import dataclasses
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from fgloc.coarse import coarse_localize
+from fgloc.config import Config, dump_config, load_config
+from fgloc.evaluate import pose_error
+from fgloc.fine import register_tracks, sensor_covariance
+from fgloc.geo import rot_z, se2, se3, transform_points
+from fgloc.labels import LEFT, RIGHT, STRAIGHT
+from fgloc.map import build_target_cloud
+from fgloc.pipeline import METHODS, localize
+from fgloc.progress import Timer
+from fgloc.registration.config import FineConfig
+from fgloc.scenario import RadarData
+from fgloc.sim import simulate
+from fgloc.source import build_source_cloud, choose_tracks, voxel_per_label
+from fgloc.tracking import track_scenario
+from fgloc.tracks import N_STATE, Track, TrackSet
+
+
+def _track(tid: int, xy: np.ndarray, labels: list[int], det_index: list[int],
+           det_step: list[int]) -> Track:
+    states = np.zeros((len(xy), N_STATE))
+    states[:, :2] = xy
+    states[:, 6:] = 1.0  # unit circle contour
+    return Track(tid, np.arange(len(xy), dtype=float), states, np.array(labels, np.int8),
+                 det_index=np.array(det_index, np.int64), det_step=np.array(det_step, np.int64))
+
+
+def _cfg(**fine) -> Config:
+    cfg = Config()
+    cfg.fine = dataclasses.replace(cfg.fine, **fine)
+    return cfg
+
+
+@pytest.fixture
+def constructed() -> tuple[SimpleNamespace, TrackSet, np.ndarray]:
+    """Six detections (S) used by two tracks, and T_coarse = 90 deg turn + (100, 0, 5)."""
+    xyz = np.array([[0.0, 0, 1], [0.1, 0, 1], [10, 0, 1], [20, 0, 1], [30, 0, 1], [40, 0, 1]])
+    radar = RadarData(np.arange(6.0), xyz, np.ones(6))
+    a = _track(7, np.array([[0.0, 0], [10, 0], [20, 0]]), [STRAIGHT, LEFT, LEFT],
+               [0, 1, 2, 3], [0, 0, 1, 2])
+    b = _track(9, np.array([[30.0, 0], [40, 0]]), [RIGHT, RIGHT], [4, 5], [0, 1])
+    T = se3(rot_z(np.pi / 2), [100.0, 0.0, 5.0])
+    return SimpleNamespace(radar=radar), TrackSet([a, b]), T
+
+
+def test_detections_in_c_labelled_by_their_state(constructed):
+    scn, tracks, T = constructed
+    src = build_source_cloud(scn, tracks, T, _cfg(source="detections", voxel_size=0.5))
+    expect = transform_points(T, scn.radar.xyz)[:, :2]
+    # detections 0 and 1 share a voxel and a label (straight, step 0 of track 7): averaged
+    assert len(src) == 5 and src.n_raw == 6
+    np.testing.assert_allclose(src.xy[np.argmin(src.xy[:, 1])], expect[:2].mean(axis=0))
+    lab = dict(zip(map(tuple, np.round(src.xy, 6)), src.label))
+    assert lab[tuple(np.round(expect[2], 6))] == LEFT  # det_step 1 of track 7
+    assert lab[tuple(np.round(expect[3], 6))] == LEFT  # det_step 2
+    assert lab[tuple(np.round(expect[5], 6))] == RIGHT  # track 9
+    assert set(src.track_id.tolist()) == {7, 9}
+    assert src.summary()["points_per_label"] == {"straight": 1, "left": 2, "right": 2}
+
+
+def test_centres_and_contours(constructed):
+    scn, tracks, T = constructed
+    cen = build_source_cloud(scn, tracks, T, _cfg(source="centres"))
+    np.testing.assert_allclose(np.sort(cen.xy[:, 0]), [0, 10, 20, 30, 40])
+    assert sorted(cen.label.tolist()) == [STRAIGHT, LEFT, LEFT, RIGHT, RIGHT]
+    con = build_source_cloud(scn, tracks, T, _cfg(source="contours", voxel_size=0.01))
+    assert len(con) == 5 * 20  # 20 contour points on a unit circle around each centre
+    d = np.linalg.norm(con.xy - np.round(con.xy / 10) * 10, axis=1)
+    np.testing.assert_allclose(d, 1.0, atol=0.01)
+
+
+def test_voxels_are_per_label():
+    xy = np.array([[0.1, 0.1], [0.2, 0.2], [0.3, 0.3], [1.6, 0.1]])
+    cent, lab, first = voxel_per_label(xy, np.array([0, 0, 1, 0], np.int8), 1.0)
+    assert len(cent) == 3
+    np.testing.assert_allclose(cent[(lab == 0) & (cent[:, 0] < 1)], [[0.15, 0.15]])
+    np.testing.assert_allclose(cent[lab == 1], [[0.3, 0.3]])
+    assert sorted(first.tolist()) == [0, 2, 3]
+
+
+def test_voxel_default_is_the_targets(constructed):
+    scn, tracks, T = constructed
+    cfg = _cfg(source="detections")
+    cfg.map = dataclasses.replace(cfg.map, voxel_size=100.0)
+    src = build_source_cloud(scn, tracks, T, cfg)
+    assert len(src) == 3  # one voxel per label
+
+
+def test_trajectory_subset_is_seeded():
+    fine = FineConfig(n_trajectories=20)
+    a = choose_tracks(80, fine, np.random.default_rng(4))
+    b = choose_tracks(80, fine, np.random.default_rng(4))
+    c = choose_tracks(80, fine, np.random.default_rng(5))
+    assert len(a) == 20 and len(np.unique(a)) == 20 and np.all(np.diff(a) > 0)
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+    assert len(choose_tracks(146, FineConfig(trajectory_share=0.5), np.random.default_rng(0))) == 73
+    both = FineConfig(n_trajectories=50, trajectory_share=0.25)
+    assert len(choose_tracks(146, both, np.random.default_rng(0))) == 37
+    np.testing.assert_array_equal(choose_tracks(5, fine, np.random.default_rng(0)), np.arange(5))
+
+
+def test_subset_through_config_seed(constructed):
+    scn, tracks, T = constructed
+    cfg = _cfg(source="centres", n_trajectories=1)
+    ids = {int(build_source_cloud(scn, tracks, T, dataclasses.replace(cfg, seed=s)).track_id[0])
+           for s in range(20)}
+    assert ids == {7, 9}
+    again = build_source_cloud(scn, tracks, T, cfg)
+    assert build_source_cloud(scn, tracks, T, cfg).n_tracks_used == again.n_tracks_used == 1
+    assert again.n_tracks_total == 2
+
+
+def test_invalid_fine_config(constructed):
+    scn, tracks, T = constructed
+    for bad in ({"source": "pixels"}, {"target": "roads"}, {"trajectory_share": 0.0},
+                {"n_trajectories": 0}, {"voxel_size": -1.0}, {"start_range": -1.0}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            build_source_cloud(scn, tracks, T, _cfg(**bad))
+
+
+def test_fine_config_round_trips_through_toml(tmp_path):
+    cfg = _cfg(source="detections", target="road-points", n_trajectories=20, start_range=0.0)
+    p = tmp_path / "c.toml"
+    p.write_text(dump_config(cfg))
+    assert load_config(p).fine == cfg.fine
+
+
+def test_sensor_covariance_propagates_the_lever_arm():
+    cov = np.diag([0.01, 0.04, 1e-4])
+    out = sensor_covariance(cov, se2(0.0, 0.0, 0.0), np.array([10.0, 0.0]))
+    # turning by dyaw moves a point at (10, 0) by 10 dyaw along y
+    np.testing.assert_allclose(out, [[0.01, 0, 0], [0, 0.04 + 100e-4, 1e-3], [0, 1e-3, 1e-4]])
+    assert sensor_covariance(None, np.eye(3), np.zeros(2)) is None
+
+
+# ---------------------------------------------------------------------------------------------
+# end to end on a short simulated scenario (one coarse + tracking run shared by the tests)
+# ---------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def stages():
+    scn = simulate("tjunction", 4, duration=20.0)
+    cfg = Config()
+    target = build_target_cloud(scn, cfg.map)
+    coarse = coarse_localize(scn, target, cfg.coarse)
+    tracks = track_scenario(scn, coarse.T_coarse, cfg.tracking)
+    return scn, cfg, target, coarse, tracks
+
+
+def test_registered_in_methods():
+    assert "filter-sicp" in METHODS
+
+
+def test_short_scenario_within_bars(stages):
+    scn, cfg, target, coarse, tracks = stages
+    res = register_tracks(scn, cfg, target, coarse, tracks, Timer(), "filter-sicp")
+    err = pose_error(res.T_local, scn.truth.sensor_pose)
+    assert err.d2d < 0.7 and err.dyaw_deg < 0.4
+    assert res.converged and res.covariance is not None and res.covariance.shape == (3, 3)
+    d = res.diagnostics
+    assert d["sicp"]["stop_reason"] == "rmse_converged" and d["source"]["n_points"] > 100
+    assert d["tracking"]["n_tracks"] == len(tracks)
+    assert res.source_xyz.shape == (len(res.source_label), 3)
+    # the tracks carry T_fine: in L they are the C states moved by T_fine
+    T_fine = res.tracks.T_frame_to_L
+    assert not np.allclose(T_fine, np.eye(3))
+    np.testing.assert_allclose(
+        np.vstack([t.states[:, :2] for t in res.tracks.in_local().tracks]),
+        transform_points(T_fine, np.vstack([t.states[:, :2] for t in tracks.tracks])),
+    )
+    np.testing.assert_allclose(res.T_local[:2, :2] @ np.ones(2),
+                               T_fine[:2, :2] @ coarse.T_coarse[:2, :2] @ np.ones(2))
+    assert res.to_json()["method"] == "filter-sicp"
+
+
+def test_too_few_points_drop_a_label_with_a_warning(stages):
+    scn, cfg, target, coarse, tracks = stages
+    counts = build_source_cloud(scn, tracks, coarse.T_coarse, cfg).summary()["points_per_label"]
+    n_min = max(counts["left"], counts["right"]) + 1
+    assert n_min <= counts["straight"]
+    cfg = dataclasses.replace(cfg, sicp=dataclasses.replace(cfg.sicp, min_points_per_label=n_min))
+    res = register_tracks(scn, cfg, target, coarse, tracks, Timer(), "filter-sicp")
+    assert sorted(res.diagnostics["sicp"]["dropped_labels"]) == ["left", "right"]
+    assert sum("dropped" in w for w in res.to_json()["warnings"]) == 2
+    assert pose_error(res.T_local, scn.truth.sensor_pose).d2d < 1.0
+
+
+def test_iteration_limit_is_not_converged(stages):
+    scn, cfg, target, coarse, tracks = stages
+    cfg = dataclasses.replace(cfg, sicp=dataclasses.replace(cfg.sicp, max_iterations=1))
+    res = register_tracks(scn, cfg, target, coarse, tracks, Timer(), "filter-sicp")
+    assert not res.converged and res.diagnostics["sicp"]["stop_reason"] == "max_iterations"
+    assert any("iteration limit" in w for w in res.warnings)
+
+
+def test_no_tracks_keeps_the_coarse_pose(stages):
+    scn, cfg, target, coarse, _ = stages
+    res = register_tracks(scn, cfg, target, coarse, TrackSet([]), Timer(), "filter-sicp")
+    np.testing.assert_allclose(res.T_local, coarse.T_coarse)
+    assert not res.converged and any("coarse one" in w for w in res.warnings)
+
+
+@pytest.mark.slow
+def test_localize_end_to_end(stages):
+    scn = stages[0]
+    res = localize(scn, "filter-sicp")
+    assert set(res.timings) >= {"coarse ICP", "tracking", "source cloud", "SICP"}
+    assert pose_error(res.T_local, scn.truth.sensor_pose).d2d < 0.7
