@@ -315,7 +315,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     s = sub.add_parser("demo", help="run the pipeline on the built-in example and print errors")
     s.add_argument("--out", default=None, help="output directory (default: a temporary one)")
-    s.add_argument("--method", choices=sorted(METHODS), default="icp")
+    s.add_argument("--method", choices=sorted(METHODS), default="filter-sicp")
     s.set_defaults(fn=cmd_demo)
 
     s = sub.add_parser("config", help="print the configuration with every default")

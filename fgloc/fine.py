@@ -33,7 +33,7 @@ from fgloc.labels import NAMES
 from fgloc.progress import Timer
 from fgloc.registration.config import FineConfig, SicpConfig
 from fgloc.registration.sicp import SemanticTargets, SicpResult, sicp
-from fgloc.result import LocalizationResult
+from fgloc.result import LocalizationResult, json_ready
 from fgloc.scenario import Scenario
 from fgloc.source import SourceCloud, build_source_cloud, check_fine_config
 
@@ -166,11 +166,13 @@ def register_tracks(
 
     A label with too few source or target points is dropped with a warning; a SICP that stops
     on its iteration limit or finds too few correspondences leaves ``converged`` False (with
-    too few correspondences the pose stays the coarse one). The result's covariance is the
-    sensor's (x, y, yaw) in L from SICP's information (None when singular), its source cloud is
-    in L after the final pose and its tracks carry ``T_frame_to_L = T_fine``.
+    too few correspondences the pose stays the coarse one). The sensor's (x, y, yaw) covariance
+    from SICP's information treats every source point as independent, which it is not (points
+    of one vehicle share its track's errors): it is reported in the diagnostics as
+    ``sicp.sensor_covariance_uncalibrated`` and the result's ``covariance`` stays None until a
+    calibrated one exists (the joint method). The source cloud is in L after the final pose and
+    the tracks carry ``T_frame_to_L = T_fine``.
     """
-    from fgloc.pipeline import _json_ready
 
     with timer.stage("source cloud"):
         src = build_source_cloud(scn, tracks, coarse.T_coarse, cfg)
@@ -195,13 +197,18 @@ def register_tracks(
         frame=scn.frame,
         T_local=se2_to_se3(T_fine) @ coarse.T_coarse,
         converged=coarse.converged and res.converged,
-        covariance=sensor_covariance(res.covariance, T_fine, coarse.T_coarse[:2, 3]),
-        diagnostics=_json_ready({
+        covariance=None,
+        diagnostics=json_ready({
             "target": target.summary(),
             "coarse": coarse_diag,
             "tracking": {**tracking_diag, "n_tracks": len(tracks), "n_states": n_states},
             "source": src.summary(),
-            "sicp": _sicp_diagnostics(res, scfg, targets, cfg.fine),
+            "sicp": {
+                **_sicp_diagnostics(res, scfg, targets, cfg.fine),
+                "sensor_covariance_uncalibrated": sensor_covariance(
+                    res.covariance, T_fine, coarse.T_coarse[:2, 3]
+                ),
+            },
         }),
         warnings=warnings,
         config=cfg,

@@ -17,7 +17,7 @@ from fgloc.fine import run_filter_sicp
 from fgloc.geo import transform_points
 from fgloc.labels import STRAIGHT
 from fgloc.progress import Timer
-from fgloc.result import LocalizationResult
+from fgloc.result import LocalizationResult, json_ready
 from fgloc.scenario import Scenario
 from fgloc.tracks import TrackSet
 
@@ -72,21 +72,6 @@ def track(
     return TrackingRun(tracks, T, coarse, dict(timer.seconds))
 
 
-def _json_ready(d: dict) -> dict:
-    """Diagnostics dict with numpy values turned into JSON types."""
-    out = {}
-    for k, v in d.items():
-        if isinstance(v, np.ndarray):
-            out[k] = v.tolist()
-        elif isinstance(v, (np.floating, np.integer)):
-            out[k] = v.item()
-        elif isinstance(v, dict):
-            out[k] = _json_ready(v)
-        else:
-            out[k] = v
-    return out
-
-
 def _run_icp(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
     """Coarse-only localization: accumulated dynamic points + ICP (the paper's Table II
     baseline)."""
@@ -104,7 +89,7 @@ def _run_icp(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
         frame=scn.frame,
         T_local=coarse.T_coarse,
         converged=coarse.converged,
-        diagnostics={"target": target.summary(), "coarse": _json_ready(diag)},
+        diagnostics={"target": target.summary(), "coarse": json_ready(diag)},
         warnings=[*target.warnings, *coarse.warnings],
         config=cfg,
         source_xyz=src,

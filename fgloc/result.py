@@ -19,6 +19,19 @@ if TYPE_CHECKING:
     from fgloc.tracks import TrackSet
 
 
+def json_ready(value: Any) -> Any:
+    """A diagnostics value with numpy arrays and scalars turned into JSON types (recursively)."""
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (np.floating, np.integer, np.bool_)):
+        return value.item()
+    if isinstance(value, dict):
+        return {k: json_ready(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_ready(v) for v in value]
+    return value
+
+
 @dataclass
 class LocalizationResult:
     """What a localization method found.
