@@ -54,13 +54,43 @@ class RadarData:
         return float(self.t[-1] - self.t[0]) if len(self) else 0.0
 
     def frame_ids(self) -> np.ndarray:
-        """Frame index per detection: the ``frame`` column, else one frame per distinct t."""
+        """(N,) int64 frame index per detection.
+
+        The ``frame`` column when present; else detections sharing a timestamp form a frame;
+        else (every detection stamped on its own) :func:`burst_frame_ids` groups them.
+        """
         if self.frame is not None:
             return self.frame
         if len(self) == 0:
             return np.zeros(0, dtype=np.int64)
-        new = np.concatenate([[0], (np.diff(self.t) > 0).astype(np.int64)])
-        return np.cumsum(new)
+        ids = np.concatenate([[0], np.cumsum(np.diff(self.t) > 0)]).astype(np.int64)
+        if len(self) >= 2 * (ids[-1] + 1):  # at least two detections per timestamp on average
+            return ids
+        return burst_frame_ids(self.t)
+
+
+#: Longest plausible radar frame (s); longer bursts are cut into windows of this length / 4.
+MAX_FRAME_SPAN = 0.2
+
+
+def burst_frame_ids(t: np.ndarray, min_gap: float = 0.005) -> np.ndarray:
+    """Frame ids for detections stamped one by one (t non-decreasing, s).
+
+    A new frame starts at a gap in t longer than 10x the median positive step (and at least
+    ``min_gap`` s). If that leaves frames longer than :data:`MAX_FRAME_SPAN` (continuous
+    stamping without gaps), fixed windows of ``MAX_FRAME_SPAN / 4`` s (50 ms, a 20 Hz radar) are
+    used instead.
+    """
+    dt = np.diff(t)
+    pos = dt[dt > 0]
+    thr = max(10.0 * float(np.median(pos)), min_gap) if len(pos) else np.inf
+    ids = np.concatenate([[0], np.cumsum(dt > thr)]).astype(np.int64)
+    starts = np.flatnonzero(np.concatenate([[True], np.diff(ids) > 0]))
+    ends = np.append(starts[1:], len(t)) - 1
+    if np.max(t[ends] - t[starts]) <= MAX_FRAME_SPAN:
+        return ids
+    window = MAX_FRAME_SPAN / 4.0
+    return np.floor((t - t[0]) / window).astype(np.int64)
 
 
 @dataclass
