@@ -111,9 +111,12 @@ def test_variant_loads_like_the_original(variant_dir):
     assert got.sensor.yaw_guess_deg is None and got.sensor.approx_height is None
 
 
-def test_variant_localizes_within_bounds(variant_dir):
+@pytest.mark.parametrize(
+    "method, max_2d, max_yaw", [("icp", 1.5, 1.5), ("filter-sicp", 0.7, 0.4)], ids=str
+)
+def test_variant_localizes_within_bounds(variant_dir, method, max_2d, max_yaw):
     d, _ = variant_dir
     got = load_scenario(d)
-    res = localize(got, method="icp")
+    res = localize(got, method=method)
     err = pose_error(res.T_local, got.truth.sensor_pose)
-    assert err.d2d < 1.5 and err.dyaw_deg < 1.5, err
+    assert err.d2d < max_2d and err.dyaw_deg < max_yaw, err
