@@ -46,10 +46,17 @@ from scipy.ndimage import distance_transform_edt
 from scipy.spatial import cKDTree
 
 from fgloc._open3d import open3d
-from fgloc.config import CoarseConfig
+from fgloc.config import CoarseConfig, Config
 from fgloc.errors import LocalizationError
 from fgloc.geo import pose_from_se3, rot_from_ypr, rot_z, se3, wrap_angle, ypr_from_rot
-from fgloc.map import TargetCloud, approx_position_local, check_inside_als, voxel_centroids
+from fgloc.map import (
+    TargetCloud,
+    approx_position_local,
+    build_target_cloud,
+    check_inside_als,
+    voxel_centroids,
+)
+from fgloc.progress import Timer
 from fgloc.scenario import Lanelet, RadarData, Scenario
 
 
@@ -549,3 +556,13 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig) -> Co
         warnings=warnings,
         source_xyz=src,
     )
+
+
+def target_and_coarse(scn: Scenario, cfg: Config, timer: Timer) -> tuple[TargetCloud, CoarseResult]:
+    """The first two stages every method shares: the labelled target cloud, then the coarse
+    pose; their wall times go to ``timer`` as "target cloud" and "coarse ICP"."""
+    with timer.stage("target cloud"):
+        target = build_target_cloud(scn, cfg.map)
+    with timer.stage("coarse ICP"):
+        coarse = coarse_localize(scn, target, cfg.coarse)
+    return target, coarse

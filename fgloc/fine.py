@@ -143,14 +143,10 @@ def run_filter_sicp(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationRes
 
     Raises :class:`fgloc.errors.LocalizationError` when the coarse stage cannot find a pose.
     """
-    from fgloc.coarse import coarse_localize
-    from fgloc.map import build_target_cloud
+    from fgloc.coarse import target_and_coarse
     from fgloc.tracking import track_scenario
 
-    with timer.stage("target cloud"):
-        target = build_target_cloud(scn, cfg.map)
-    with timer.stage("coarse ICP"):
-        coarse = coarse_localize(scn, target, cfg.coarse)
+    target, coarse = target_and_coarse(scn, cfg, timer)
     with timer.stage("tracking"):
         tracks = track_scenario(scn, coarse.T_coarse, cfg.tracking)
     return register_tracks(scn, cfg, target, coarse, tracks, timer, method="filter-sicp")

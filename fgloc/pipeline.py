@@ -50,8 +50,7 @@ def track(
     The detections are placed with T_coarse from the coarse stage, or, with ``oracle_pose``,
     with the ground-truth sensor pose, to measure tracking alone (paper section V-A).
     """
-    from fgloc.coarse import coarse_localize
-    from fgloc.map import build_target_cloud
+    from fgloc.coarse import target_and_coarse
     from fgloc.tracking import track_scenario
 
     cfg = config or Config()
@@ -62,10 +61,7 @@ def track(
             raise FglocError("--oracle-pose needs the scenario's ground_truth.json")
         T = scenario.truth.sensor_pose
     else:
-        with timer.stage("target cloud"):
-            target = build_target_cloud(scenario, cfg.map)
-        with timer.stage("coarse ICP"):
-            coarse = coarse_localize(scenario, target, cfg.coarse)
+        _, coarse = target_and_coarse(scenario, cfg, timer)
         T = coarse.T_coarse
     with timer.stage("tracking"):
         tracks = track_scenario(scenario, T, cfg.tracking)
@@ -75,13 +71,9 @@ def track(
 def _run_icp(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
     """Coarse-only localization: accumulated dynamic points + ICP (the paper's Table II
     baseline)."""
-    from fgloc.coarse import coarse_localize
-    from fgloc.map import build_target_cloud
+    from fgloc.coarse import target_and_coarse
 
-    with timer.stage("target cloud"):
-        target = build_target_cloud(scn, cfg.map)
-    with timer.stage("coarse ICP"):
-        coarse = coarse_localize(scn, target, cfg.coarse)
+    target, coarse = target_and_coarse(scn, cfg, timer)
     src = transform_points(coarse.T_coarse, coarse.source_xyz)
     diag = {k: v for k, v in asdict(coarse).items() if k not in ("T_coarse", "source_xyz")}
     return LocalizationResult(
