@@ -88,9 +88,9 @@ def test_voxels_are_per_label():
     assert sorted(first.tolist()) == [0, 2, 3]
 
 
-def test_voxel_default_is_the_targets(constructed):
+def test_voxel_none_is_the_targets(constructed):
     scn, tracks, T = constructed
-    cfg = _cfg(source="detections")
+    cfg = _cfg(source="detections", voxel_size=None)
     cfg.map = dataclasses.replace(cfg.map, voxel_size=100.0)
     src = build_source_cloud(scn, tracks, T, cfg)
     assert len(src) == 3  # one voxel per label

@@ -92,9 +92,11 @@ class FineConfig:
     trajectory_share: float = 1.0
     """Use this share (0, 1] of the trajectories, chosen at random with ``Config.seed``; with
     n_trajectories both limits apply."""
-    voxel_size: float | None = None
-    """Edge (m) of the per-label voxel grid the source points are averaged on (paper: the
-    target's voxel size); None = ``map.voxel_size``."""
+    voxel_size: float | None = 1.0
+    """Edge (m) of the per-label voxel grid the source points are averaged on; None (Python
+    API only) = ``map.voxel_size``, the paper's choice of the target's voxel size. 1 m is the
+    default because it registered better than 0.5 m in both variant grids
+    (bench/fine_variants.py: mean 2D 0.136 m against 0.176 m over 10 runs)."""
     start_range: float = 5.0
     """First maximum correspondence distance (m) of SICP for this method, overriding
     ``sicp.max_correspondence`` (50 m in the paper, meant for a start far from the solution);
