@@ -20,6 +20,14 @@ x along the heading) and measured from the object centre.
   next to its candidate, so the residual has no along-contour part from the candidate spacing
   or the capacity limit (like point-to-closest-point ICP, it still pulls an end of the visible
   contour out to detections beyond it).
+* normal-offset form of the sensor-aware model (:func:`closest_on_chain`,
+  :func:`normal_offset`): each detection is matched to the closest point of the *visible* part
+  of the contour (the polyline of visible samples) and only its offset along the contour's
+  outward normal there is a measurement (1D, like point-to-plane ICP): where on a face a
+  detection lies carries no information. The visible extent is measured separately: the
+  extreme detections along a face that is seen lie at the face's ends, i.e. the same scalar
+  form with the axis direction as "normal" and the axis angle (0, pi/2, pi, 3 pi/2) as
+  ``theta`` (``extent`` rows of the tracker).
 * :func:`range_rate` -- Doppler of a detection on a rigid body moving with CTRA kinematics.
 """
 
@@ -78,29 +86,28 @@ def range_rate(z: np.ndarray, rng: np.ndarray, centre: np.ndarray, v: np.ndarray
 
 
 def contour_candidates(points: np.ndarray, sensor: np.ndarray) -> np.ndarray:
-    """Mask (m,) of the contour points (m, 2) (a closed CCW polygon, dense) visible from the
-    sensor position (2,): the outward normal (central difference) faces the sensor and the line
-    of sight crosses no contour edge before reaching the point. (Field-of-view limits are the
-    caller's: AND this with them.)"""
+    """Mask (..., m) of the contour points (..., m, 2) (closed CCW polygons, dense; leading
+    axes are a batch) visible from the sensor position (2,): the outward normal (central
+    difference) faces the sensor and the line of sight crosses no contour edge before reaching
+    the point. (Field-of-view limits are the caller's: AND this with them.)"""
     p = np.asarray(points, dtype=float)
     s = np.asarray(sensor, dtype=float)
-    tangent = np.roll(p, -1, axis=0) - np.roll(p, 1, axis=0)
-    normal = np.stack([tangent[:, 1], -tangent[:, 0]], axis=1)      # outward for CCW
-    facing = np.sum(normal * (s - p), axis=1) > 0
+    nxt = np.roll(p, -1, axis=-2)
+    tangent = nxt - np.roll(p, 1, axis=-2)
+    facing = (tangent[..., 1] * (s[0] - p[..., 0]) - tangent[..., 0] * (s[1] - p[..., 1])) > 0
     # self-occlusion: segment s -> p_i against edges (p_j, p_j+1) not adjacent to i
-    a = p
-    e = np.roll(p, -1, axis=0) - p
-    d = p - s                                                       # (m, 2) line of sight
-    ac = a[None, :, :] - s                                          # (1, m, 2)
-    den = d[:, None, 0] * e[None, :, 1] - d[:, None, 1] * e[None, :, 0]
+    e = nxt - p                                                     # (..., m, 2) edges
+    d = p - s                                                       # (..., m, 2) sight lines
+    den = d[..., :, None, 0] * e[..., None, :, 1] - d[..., :, None, 1] * e[..., None, :, 0]
+    ac0, ac1 = d[..., None, :, 0], d[..., None, :, 1]               # edge starts minus s
     with np.errstate(divide="ignore", invalid="ignore"):
-        t = (ac[..., 0] * e[None, :, 1] - ac[..., 1] * e[None, :, 0]) / den
-        w = (ac[..., 0] * d[:, None, 1] - ac[..., 1] * d[:, None, 0]) / den
-    m = len(p)
+        t = (ac0 * e[..., None, :, 1] - ac1 * e[..., None, :, 0]) / den
+        w = (ac0 * d[..., :, None, 1] - ac1 * d[..., :, None, 0]) / den
+    m = p.shape[-2]
     idx = np.arange(m)
     adjacent = (idx[None, :] == idx[:, None]) | (idx[None, :] == (idx[:, None] - 1) % m)
     hit = (t > 0) & (t < 1 - 1e-9) & (w >= 0) & (w <= 1) & ~adjacent
-    return facing & ~hit.any(axis=1)
+    return facing & ~hit.any(axis=-1)
 
 
 def associate_candidates(z: np.ndarray, candidates: np.ndarray, capacity: int) -> np.ndarray:
@@ -146,3 +153,50 @@ def project_on_contour(z: np.ndarray, points: np.ndarray, theta: np.ndarray,
     direction = np.where(tiny[:, None], normal, res)
     direction /= np.maximum(np.linalg.norm(direction, axis=1, keepdims=True), 1e-12)
     return out, direction
+
+
+def closest_on_chain(z: np.ndarray, points: np.ndarray, theta: np.ndarray,
+                     visible: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest point of the visible part of a closed CCW polygon to each detection.
+
+    z (..., k, 2) detections; points (..., m, 2) the polygon sampled at the equally spaced
+    angles theta (m,); visible (..., m) mask (leading axes are a batch). The chain is every
+    edge (j, j + 1) with both ends visible (all edges if there is none). Returns the contour
+    angle (..., k) of the closest point (linear in the edge parameter) and the unit outward
+    normal (..., k, 2) of that edge."""
+    p = np.asarray(points, dtype=float)
+    z = np.asarray(z, dtype=float)
+    m = p.shape[-2]
+    step = 2.0 * np.pi / m
+    vis = np.asarray(visible, dtype=bool)
+    chain = vis & np.roll(vis, -1, axis=-1)
+    chain = chain | ~chain.any(axis=-1, keepdims=True)
+    e = np.roll(p, -1, axis=-2) - p                                 # (..., m, 2)
+    ee = np.maximum(np.sum(e * e, axis=-1), 1e-12)                  # (..., m)
+    d = z[..., :, None, :] - p[..., None, :, :]                     # (..., k, m, 2)
+    u = np.clip(np.sum(d * e[..., None, :, :], axis=-1) / ee[..., None, :], 0.0, 1.0)
+    r = d - u[..., None] * e[..., None, :, :]
+    dist = np.where(chain[..., None, :], np.sum(r * r, axis=-1), np.inf)
+    best = np.argmin(dist, axis=-1)                                 # (..., k)
+    out = theta[best] + np.take_along_axis(u, best[..., None], axis=-1)[..., 0] * step
+    eb = np.take_along_axis(e, best[..., None], axis=-2)            # (..., k, 2)
+    nb = np.sqrt(np.take_along_axis(ee, best, axis=-1))
+    normal = np.stack([eb[..., 1], -eb[..., 0]], axis=-1) / nb[..., None]
+    return out, normal
+
+
+def normal_offset(z: np.ndarray, centre: np.ndarray, yaw: np.ndarray, radius: np.ndarray,
+                  theta: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """Offset (m) of detections z (..., m, 2) from the contour point at theta (..., m) along
+    the fixed unit directions normal (..., m, 2): ``n . (z - contour_point)``; centre (..., 2),
+    yaw (...), radius (..., m). Shape (..., m)."""
+    p = contour_point(centre, yaw, radius, theta)
+    return np.sum(np.asarray(normal) * (np.asarray(z) - p), axis=-1)
+
+
+def normal_offset_jacobian(yaw: float, radius: np.ndarray, theta: np.ndarray, H: np.ndarray,
+                           normal: np.ndarray) -> np.ndarray:
+    """``(m, 3 + n)`` Jacobian of :func:`normal_offset` (``radius = mu* + H (f - mu)``)
+    w.r.t. ``[x, y, yaw, f_1..f_n]`` for fixed theta (m,) and normal (m, 2)."""
+    J = contour_point_jacobian(yaw, radius, theta, H)
+    return -np.einsum("mi,mij->mj", np.asarray(normal), J)

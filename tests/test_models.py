@@ -9,9 +9,12 @@ from factors.ctra import SERIES_SWITCH, ctra_jacobian, ctra_predict, ctra_proces
 from factors.gp import ContourGP, periodic_kernel, rectangle_radius
 from factors.measurement import (
     associate_candidates,
+    closest_on_chain,
     contour_candidates,
     contour_point,
     contour_point_jacobian,
+    normal_offset,
+    normal_offset_jacobian,
     plain_angles,
     range_rate,
 )
@@ -208,3 +211,67 @@ def test_hungarian_association() -> None:
     # that everyone is assigned; the farthest of the three near candidate 0 moves over
     z4 = np.array([[0.0, 0.1], [0.0, -0.1], [0.3, 0.0], [1.9, 0.0]])
     np.testing.assert_array_equal(associate_candidates(z4, cand[[0, 2]], 1), [0, 0, 1, 1])
+
+
+def test_normal_offset_and_jacobian() -> None:
+    gp = ContourGP(ANGLES, sl=1.0, sw=0.2)
+    c, yaw = np.array([3.0, -1.0]), 0.6
+    theta = np.array([0.2, 1.9, 3.5])
+    normal = np.array([[1.0, 0.0], [0.6, 0.8], [0.0, -1.0]])
+    z = np.array([[6.0, 1.0], [1.0, 2.0], [2.0, -4.0]])
+    f = gp.mu + 0.1 * np.sin(3 * ANGLES)
+    r = gp.radius(f, theta)
+    p = contour_point(c, yaw, r, theta)
+    np.testing.assert_allclose(normal_offset(z, c, yaw, r, theta, normal),
+                               np.sum(normal * (z - p), axis=1))
+    H, _ = gp.conditional(theta)
+    J = normal_offset_jacobian(yaw, r, theta, H, normal)
+    state = np.concatenate([c, [yaw], f])
+
+    def h(s: np.ndarray) -> np.ndarray:
+        return normal_offset(z, s[:2], s[2], gp.radius(s[3:], theta), theta, normal)
+
+    e = 1e-6
+    num = np.stack([(h(state + e * d) - h(state - e * d)) / (2 * e) for d in np.eye(23)], -1)
+    np.testing.assert_allclose(J, num, atol=1e-6)
+
+
+def test_closest_on_visible_chain() -> None:
+    n = 48
+    theta = 2 * np.pi * np.arange(n) / n
+    pts = contour_point(np.zeros(2), 0.0, rectangle_radius(theta, 4.0, 2.0), theta)
+    sensor = np.array([30.0, 0.0])                             # sees the front face only
+    vis = contour_candidates(pts, sensor)
+    z = np.array([[2.3, 0.2], [2.1, -0.5], [2.5, 3.0]])        # the last beyond the face's end
+    th, normal = closest_on_chain(z, pts, theta, vis)
+    # matched on the front face: outward normal +x; the angle of the closest point
+    np.testing.assert_allclose(normal[:2], [[1.0, 0.0]] * 2, atol=1e-9)
+    q = contour_point(np.zeros(2), 0.0, rectangle_radius(th, 4.0, 2.0), th)
+    np.testing.assert_allclose(q[:2], [[2.0, 0.2], [2.0, -0.5]], atol=0.05)
+    # the offset along the normal ignores where on the face a detection lies
+    np.testing.assert_allclose(np.sum(normal[:2] * (z[:2] - q[:2]), axis=1), [0.3, 0.1],
+                               atol=0.05)
+    # beyond the face's end: matched to the chain's end (the corner), normal still outward
+    assert q[2, 1] > 0.8 and normal[2, 0] > 0.3
+    np.testing.assert_allclose(np.linalg.norm(normal, axis=1), 1.0)
+    # nothing of the hidden back face is matched
+    assert np.all(q[:, 0] > 1.7)
+
+
+def test_visibility_and_chain_batched_match_single() -> None:
+    rng = np.random.default_rng(3)
+    n = 48
+    theta = 2 * np.pi * np.arange(n) / n
+    sensor = np.array([20.0, 15.0])
+    boxes = [(4.6, 1.9, 0.3), (11.0, 2.5, -1.2), (5.5, 2.0, 2.5)]
+    pts = np.stack([contour_point(np.array([1.0 * k, -2.0 * k]), yaw,
+                                  rectangle_radius(theta, length, width), theta)
+                    for k, (length, width, yaw) in enumerate(boxes)])
+    z = pts[:, :: n // 8] + rng.normal(0.0, 0.3, (3, 8, 2))
+    vis = contour_candidates(pts, sensor)
+    th, nm = closest_on_chain(z, pts, theta, vis)
+    for k in range(3):
+        np.testing.assert_array_equal(vis[k], contour_candidates(pts[k], sensor))
+        t1, n1 = closest_on_chain(z[k], pts[k], theta, vis[k])
+        np.testing.assert_allclose(th[k], t1)
+        np.testing.assert_allclose(nm[k], n1)

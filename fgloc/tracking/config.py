@@ -25,11 +25,10 @@ class TrackingConfig:
 
     # ---- measurement model -------------------------------------------------------------------
     measurement_model: str = "sensor-aware"
-    """'sensor-aware' (visible contour candidates + Hungarian) or 'plain' (angle from centre)."""
-    n_candidates: int = 72
-    """Dense contour samples for the sensor-aware candidates."""
-    candidate_capacity: int = 4
-    """Detections one candidate may take in the Hungarian association (raised if needed)."""
+    """'sensor-aware' (normal offsets to the visible contour + visible extent) or 'plain'
+    (2D point at the angle from the centre)."""
+    n_candidates: int = 48
+    """Dense contour samples for the sensor-aware visible chain."""
     max_detections_per_update: int = 24
     """At most this many detections (a regular subsample) enter one UKF update; all associated
     detections are still recorded in the track."""
@@ -39,9 +38,27 @@ class TrackingConfig:
     """Radar azimuth noise (deg) in the position measurement covariance."""
     sigma_contour: float = 0.3
     """Scatter (m) of the detections about the modelled contour (model error), isotropic."""
-    sigma_slide: float = 3.0
-    """Sensor-aware model: extra std. dev. (m) across the detection's residual direction, i.e.
-    along the contour (where on a face a detection lies carries no information)."""
+    use_extent: bool = True
+    """Sensor-aware model: the extreme detections along a face that is seen measure where the
+    contour ends (visible-extent rows: the length from a seen side, the width from a seen
+    front/rear), so the contour cannot grow beyond the detections unchecked."""
+    sigma_extent: float = 0.35
+    """Std. dev. (m) of an extent row (gap between the extreme detection and the face's end)."""
+    extent_min_points: int = 4
+    """An extent row needs at least this many detections in the update."""
+    grow_margin: float = 1.0
+    """An extent row's detection more than this (m) beyond the contour's end inflates the
+    track's length (width) and centre covariance by the excess (the vehicle is larger than
+    its contour so far: a truck coming into view)."""
+    extent_edge_margin: float = 2.0
+    """An extreme detection closer than this (m) to the FOV's edge or the blind range gives no
+    extent row (the view of the face may be cut there)."""
+    extent_min_cover: float = 0.5
+    """... and only if its detections span at least this share of the contour's extent along
+    the face (else the face is partly occluded or cut by the FOV: its extremes are not ends)."""
+    extent_min_incidence: float = 0.25
+    """A face gives extent rows only if sin(angle between the line of sight and the face) is at
+    least this (a face seen at grazing incidence holds too few detections to reach its ends)."""
     use_doppler: bool = True
     """Use each detection's range rate as a measurement of the rigid-body point velocity."""
     sigma_doppler: float = 1.0
@@ -50,7 +67,7 @@ class TrackingConfig:
     # ---- GP contour --------------------------------------------------------------------------
     gp_sf: float = 0.15
     """sigma_f (m): prior std. dev. of the contour radius about the mean shape."""
-    gp_length_rad: float = 0.5
+    gp_length_rad: float = 0.35
     """l (rad): periodic-kernel length scale (sin^2 divided by l^2 once)."""
     gp_sr: float = 0.1
     """sigma_r (m): prior std. dev. of a common radius offset (inside k, see factors.gp)."""
@@ -60,6 +77,10 @@ class TrackingConfig:
     """Std. dev. (m) of the vehicle length about mean_length (size mode of the kernel)."""
     gp_sw: float = 0.2
     """Std. dev. (m) of the vehicle width about mean_width (size mode of the kernel)."""
+    sigma_length_rw: float = 0.5
+    """Random walk (m/sqrt(s)) of the contour's length mode (process noise)."""
+    sigma_width_rw: float = 0.05
+    """Random walk (m/sqrt(s)) of the contour's width mode (process noise)."""
     mean_length: float = 4.6
     """Length (m) of the rectangle that is the prior mean contour (and the decay target)."""
     mean_width: float = 1.9
@@ -99,21 +120,26 @@ class TrackingConfig:
     """Contour radii (m) are kept at least this after each update."""
 
     # ---- UKF ---------------------------------------------------------------------------------
-    ukf_alpha: float = 0.1
+    ukf_alpha: float = 1.0
     """Unscented transform spread alpha."""
-    ukf_beta: float = 2.0
+    ukf_beta: float = 0.0
     """Unscented transform beta (prior distribution knowledge)."""
     ukf_kappa: float = 0.0
     """Unscented transform kappa."""
 
     # ---- association and management ----------------------------------------------------------
-    gate: float = 1.5
+    gate: float = 0.7
     """A detection up to this far (m) outside a track's predicted contour may join it, plus up
     to twice the track's centre std. dev. (capped at gate_max)."""
     gate_max: float = 4.0
     """Cap (m) of the whole association gate."""
-    gate_long_extra: float = 0.0
-    """Extra gate (m) along the vehicle's heading (a truck's contour grows into its length)."""
+    gate_long_extra: float = 1.5
+    """Extra gate (m) along the heading of a large track (a truck's contour grows into its
+    length); a car-sized track keeps the tight gate (no detections from the car behind)."""
+    large_length: float = 6.5
+    """A track whose contour is at least this long (m) ..."""
+    large_width: float = 2.25
+    """... or this wide (m) is large (truck-like: trucks are wider than cars)."""
     duplicate_long: float = 4.0
     """A track whose centre is within gate (m) sideways and this (m) lengthwise of a stronger
     track's contour extent is a duplicate (e.g. on a truck's front) and is dropped."""
@@ -131,6 +157,9 @@ class TrackingConfig:
     """A confirmed track missed for this long (s) is ended (its unmeasured tail is dropped)."""
     delete_after_blind: float = 3.0
     """The same while the track's centre is in the near blind range under the mast."""
+    blind_no_update: bool = True
+    """Tracks whose centre is in the near blind range take their detections but are not
+    updated (only vehicle tops are seen there) and coast."""
     reflection_height: float = 0.8
     """Typical detection height (m) above the road: with the sensor height and the vertical FOV
     it sets the near blind range, whose contour points are not candidates."""

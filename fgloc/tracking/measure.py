@@ -56,12 +56,15 @@ class ContourTable:
 
 @dataclass
 class DetectionBatch:
-    """The detections of T tracks in one frame, padded to M per track.
+    """The measurement rows of T tracks in one frame, padded to M per track.
 
     z (T, M, 2) m in C; rng (T, M) 3D range (m) from the sensor; doppler (T, M) m/s;
-    valid (T, M); theta (T, M) contour angles from the sensor-aware association, or None for
-    the plain model (angles recomputed from each sigma point's centre); direction (T, M, 2)
-    unit residual directions of the sensor-aware projection (None for the plain model).
+    valid (T, M). Plain model: theta = normal = None (angles recomputed from each sigma
+    point's centre), every row is ``[x, y(, doppler)]``. Sensor-aware model: theta (T, M)
+    contour angles and normal (T, M, 2) fixed unit directions, every row is
+    ``[n . z(, doppler)]`` (the offset along the contour normal; extent rows use the axis
+    direction); dop_valid (T, M) marks rows whose Doppler is used (not the extent rows);
+    extra_var (T, M) m^2 is added to a row's position variance (extent rows).
     """
 
     z: np.ndarray
@@ -69,17 +72,22 @@ class DetectionBatch:
     doppler: np.ndarray
     valid: np.ndarray
     theta: np.ndarray | None = None
-    direction: np.ndarray | None = None
+    normal: np.ndarray | None = None
+    dop_valid: np.ndarray | None = None
+    extra_var: np.ndarray | None = None
 
     @property
     def rows(self) -> int:
         return self.z.shape[1]
 
+    def doppler_mask(self) -> np.ndarray:
+        return self.valid if self.dop_valid is None else self.valid & self.dop_valid
+
 
 def predict_measurements(X_sig: np.ndarray, det: DetectionBatch, table: ContourTable,
                          sensor: np.ndarray, use_doppler: bool) -> np.ndarray:
-    """Predicted measurement vectors (T, S, M k) of sigma points X_sig (T, S, n), k = 3 with
-    Doppler else 2; padded detections give zeros."""
+    """Predicted measurement vectors (T, S, M k) of sigma points X_sig (T, S, n); k = 2 (plain)
+    or 1 (sensor-aware), plus 1 with Doppler; padded rows give zeros."""
     centre = X_sig[..., [X, Y]]
     yaw = X_sig[..., YAW]
     f = X_sig[..., N_KIN:]
@@ -87,35 +95,35 @@ def predict_measurements(X_sig: np.ndarray, det: DetectionBatch, table: ContourT
     if det.theta is None:
         theta = plain_angles(z, centre, yaw)                          # (T, S, M)
         r = table.radius(f[..., None, :], theta)[..., 0, :]
+        parts = [contour_point(centre, yaw, r, theta)]
     else:
         r = table.radius(f, det.theta)                                # (T, S, M)
-        theta = det.theta[:, None, :]
-    parts = [contour_point(centre, yaw, r, theta)]
+        p = contour_point(centre, yaw, r, det.theta[:, None, :])      # (T, S, M, 2)
+        parts = [np.sum(det.normal[:, None] * p, axis=-1)[..., None]]
     if use_doppler:
         d = range_rate(z, det.rng[:, None, :], centre, X_sig[..., V], yaw, X_sig[..., YAWRATE],
                        sensor)
-        parts.append(d[..., None])
+        parts.append((d * det.doppler_mask()[:, None, :])[..., None])
     Z = np.concatenate(parts, axis=-1) * det.valid[:, None, :, None]
     return Z.reshape(*Z.shape[:2], -1)
 
 
 def measurement_vector(det: DetectionBatch, use_doppler: bool) -> np.ndarray:
     """Stacked measurements (T, M k) (zeros on padding)."""
-    parts = [det.z, det.doppler[..., None]] if use_doppler else [det.z]
+    pos = det.z if det.normal is None else np.sum(det.normal * det.z, axis=-1)[..., None]
+    parts = [pos, (det.doppler * det.doppler_mask())[..., None]] if use_doppler else [pos]
     zz = np.concatenate(parts, axis=-1) * det.valid[..., None]
     return zz.reshape(zz.shape[0], -1)
 
 
 def measurement_noise(det: DetectionBatch, x: np.ndarray, table: ContourTable,
                       sensor: np.ndarray, sigma_range: float, sigma_azimuth: float,
-                      sigma_contour: float, sigma_slide: float,
-                      sigma_doppler: float | None) -> np.ndarray:
+                      sigma_contour: float, sigma_doppler: float | None) -> np.ndarray:
     """Block-diagonal noise (T, M k, M k): radar range/azimuth noise at each detection, contour
     scatter sigma_contour (isotropic), the GP interpolation variance along the contour ray
-    (at the mean state x (T, n)), sigma_slide^2 across the residual direction where the batch
-    has directions (a detection's position along a face is random: only its offset from the
-    contour is measured, like point-to-plane ICP), and sigma_doppler^2 when given (Doppler
-    rows). Identity on padding."""
+    (at the mean state x (T, n)); the sensor-aware rows take the variance of all that along
+    their normal plus extra_var. sigma_doppler^2 when given (Doppler rows). Identity on
+    padding and on unused Doppler rows."""
     T, M = det.valid.shape
     los = det.z - sensor
     r2d = np.maximum(np.linalg.norm(los, axis=-1), 1e-6)
@@ -128,14 +136,17 @@ def measurement_noise(det: DetectionBatch, x: np.ndarray, table: ContourTable,
           + (sigma_azimuth * r2d)[..., None, None] ** 2 * et[..., :, None] * et[..., None, :]
           + var_f[..., None, None] * u[..., :, None] * u[..., None, :]
           + sigma_contour**2 * np.eye(2))
-    if det.direction is not None:
-        across = np.stack([-det.direction[..., 1], det.direction[..., 0]], axis=-1)
-        Rp = Rp + sigma_slide**2 * across[..., :, None] * across[..., None, :]
-    k = 2 if sigma_doppler is None else 3
+    if det.normal is not None:
+        n = det.normal
+        Rp = np.einsum("tmi,tmij,tmj->tm", n, Rp, n)[..., None, None]
+        if det.extra_var is not None:
+            Rp = Rp + det.extra_var[..., None, None]
+    kp = Rp.shape[-1]
+    k = kp if sigma_doppler is None else kp + 1
     blocks = np.zeros((T, M, k, k))
-    blocks[..., :2, :2] = Rp
+    blocks[..., :kp, :kp] = Rp
     if sigma_doppler is not None:
-        blocks[..., 2, 2] = sigma_doppler**2
+        blocks[..., kp, kp] = np.where(det.doppler_mask(), sigma_doppler**2, 1.0)
     blocks[~det.valid] = np.eye(k)
     R = np.zeros((T, M, k, M, k))
     idx = np.arange(M)

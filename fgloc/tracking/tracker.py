@@ -5,9 +5,14 @@ Per radar frame:
 1. dynamic detections (|doppler| >= doppler_min) in C (x, y after T_coarse);
 2. UKF prediction of every track (CTRA + contour decay), tracks leaving the FOV end;
 3. association per detection: each detection goes to the track whose predicted contour it is
-   deepest inside / least outside of (signed radial excess), within that track's gate; so
-   detections of vehicles side by side split at the gap between their contours;
-4. UKF update of every track with detections, batched (plain or sensor-aware angles);
+   deepest inside / least outside of (signed radial excess), within that track's gate (tight:
+   ``gate`` + 2 sigma_centre; ``gate_long_extra`` more lengthwise for a truck-sized contour);
+   so detections of vehicles side by side or queued split at the gap between their contours.
+   Tracks whose centre is in the near blind range (only vehicle tops seen) are not updated;
+4. UKF update of every track with detections, batched over tracks: plain model (2D point at
+   the angle from the centre) or sensor-aware model (1D offsets along the normal of the
+   contour part visible from the sensor, plus visible-extent rows: the extreme detections
+   along a face that is seen fix where the contour ends; see :meth:`Tracker._aware_batch`);
 5. births: unassociated detections are clustered; a cluster in a birth zone starts a tentative
    track confirmed after ``confirm_hits_zone`` updates within ``confirm_window_zone`` frames;
    elsewhere (``birth_anywhere``) the stricter ``confirm_hits_anywhere`` / window applies;
@@ -25,13 +30,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from factors.ctra import ctra_predict, ctra_process_noise
-from factors.gp import ContourGP, rectangle_radius
-from factors.measurement import (
-    associate_candidates,
-    contour_candidates,
-    contour_point,
-    project_on_contour,
-)
+from factors.gp import ContourGP, rectangle_radius, rectangle_radius_gradient
+from factors.measurement import closest_on_chain, contour_candidates, contour_point, unit
 from fgloc.labels import LEFT, RIGHT, STRAIGHT
 from fgloc.scenario import Scenario
 from fgloc.tracking import ukf
@@ -122,9 +122,18 @@ class Tracker:
                             cfg.gp_symmetry, cfg.mean_length, cfg.mean_width, cfg.gp_sl,
                             cfg.gp_sw)
         self.table = ContourTable.of(self.gp)
+        gl, gw = rectangle_radius_gradient(self.gp.angles, cfg.mean_length, cfg.mean_width)
+        #: random walk of the length / width (per second): a vehicle longer than its first
+        #: view (a truck coming out of occlusion) grows into its length
+        self.Q_size = (cfg.sigma_length_rw**2 * np.outer(gl, gl)
+                       + cfg.sigma_width_rw**2 * np.outer(gw, gw))
+        self.g_size = (gl, gw)
         self.w = ukf.UnscentedWeights.of(N_STATE, cfg.ukf_alpha, cfg.ukf_beta, cfg.ukf_kappa)
         self.cand_theta = 2.0 * np.pi * np.arange(cfg.n_candidates) / cfg.n_candidates
         self.cand_H, self.cand_mean, _ = self.table.interp(self.cand_theta)
+        if cfg.n_candidates % 4:
+            raise ValueError("n_candidates must be a multiple of 4 (samples on the axes)")
+        self.axis_idx = np.arange(4) * (cfg.n_candidates // 4)
         self.x = np.zeros((0, N_STATE))
         self.P = np.zeros((0, N_STATE, N_STATE))
         self.recs: list[_Record] = []
@@ -143,10 +152,15 @@ class Tracker:
             self._predict(dt)
             self._end(self.fov.outside_distance(self.x[:, [X, Y]]) > self.cfg.fov_margin)
         owner, excess = self._associate(det.z)
+        if self.cfg.blind_no_update and len(self.recs):
+            # under the mast only vehicle tops are seen: their detections are kept from the
+            # tracks (which coast) and from births
+            blind = self.fov.blind(self.x[:, [X, Y]])
+            owner = np.where((owner >= 0) & blind[np.maximum(owner, 0)], -2, owner)
         self._misfit(owner, excess, dt)
         updated = self._update(det, owner)
         self._record(t, det, owner, updated)
-        self._births(det, owner < 0)
+        self._births(det, owner == -1)
         self._manage(t)
 
     def finish(self) -> list[Track]:
@@ -164,7 +178,7 @@ class Tracker:
         Q = np.zeros_like(self.P)
         Q[:, :N_KIN, :N_KIN] = ctra_process_noise(self.x, dt, cfg.sigma_jerk, cfg.sigma_yaw_acc,
                                                   cfg.sigma_pos)
-        Q[:, N_KIN:, N_KIN:] = Qc
+        Q[:, N_KIN:, N_KIN:] = Qc + max(dt, 0.0) * self.Q_size
         self.x, self.P = ukf.predict(Xs, Q, self.w)
 
     def _local(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -174,8 +188,17 @@ class Tracker:
         c, s = np.cos(self.x[:, YAW, None]), np.sin(self.x[:, YAW, None])
         lo = c * d[..., 0] + s * d[..., 1]
         la = -s * d[..., 0] + c * d[..., 1]
-        r = self.table.radius(self.x[:, None, N_KIN:], np.arctan2(la, lo))[:, 0]
-        excess = np.hypot(lo, la) - r
+        dist = np.hypot(lo, la)
+        # the contour only where it matters: far from a track (beyond its largest basis
+        # radius + the widest gate) the excess is bounded below by dist - max radius
+        f = self.x[:, N_KIN:]
+        rmax = f.max(axis=1)[:, None]
+        excess = dist - rmax
+        ti, di = np.nonzero(dist < rmax + self.cfg.gate_max + self.cfg.gate_long_extra + 1.0)
+        if len(ti):
+            H, mean, _ = self.table.interp(np.arctan2(la[ti, di], lo[ti, di]))
+            r = mean + np.sum(H * (f[ti] - self.gp.mu), axis=1)
+            excess[ti, di] = dist[ti, di] - r
         return lo, la, excess
 
     def _outside(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -188,19 +211,29 @@ class Tracker:
         out_lat = np.maximum(np.maximum(la - axes[:, 1:2], -axes[:, 3:4] - la), 0.0)
         return out_long, out_lat, ex
 
+    def _large(self) -> np.ndarray:
+        """(T,) tracks whose contour is large (truck-like): length >= large_length or
+        width >= large_width (from the basis radii on the axes)."""
+        f = self.x[:, N_KIN:]
+        half = self.gp.n // 2
+        return ((f[:, 0] + f[:, half] >= self.cfg.large_length)
+                | (f[:, half // 2] + f[:, half + half // 2] >= self.cfg.large_width))
+
     def _associate(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Owner track index per detection (-1: none) and its radial excess (m) about that
         track's contour: least radial excess among the tracks
         whose gate holds it. The gate is the contour's axis-aligned extent in the vehicle frame
-        grown by gate + 2 sigma_centre (<= gate_max) sideways and by gate_long_extra more
-        lengthwise (a vehicle longer than its contour so far, e.g. a truck, grows into it)."""
+        grown by gate + 2 sigma_centre (<= gate_max) sideways and, for a large contour (length
+        >= large_length or width >= large_width), by gate_long_extra more lengthwise (a
+        vehicle longer than its contour so far, e.g. a truck, grows into it)."""
         if not len(self.recs) or not len(z):
             return np.full(len(z), -1, dtype=np.int64), np.zeros(len(z))
         cfg = self.cfg
         out_long, out_lat, ex = self._outside(z)
         sig = np.sqrt(np.trace(self.P[:, :2, :2], axis1=1, axis2=2))
         gate = np.minimum(cfg.gate + 2.0 * sig, cfg.gate_max)[:, None]
-        ex[(out_lat > gate) | (out_long > gate + cfg.gate_long_extra)] = np.inf
+        long_gate = gate + np.where(self._large(), cfg.gate_long_extra, 0.0)[:, None]
+        ex[(out_lat > gate) | (out_long > long_gate)] = np.inf
         owner = np.argmin(ex, axis=0)
         best = ex[owner, np.arange(len(z))]
         return np.where(np.isfinite(best), owner, -1), best
@@ -216,22 +249,89 @@ class Tracker:
             rec = self.recs[i]
             rec.misfit += g * (m - rec.misfit)
 
-    def _angles(self, i: int, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Sensor-aware contour angles (k,) of detections z (k, 2) of track i: Hungarian
-        assignment to the contour samples visible from the sensor (facing it, not
-        self-occluded, inside the FOV and beyond the blind range), then projected onto the
-        contour next to the assigned sample; and the residual directions (k, 2)."""
-        xi = self.x[i]
-        r = self.cand_mean + (xi[N_KIN:] - self.gp.mu) @ self.cand_H.T
-        pts = contour_point(xi[[X, Y]], xi[YAW], r, self.cand_theta)
-        vis = contour_candidates(pts, self.fov.sensor)
+    def _aware_batch(self, tracks: np.ndarray, z: np.ndarray, valid: np.ndarray,
+                     zall: np.ndarray, vall: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Sensor-aware rows of the tracks (T,) for their padded detections: z (T, K, 2) with
+        mask valid (T, K) enter as normal-offset rows, each matched to the closest point of
+        the contour part visible from the sensor (facing it, not self-occluded, inside the
+        FOV and beyond the blind range) and measuring its offset along the normal there;
+        zall (T, Ka, 2) / vall (T, Ka) are all the tracks' detections, whose extremes give the
+        extent rows (``use_extent``): for a face seen at an incidence of at least
+        ``extent_min_incidence``, whose detections cover at least ``extent_min_cover`` of it
+        and whose ends are in view, the extreme detections along the face measure where the
+        contour ends along that axis (a detection beyond the end by more than ``grow_margin``
+        also inflates the size and centre covariance: the vehicle is larger than its contour,
+        e.g. a truck coming into view). Returns the rows (T, K + 4): z, theta, normal, valid,
+        Doppler mask, extra variance and the index into zall of the extent rows' detection
+        (-1 for the normal rows)."""
+        cfg = self.cfg
+        sensor = self.fov.sensor
+        x = self.x[tracks]
+        T, K = valid.shape
+        r = self.cand_mean + (x[:, N_KIN:] - self.gp.mu) @ self.cand_H.T          # (T, m)
+        pts = contour_point(x[:, [X, Y]], x[:, YAW], r, self.cand_theta)         # (T, m, 2)
+        vis = contour_candidates(pts, sensor)
         in_fov = self.fov.contains(pts) & ~self.fov.blind(pts)
-        if (vis & in_fov).any():
-            vis &= in_fov
-        if not vis.any():
-            vis[:] = True
-        j = np.flatnonzero(vis)[associate_candidates(z, pts[vis], self.cfg.candidate_capacity)]
-        return project_on_contour(z, pts, self.cand_theta, j)
+        use_fov = (vis & in_fov).any(axis=1, keepdims=True)
+        vis = np.where(use_fov, vis & in_fov, vis)
+        vis |= ~vis.any(axis=1, keepdims=True)
+        theta, normal = closest_on_chain(z, pts, self.cand_theta, vis)
+        zr = np.concatenate([z, np.zeros((T, 4, 2))], axis=1)
+        th = np.concatenate([theta, np.zeros((T, 4))], axis=1)
+        nm = np.concatenate([normal, np.zeros((T, 4, 2))], axis=1)
+        ok = np.concatenate([valid, np.zeros((T, 4), dtype=bool)], axis=1)
+        dop_ok = ok.copy()
+        jidx = np.full((T, K + 4), -1, dtype=np.int64)
+        if cfg.use_extent:
+            c = x[:, [X, Y]]
+            h = unit(x[:, YAW])
+            lat = np.stack([-h[:, 1], h[:, 0]], axis=1)
+            rax = r[:, self.axis_idx]                          # front, left, rear, right
+            srel = sensor - c
+            s_lo, s_la = np.sum(srel * h, axis=1), np.sum(srel * lat, axis=1)
+            dz = zall - c[:, None]
+            lo, la = np.sum(dz * h[:, None], axis=2), np.sum(dz * lat[:, None], axis=2)
+            axes = np.stack([h, lat, -h, -lat], axis=1)                       # (T, 4, 2)
+            ends = c[:, None] + axes * rax[..., None]
+            ok_end = self.fov.contains(ends) & ~self.fov.blind(ends)
+            los = ends - sensor
+            inc = (np.abs(np.sum(los * axes, axis=2))
+                   / np.maximum(np.linalg.norm(los, axis=2), 1e-6))
+            seen = np.stack([s_lo > rax[:, 0], s_la > rax[:, 1], s_lo < -rax[:, 2],
+                             s_la < -rax[:, 3]], axis=1) & (inc >= cfg.extent_min_incidence)
+            lo_max, lo_min = np.where(vall, lo, -np.inf), np.where(vall, lo, np.inf)
+            la_max, la_min = np.where(vall, la, -np.inf), np.where(vall, la, np.inf)
+            j = np.stack([lo_max.argmax(1), la_max.argmax(1), lo_min.argmin(1),
+                          la_min.argmin(1)], axis=1)                          # (T, 4)
+            span_lo = lo_max.max(1) - lo_min.min(1)
+            span_la = la_max.max(1) - la_min.min(1)
+            side = (seen[:, 1] | seen[:, 3]) & (span_lo >= cfg.extent_min_cover
+                                                * (rax[:, 0] + rax[:, 2]))
+            face = (seen[:, 0] | seen[:, 2]) & (span_la >= cfg.extent_min_cover
+                                                * (rax[:, 1] + rax[:, 3]))
+            enough = vall.sum(axis=1) >= cfg.extent_min_points
+            zj = np.take_along_axis(zall, j[..., None], axis=1)                # (T, 4, 2)
+            # an extreme detection next to the FOV's edge (or the blind range) may be where
+            # the view is cut, not where the vehicle ends
+            zin = ((self.fov.outside_distance(zj) < -cfg.extent_edge_margin)
+                   & (np.linalg.norm(zj - sensor, axis=2)
+                      > self.fov.min_range + cfg.extent_edge_margin))
+            use = (np.stack([side, face, side, face], axis=1) & enough[:, None] & ok_end
+                   & zin)
+            zr[:, K:], nm[:, K:], ok[:, K:] = zj, axes, use
+            th[:, K:] = np.arange(4) * (np.pi / 2)
+            jidx[:, K:] = np.where(use, j, -1)
+            beyond = np.where(use, np.sum(axes * (zj - ends), axis=2) - cfg.grow_margin, 0.0)
+            for mode in (0, 1):
+                ex = np.maximum(beyond[:, mode::2].max(axis=1), 0.0)
+                if (ex > 0).any():
+                    g = self.g_size[mode]
+                    ax = axes[:, mode]
+                    self.P[tracks, N_KIN:, N_KIN:] += (ex**2)[:, None, None] * np.outer(g, g)
+                    self.P[tracks, :2, :2] += ((0.25 * ex**2)[:, None, None]
+                                               * ax[:, :, None] * ax[:, None, :])
+        extra_var = np.where(dop_ok, 0.0, cfg.sigma_extent**2)
+        return zr, th, nm, ok, dop_ok, extra_var, jidx
 
     def _update(self, det: _Frame, owner: np.ndarray) -> np.ndarray:
         """UKF update of every track owning detections; returns their indices."""
@@ -239,36 +339,45 @@ class Tracker:
         tracks = np.unique(owner[owner >= 0])
         if not len(tracks):
             return tracks
-        M = cfg.max_detections_per_update
-        sel = []
-        for i in tracks:
-            idx = np.flatnonzero(owner == i)
-            if len(idx) > M:
-                idx = idx[np.linspace(0, len(idx) - 1, M).round().astype(np.int64)]
-            sel.append(idx)
-        M = max(len(s) for s in sel)
-        T = len(tracks)
-        z = np.zeros((T, M, 2))
-        rng = np.ones((T, M))
-        dop = np.zeros((T, M))
-        valid = np.zeros((T, M), dtype=bool)
+        Mmax = cfg.max_detections_per_update
         aware = cfg.measurement_model == "sensor-aware"
-        theta = np.zeros((T, M)) if aware else None
-        direction = np.zeros((T, M, 2)) if aware else None
-        for k, (i, idx) in enumerate(zip(tracks, sel)):
-            n = len(idx)
-            z[k, :n], rng[k, :n], dop[k, :n] = det.z[idx], det.rng[idx], det.doppler[idx]
-            valid[k, :n] = True
-            if aware:
-                theta[k, :n], direction[k, :n] = self._angles(i, det.z[idx])
-        batch = DetectionBatch(z, rng, dop, valid, theta, direction)
+        T = len(tracks)
+        mine = np.flatnonzero(owner >= 0)
+        pos = np.searchsorted(tracks, owner[mine])
+        order = np.argsort(pos, kind="stable")
+        didx, pos = mine[order], pos[order]                 # detections grouped by track
+        counts = np.bincount(pos, minlength=T)
+        start = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        Ka = int(counts.max())
+        rank = np.arange(len(didx)) - start[pos]
+        all_idx = np.zeros((T, Ka), dtype=np.int64)
+        vall = np.zeros((T, Ka), dtype=bool)
+        all_idx[pos, rank], vall[pos, rank] = didx, True
+        M = min(Ka, Mmax)
+        # a regular subsample of at most Mmax detections per track enters the update
+        spread = np.rint(np.arange(M)[None, :] * ((counts - 1) / max(M - 1, 1))[:, None])
+        pick = np.where(counts[:, None] > M, spread.astype(np.int64), np.arange(M)[None, :])
+        idx = np.take_along_axis(all_idx, pick, axis=1)
+        valid = np.take_along_axis(vall, pick, axis=1)
+        z = det.z[idx]
+        if aware:
+            z, theta, normal, valid, dop_valid, extra_var, jidx = self._aware_batch(
+                tracks, z, valid, det.z[all_idx], vall)
+            idx = np.concatenate([idx, np.zeros((T, 4), dtype=np.int64)], axis=1)
+            ext = jidx >= 0
+            idx[ext] = np.take_along_axis(all_idx, np.maximum(jidx, 0), axis=1)[ext]
+        else:
+            theta = normal = dop_valid = extra_var = None
+        rng = np.where(valid, det.rng[idx], 1.0)
+        dop = np.where(valid, det.doppler[idx], 0.0)
+        z = np.where(valid[..., None], z, 0.0)
+        batch = DetectionBatch(z, rng, dop, valid, theta, normal, dop_valid, extra_var)
         x, P = self.x[tracks], self.P[tracks]
         Xs = ukf.sigma_points(x, P, self.w)
         sensor = self.fov.sensor
         Z = predict_measurements(Xs, batch, self.table, sensor, cfg.use_doppler)
         R = measurement_noise(batch, x, self.table, sensor, cfg.sigma_range,
                               np.deg2rad(cfg.sigma_azimuth_deg), cfg.sigma_contour,
-                              cfg.sigma_slide,
                               cfg.sigma_doppler if cfg.use_doppler else None)
         x, self.P[tracks] = ukf.update(x, P, Xs, Z, measurement_vector(batch, cfg.use_doppler),
                                        R, self.w)
