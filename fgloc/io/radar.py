@@ -71,7 +71,7 @@ def _read_csv(path: Path) -> RadarData:
         if not header.strip():
             raise InputError(path, f"empty file: {_HEADER_HINT}", row=1)
         names = [n.strip().strip('"').strip().lower() for n in header.rstrip("\r\n").split(",")]
-        if all(_is_number(n) for n in names):
+        if all(is_number(n) for n in names):
             raise InputError(path, f"header missing: row 1 holds numbers; {_HEADER_HINT}", row=1)
         wanted = _select_columns(path, names, row=1)
         usecols = [names.index(c) for c in wanted]
@@ -152,7 +152,8 @@ def _numeric_1d(path: Path, name: str, arr: np.ndarray) -> np.ndarray:
     return a.astype(np.float64)
 
 
-def _is_number(text: str) -> bool:
+def is_number(text: str) -> bool:
+    """True when ``text`` parses as a float (CSV cell check)."""
     try:
         float(text)
     except ValueError:
@@ -190,7 +191,7 @@ def _locate_csv_error(path: Path, names: list[str], wanted: list[str], reason: s
                     row=lineno, field=c,
                 )
             value = fields[j].strip()
-            if not _is_number(value):
+            if not is_number(value):
                 return InputError(path, f"not a number: {value!r}", row=lineno, field=c)
     return InputError(path, f"cannot parse the CSV body: {reason}")
 

@@ -21,6 +21,7 @@ import numpy as np
 from fgloc.errors import InputError
 from fgloc.geo import LocalFrame, wrap_angle
 from fgloc.io.atomic import atomic_path
+from fgloc.io.radar import is_number
 from fgloc.labels import CODES, label_names
 from fgloc.tracks import N_CONTOUR, N_KIN, YAW, Track, TrackSet
 
@@ -187,7 +188,7 @@ class _Body:
                 return InputError(self.path, f"row has {len(fields)} fields, the header has "
                                   f"{len(self.names)}", row=row)
             for c in numeric:
-                if not _is_float(fields[self.index[c]]):
+                if not is_number(fields[self.index[c]]):
                     return InputError(self.path, f"not a number: {fields[self.index[c]]!r}",
                                       row=row, field=c)
         return InputError(self.path, f"cannot parse the CSV body: {reason}")
@@ -197,10 +198,3 @@ def _label_code(text: str) -> int:
     """Label code of a label name (case and surrounding blanks ignored); -1 when unknown."""
     return CODES.get(text.strip().lower(), -1)
 
-
-def _is_float(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
