@@ -12,14 +12,13 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from factors.state import N_CONTOUR, N_KIN, N_STATE, YAW, YAWRATE, A, V, X, Y
 from fgloc.geo import se2_params
 
-#: number of contour radii (the paper's n_theta)
-N_CONTOUR: int = 20
-#: index of each kinematic component in a state row
-X, Y, V, A, YAW, YAWRATE = range(6)
-N_KIN: int = 6
-N_STATE: int = N_KIN + N_CONTOUR
+__all__ = [
+    "A", "N_CONTOUR", "N_KIN", "N_STATE", "V", "X", "Y", "YAW", "YAWRATE",
+    "Track", "TrackSet", "contour_angles",
+]
 
 
 def contour_angles(n: int = N_CONTOUR) -> np.ndarray:

@@ -1,0 +1,307 @@
+"""GTSAM factors of the GP-EOT tracking model: CTRA + contour process, stacked contour
+measurements (sensor-aware normal offsets) and a Gaussian prior.
+
+State variable of one track at one step: a ``gtsam`` Vector of ``N_STATE = 26`` values
+``[x, y, v, a, yaw, yawrate, r_0..r_19]`` (m, m, m/s, m/s^2, rad, rad/s, m): centre and yaw in
+the 2D tracking frame, radii of the star-convex contour at the basis angles of the
+:class:`factors.gp.ContourGP` (object frame, x along the heading), measured from the centre.
+
+Every factor is a ``gtsam.CustomFactor`` whose Python callback fills the requested Jacobians
+with Fortran-ordered float64 arrays of the exact shape (``(dim, 26)``), checked in Python
+before they reach gtsam: a wrong shape raises ``ValueError`` in the callback instead of the
+segfault gtsam would produce. The callback numerics are plain functions (``process_error``,
+``ContourMeasurement.rows``) so they can be tested without gtsam.
+
+Depends only on numpy, scipy, gtsam and the ``factors`` modules (never on ``fgloc``).
+"""
+
+from __future__ import annotations
+
+import gtsam
+import numpy as np
+
+from factors.ctra import ctra_jacobian, ctra_predict, ctra_process_noise
+from factors.gp import ContourGP
+from factors.measurement import (
+    closest_on_chain,
+    contour_candidates,
+    contour_point,
+    normal_offset,
+    normal_offset_jacobian,
+)
+from factors.state import N_CONTOUR, N_KIN, N_STATE, YAW, X, Y
+
+# ---- keys ------------------------------------------------------------------------------------
+#: symbol character of the track-state keys and of the sensor pose key
+TRACK_CHAR: str = "t"
+SENSOR_CHAR: str = "G"
+#: bits of the step index inside a track-state key (the track id takes the next 24 bits)
+STEP_BITS: int = 32
+MAX_TRACK_ID: int = (1 << 24) - 1
+MAX_STEP: int = (1 << STEP_BITS) - 1
+
+
+def track_key(track_id: int, step: int) -> int:
+    """gtsam key of the state of track ``track_id`` at ``step``.
+
+    ``gtsam.symbol(TRACK_CHAR, track_id << 32 | step)``: a gtsam symbol holds an 8-bit
+    character and a 56-bit index, split here into 24 bits of track id (``0 <= track_id <
+    2^24``) and 32 bits of step (``0 <= step < 2^32``); out-of-range values raise
+    ``ValueError``. Keys print as ``t<index>`` in gtsam output; decode with
+    :func:`decode_track_key`."""
+    track_id, step = int(track_id), int(step)
+    if not 0 <= track_id <= MAX_TRACK_ID:
+        raise ValueError(f"track id {track_id} outside [0, {MAX_TRACK_ID}]")
+    if not 0 <= step <= MAX_STEP:
+        raise ValueError(f"step {step} outside [0, {MAX_STEP}]")
+    return int(gtsam.symbol(TRACK_CHAR, (track_id << STEP_BITS) | step))
+
+
+def decode_track_key(key: int) -> tuple[int, int]:
+    """``(track_id, step)`` of a key made by :func:`track_key` (``ValueError`` otherwise)."""
+    sym = gtsam.Symbol(int(key))
+    if chr(sym.chr()) != TRACK_CHAR:
+        raise ValueError(f"key {key} is not a track-state key")
+    idx = int(sym.index())
+    return idx >> STEP_BITS, idx & MAX_STEP
+
+
+def sensor_key(index: int = 0) -> int:
+    """gtsam key of the sensor pose ``G`` (``gtsam.symbol('G', index)``; one per recording,
+    ``index`` distinguishes several sensors)."""
+    return int(gtsam.symbol(SENSOR_CHAR, int(index)))
+
+
+# ---- helpers ---------------------------------------------------------------------------------
+def wrap_angle(a: np.ndarray | float) -> np.ndarray:
+    """Angle(s) (rad) wrapped to ``[-pi, pi)``."""
+    return (np.asarray(a, dtype=float) + np.pi) % (2.0 * np.pi) - np.pi
+
+
+def _fortran(J: np.ndarray, shape: tuple[int, int], what: str) -> np.ndarray:
+    """``J`` as a Fortran-ordered float64 array, after checking its shape (``ValueError``)."""
+    J = np.asarray(J, dtype=np.float64)
+    if J.shape != shape:
+        raise ValueError(f"{what}: Jacobian shape {J.shape}, expected {shape}")
+    if not np.all(np.isfinite(J)):
+        raise ValueError(f"{what}: non-finite Jacobian")
+    return np.asfortranarray(J)
+
+
+def _state(values: gtsam.Values, key: int, what: str) -> np.ndarray:
+    """The 26-vector of ``key`` in ``values`` (``ValueError`` on a wrong length)."""
+    x = np.asarray(values.atVector(key), dtype=float)
+    if x.shape != (N_STATE,):
+        raise ValueError(f"{what}: state of key {key} has shape {x.shape}, expected "
+                         f"({N_STATE},)")
+    return x
+
+
+def _check_gp(gp: ContourGP) -> None:
+    if gp.n != N_CONTOUR:
+        raise ValueError(f"ContourGP has {gp.n} basis angles, the state holds {N_CONTOUR}")
+
+
+# ---- process ---------------------------------------------------------------------------------
+def process_error(x0: np.ndarray, x1: np.ndarray, dt: float, gp: ContourGP,
+                  tau: float) -> np.ndarray:
+    """Process residual (26,) ``x1 - f(x0, dt)``: CTRA for the kinematics (yaw difference
+    wrapped to ``[-pi, pi)``), decay ``mu + exp(-tau dt) (f - mu)`` for the radii. Units of
+    the state; ``dt`` in s, ``tau`` in 1/s."""
+    x0 = np.asarray(x0, dtype=float)
+    x1 = np.asarray(x1, dtype=float)
+    pred_k = ctra_predict(x0[:N_KIN], dt)
+    pred_f, _ = gp.decay(x0[N_KIN:], tau, dt)
+    e = np.concatenate([x1[:N_KIN] - pred_k, x1[N_KIN:] - pred_f])
+    e[YAW] = wrap_angle(e[YAW])
+    return e
+
+
+def process_jacobian_x0(x0: np.ndarray, dt: float, tau: float) -> np.ndarray:
+    """(26, 26) Jacobian of :func:`process_error` w.r.t. ``x0`` (w.r.t. ``x1`` it is I)."""
+    J = np.zeros((N_STATE, N_STATE))
+    J[:N_KIN, :N_KIN] = -ctra_jacobian(np.asarray(x0, dtype=float)[:N_KIN], dt)
+    J[N_KIN:, N_KIN:] = -np.exp(-tau * dt) * np.eye(N_CONTOUR)
+    return J
+
+
+def process_covariance(x_ref: np.ndarray, dt: float, gp: ContourGP, tau: float,
+                       sigma_jerk: float, sigma_yaw_acc: float, sigma_pos: float = 0.0,
+                       q_floor: float = 1e-8) -> np.ndarray:
+    """(26, 26) process noise ``Q_ctra(x_ref) (+) (1 - exp(-2 tau dt)) K`` plus ``q_floor`` on
+    the diagonal (each component's squared unit): the CTRA noise has rank 4 of 6 (jerk and
+    yaw acceleration only), the floor makes ``Q`` invertible. ``Q_ctra`` depends on the speed
+    and yaw of ``x_ref`` (the state the factor is built around); it is kept fixed."""
+    Q = np.zeros((N_STATE, N_STATE))
+    Q[:N_KIN, :N_KIN] = ctra_process_noise(np.asarray(x_ref, dtype=float)[:N_KIN], dt,
+                                           sigma_jerk, sigma_yaw_acc, sigma_pos)
+    Q[N_KIN:, N_KIN:] = (1.0 - np.exp(-2.0 * tau * dt)) * gp.K
+    Q[np.diag_indices(N_STATE)] += q_floor
+    return 0.5 * (Q + Q.T)
+
+
+def process_factor(key_k: int, key_k1: int, dt: float, gp: ContourGP, tau: float,
+                   sigma_jerk: float, sigma_yaw_acc: float, sigma_pos: float = 0.0,
+                   x_ref: np.ndarray | None = None, q_floor: float = 1e-8
+                   ) -> gtsam.CustomFactor:
+    """Factor between consecutive states of one track, ``dt`` s apart.
+
+    Residual (26,) = :func:`process_error` ``(x_k, x_{k+1})``, whitened by a
+    ``noiseModel.Gaussian.Covariance`` of :func:`process_covariance` evaluated at ``x_ref``
+    (the speed/heading that scale the CTRA noise; default: a state at rest, heading 0 -- pass
+    the initial estimate of ``x_k``). Noise parameters as in ``TrackingConfig``: ``tau``
+    (1/s), ``sigma_jerk`` (m/s^3), ``sigma_yaw_acc`` (rad/s^2), ``sigma_pos`` (m/sqrt(s)).
+    Jacobians analytic: ``d/dx_k = -blockdiag(J_ctra, exp(-tau dt) I)``, ``d/dx_{k+1} = I``.
+    """
+    _check_gp(gp)
+    if not dt > 0:
+        raise ValueError(f"dt must be > 0, got {dt}")
+    x_ref = np.zeros(N_STATE) if x_ref is None else np.asarray(x_ref, dtype=float)
+    if x_ref.shape != (N_STATE,):
+        raise ValueError(f"x_ref shape {x_ref.shape}, expected ({N_STATE},)")
+    Q = process_covariance(x_ref, dt, gp, tau, sigma_jerk, sigma_yaw_acc, sigma_pos, q_floor)
+    noise = gtsam.noiseModel.Gaussian.Covariance(Q)
+    eye = np.asfortranarray(np.eye(N_STATE))
+
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list) -> np.ndarray:
+        k0, k1 = this.keys()[0], this.keys()[1]
+        x0 = _state(values, k0, "process_factor")
+        x1 = _state(values, k1, "process_factor")
+        e = process_error(x0, x1, dt, gp, tau)
+        if H is not None:
+            H[0] = _fortran(process_jacobian_x0(x0, dt, tau), (N_STATE, N_STATE),
+                            "process_factor")
+            H[1] = eye
+        return e
+
+    return gtsam.CustomFactor(noise, [int(key_k), int(key_k1)], error)
+
+
+# ---- contour measurement ---------------------------------------------------------------------
+def huber_weights(r: np.ndarray, k: float) -> np.ndarray:
+    """Huber IRLS weights of whitened residuals ``r`` (dimensionless): 1 for ``|r| <= k``,
+    ``k / |r|`` beyond (``k <= 0`` or ``inf`` disables: all ones)."""
+    a = np.abs(np.asarray(r, dtype=float))
+    if not (k > 0 and np.isfinite(k)):
+        return np.ones_like(a)
+    return np.where(a <= k, 1.0, k / np.maximum(a, 1e-300))
+
+
+class ContourMeasurement:
+    """Sensor-aware normal-offset rows of all detections of one track in one frame.
+
+    detections (m, 2) and sensor (2,) in m, tracking frame. The contour of the state is sampled
+    at ``n_candidates`` equally spaced object-frame angles (GP conditional mean); the samples
+    visible from the sensor (outward normal facing it, not self-occluded:
+    :func:`factors.measurement.contour_candidates`) form the visible chain, each detection is
+    matched to its closest point on that chain (:func:`closest_on_chain`), giving a contour
+    angle ``theta*`` and a unit normal ``n``; the row is ``n . (z - c - u(theta* + yaw)
+    f(theta*))`` (m), ``f(theta*)`` the GP conditional mean. Field-of-view limits are not
+    applied (the caller should pass only detections it trusts).
+
+    The association (theta*, n) is **re-done at every evaluation** (each linearization of the
+    optimizer, like point-to-plane ICP); the Jacobian treats it as fixed, which is exact up to
+    the (small) mismatch between the polyline and the smooth contour. Robust weights: Huber
+    on ``row / sigma`` with threshold ``huber_k`` (in sigmas), recomputed at each evaluation
+    (IRLS); rows of residual and Jacobian are scaled by ``sqrt(w)``.
+    """
+
+    def __init__(self, detections: np.ndarray, sensor: np.ndarray, gp: ContourGP,
+                 sigma: float = 0.3, huber_k: float = 1.345, n_candidates: int = 48) -> None:
+        _check_gp(gp)
+        z = np.asarray(detections, dtype=float)
+        s = np.asarray(sensor, dtype=float)
+        if z.ndim != 2 or z.shape[1] != 2 or z.shape[0] < 1:
+            raise ValueError(f"detections shape {z.shape}, expected (m >= 1, 2)")
+        if s.shape != (2,):
+            raise ValueError(f"sensor shape {s.shape}, expected (2,)")
+        if not sigma > 0:
+            raise ValueError(f"sigma must be > 0, got {sigma}")
+        if not np.all(np.isfinite(z)) or not np.all(np.isfinite(s)):
+            raise ValueError("non-finite detections or sensor position")
+        self.z, self.sensor, self.gp = z, s, gp
+        self.sigma, self.huber_k = float(sigma), float(huber_k)
+        self.cand_theta = 2.0 * np.pi * np.arange(int(n_candidates)) / int(n_candidates)
+        self.cand_H, _ = gp.conditional(self.cand_theta)
+        self.cand_mean = gp.mean(self.cand_theta)
+
+    @property
+    def dim(self) -> int:
+        """Number of residual rows (one per detection)."""
+        return int(self.z.shape[0])
+
+    def associate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(theta* (m,), normal (m, 2))`` of the detections for state ``x`` (26,)."""
+        f = x[N_KIN:]
+        r = self.cand_mean + (f - self.gp.mu) @ self.cand_H.T
+        pts = contour_point(x[[X, Y]], x[YAW], r, self.cand_theta)
+        vis = contour_candidates(pts, self.sensor)
+        return closest_on_chain(self.z, pts, self.cand_theta, vis)
+
+    def rows(self, x: np.ndarray, assoc: tuple[np.ndarray, np.ndarray] | None = None,
+             weights: np.ndarray | None = None, jacobian: bool = False
+             ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+        """Weighted rows (m,) (m), their Jacobian (m, 26) if asked, and the weights (m,).
+
+        ``assoc`` and ``weights`` are recomputed from ``x`` unless given (tests freeze them to
+        differentiate the rows exactly as the Jacobian does)."""
+        x = np.asarray(x, dtype=float)
+        if x.shape != (N_STATE,):
+            raise ValueError(f"state shape {x.shape}, expected ({N_STATE},)")
+        theta, normal = self.associate(x) if assoc is None else assoc
+        H, _ = self.gp.conditional(theta)
+        radius = self.gp.mean(theta) + (x[N_KIN:] - self.gp.mu) @ H.T
+        e = normal_offset(self.z, x[[X, Y]], x[YAW], radius, theta, normal)
+        if weights is None:
+            weights = huber_weights(e / self.sigma, self.huber_k)
+        sw = np.sqrt(weights)
+        J = None
+        if jacobian:
+            Jr = normal_offset_jacobian(x[YAW], radius, theta, H, normal)   # (m, 3 + n)
+            J = np.zeros((self.dim, N_STATE))
+            J[:, [X, Y, YAW]] = Jr[:, :3]
+            J[:, N_KIN:] = Jr[:, 3:]
+            J *= sw[:, None]
+        return sw * e, J, weights
+
+
+def contour_measurement_factor(key: int, detections_xy: np.ndarray, sensor_xy: np.ndarray,
+                               gp: ContourGP, sigma: float = 0.3, huber_k: float = 1.345,
+                               n_candidates: int = 48) -> gtsam.CustomFactor:
+    """One factor for all ``m`` detections (m, 2) (m, tracking frame) of one track in one
+    frame, seen from ``sensor_xy`` (2,) (m): ``m`` stacked normal-offset rows of
+    :class:`ContourMeasurement`, noise ``Isotropic.Sigma(m, sigma)`` (``sigma`` m, the
+    contour scatter, ``TrackingConfig.sigma_contour``), Huber weights with threshold
+    ``huber_k`` sigmas applied per row inside the callback (a gtsam robust model on the
+    stacked block would weigh the block as one residual). Wrong input shapes raise
+    ``ValueError`` here, before gtsam sees anything."""
+    meas = ContourMeasurement(detections_xy, sensor_xy, gp, sigma, huber_k, n_candidates)
+    shape = (meas.dim, N_STATE)
+
+    def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list) -> np.ndarray:
+        x = _state(values, this.keys()[0], "contour_measurement_factor")
+        e, J, _ = meas.rows(x, jacobian=H is not None)
+        if H is not None:
+            H[0] = _fortran(J, shape, "contour_measurement_factor")
+        return e
+
+    noise = gtsam.noiseModel.Isotropic.Sigma(meas.dim, meas.sigma)
+    return gtsam.CustomFactor(noise, [int(key)], error)
+
+
+# ---- prior -----------------------------------------------------------------------------------
+def prior_factor(key: int, mean: np.ndarray, cov: np.ndarray) -> gtsam.PriorFactorVector:
+    """Gaussian prior ``x ~ N(mean (26,), cov (26, 26))`` on a track state (state units).
+    The yaw residual is not wrapped (keep the mean's yaw near the estimate's)."""
+    mean = np.asarray(mean, dtype=float)
+    cov = np.asarray(cov, dtype=float)
+    if mean.shape != (N_STATE,):
+        raise ValueError(f"mean shape {mean.shape}, expected ({N_STATE},)")
+    if cov.shape != (N_STATE, N_STATE):
+        raise ValueError(f"cov shape {cov.shape}, expected ({N_STATE}, {N_STATE})")
+    cov = 0.5 * (cov + cov.T)
+    try:
+        np.linalg.cholesky(cov)
+    except np.linalg.LinAlgError as exc:
+        raise ValueError("prior covariance is not positive definite") from exc
+    return gtsam.PriorFactorVector(int(key), mean, gtsam.noiseModel.Gaussian.Covariance(cov))
