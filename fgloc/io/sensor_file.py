@@ -8,7 +8,7 @@ Top level: optional ``crs`` (the world CRS). Table ``[sensor]``: ``approx_positi
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from fgloc.config import dumps_toml, from_dict, read_toml
@@ -25,9 +25,9 @@ class _SensorTable:
     approx_position: tuple[float, float] | None = None
     approx_height: float | None = None
     yaw_guess_deg: float | None = None
-    hfov_deg: float = 120.0
-    vfov_deg: float = 30.0
-    max_range: float = 250.0
+    hfov_deg: float = SensorConfig.hfov_deg
+    vfov_deg: float = SensorConfig.vfov_deg
+    max_range: float = SensorConfig.max_range
 
 
 @dataclass
@@ -54,14 +54,7 @@ def read_sensor_toml(path: str | Path) -> SensorConfig:
                          field="sensor.approx_position")
     if raw.crs is not None:
         canonical_world_crs(raw.crs, p, "crs")
-    numbers = {
-        "approx_position": s.approx_position,
-        "approx_height": s.approx_height,
-        "yaw_guess_deg": s.yaw_guess_deg,
-        "hfov_deg": s.hfov_deg,
-        "vfov_deg": s.vfov_deg,
-        "max_range": s.max_range,
-    }
+    numbers = asdict(s)
     for key, value in numbers.items():
         values = value if isinstance(value, tuple) else (value,)
         if not all(v is None or math.isfinite(v) for v in values):
@@ -74,27 +67,13 @@ def read_sensor_toml(path: str | Path) -> SensorConfig:
     for key, (ok, expected) in ranges.items():
         if not ok:
             raise InputError(p, f"must be {expected}, got {numbers[key]!r}", field=f"sensor.{key}")
-    return SensorConfig(
-        approx_position=s.approx_position,
-        crs=raw.crs,
-        approx_height=s.approx_height,
-        yaw_guess_deg=s.yaw_guess_deg,
-        hfov_deg=s.hfov_deg,
-        vfov_deg=s.vfov_deg,
-        max_range=s.max_range,
-    )
+    return SensorConfig(crs=raw.crs, **numbers)
 
 
 def write_sensor_toml(path: str | Path, sensor: SensorConfig) -> None:
     """Write ``sensor.toml`` atomically (optional fields that are None are left out)."""
-    table = {
-        "approx_position": [float(v) for v in sensor.approx_position],
-        "approx_height": sensor.approx_height,
-        "yaw_guess_deg": sensor.yaw_guess_deg,
-        "hfov_deg": sensor.hfov_deg,
-        "vfov_deg": sensor.vfov_deg,
-        "max_range": sensor.max_range,
-    }
+    table = {k: v for k, v in asdict(sensor).items() if k != "crs"}
+    table["approx_position"] = [float(v) for v in sensor.approx_position]
     data: dict[str, object] = {} if sensor.crs is None else {"crs": sensor.crs}
     # float(): numpy scalars would otherwise be written as "np.float64(...)"
     data["sensor"] = {
