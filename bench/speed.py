@@ -1,0 +1,188 @@
+"""Speed of fgloc: per-stage time and peak memory per method, SICP against Open3D, tracker
+real-time factors, and how each stage grows with recording length and vehicle count.
+
+Every localization runs as its own child process through the CLI (``fgloc localize SCENARIO
+--method M --out DIR``), the way a user runs it, so its peak resident memory (``ru_maxrss``) is
+that run's alone; stage times come from the run's result.json (``timings_s``). Simulation and
+writing the scenario are not timed.
+
+    OMP_NUM_THREADS=1 python -m bench.speed [--quick] [--methods icp filter-sicp ...]
+
+Sections: (1) stages + peak memory on one 120 s intersection with 60 vehicles (--quick: 60 s,
+30 vehicles); (2) SICP vs Open3D ``registration_icp`` on the same clouds (bench.sicp_vs_open3d);
+(3) tracker real-time factors on one core with the oracle pose (recording s / CPU s), for every
+tracker in ``TRACKERS``; (4) scaling: recording length 30, 60, 120, 300 s (vehicle arrivals
+proportional to length) and vehicle count 20, 50, 100 in 60 s (--quick: 30, 60 s; 20, 50).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from fgloc.io import write_scenario
+from fgloc.pipeline import METHODS
+from fgloc.scenario import Scenario
+from fgloc.sim import simulate
+from fgloc.tracking import TrackingConfig, track_scenario
+from fgloc.tracks import TrackSet
+
+#: tracker name -> function (scenario, sensor pose) -> TrackSet, timed in section (3).
+TRACKERS: dict[str, Callable[[Scenario, np.ndarray], TrackSet]] = {
+    "filter (UKF)": lambda scn, T: track_scenario(scn, T, TrackingConfig()),
+}
+
+
+def child_main(method: str, scenario: str, out: str) -> int:
+    """Run ``fgloc localize`` in this process and print one JSON line with the stage times,
+    wall time and peak RSS (MiB)."""
+    from fgloc.cli import main as cli_main
+
+    t0 = time.perf_counter()
+    rc = cli_main(["-q", "localize", scenario, "--method", method, "--out", out])
+    wall = time.perf_counter() - t0
+    doc = json.loads((Path(out) / "result.json").read_text()) if rc == 0 else {}
+    print(json.dumps({
+        "rc": rc,
+        "wall_s": wall,
+        "peak_rss_mib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "timings_s": doc.get("timings_s", {}),
+    }))
+    return 0
+
+
+def run_child(method: str, scenario: Path, work: Path) -> dict:
+    """One localization in a fresh interpreter; its JSON report (rc != 0 on failure)."""
+    out = work / f"out-{method}-{scenario.name}"
+    cmd = [sys.executable, "-m", "bench.speed", "--child", method, str(scenario), str(out)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("{")]
+    if proc.returncode != 0 or not lines:
+        return {"rc": proc.returncode or 1, "error": proc.stderr.strip().splitlines()[-1:]}
+    return json.loads(lines[-1])
+
+
+def make_scenario(work: Path, case: str, seed: int, duration: float,
+                  vehicles: int | None) -> tuple[Path, Scenario]:
+    scn = simulate(case, seed, duration=duration, vehicles=vehicles)
+    d = work / f"{case}-{seed}-{duration:g}s-{vehicles}v"
+    write_scenario(scn, d)
+    return d, scn
+
+
+def describe(scn: Scenario) -> str:
+    n = len(scn.radar)
+    rec = scn.radar.duration
+    nv = len(scn.truth.tracks) if scn.truth is not None else 0
+    return f"{rec:.0f} s, {n} detections ({n / rec:.0f}/s), {nv} vehicles, {len(scn.als)} ALS pts"
+
+
+def stage_table(reports: dict[str, dict]) -> None:
+    stages: list[str] = []
+    for r in reports.values():
+        stages += [s for s in r.get("timings_s", {}) if s not in stages]
+    print("| method | " + " | ".join(stages) + " | total wall s | peak RSS MiB |")
+    print("|---|" + "---:|" * (len(stages) + 2))
+    for m, r in reports.items():
+        if r["rc"] != 0:
+            print(f"| {m} | failed: {r.get('error')} |")
+            continue
+        cells = [f"{r['timings_s'][s]:.2f}" if s in r["timings_s"] else "" for s in stages]
+        print(f"| {m} | " + " | ".join(cells) + f" | {r['wall_s']:.1f} | "
+              f"{r['peak_rss_mib']:.0f} |")
+
+
+def section_stages(work: Path, methods: list[str], duration: float, vehicles: int) -> None:
+    d, scn = make_scenario(work, "intersection", 1, duration, vehicles)
+    print(f"\n## (1) stages and peak memory: intersection seed 1, {describe(scn)}\n")
+    stage_table({m: run_child(m, d, work) for m in methods})
+
+
+def section_sicp(repeats: int) -> None:
+    from bench import sicp_vs_open3d as so
+    from fgloc.registration.config import SicpConfig
+
+    c = so.make_clouds("intersection", 1, 60.0, 1.0, 1.5, 30.0, 1.5)
+    cfg = SicpConfig()
+    print(f"\n## (2) SICP vs Open3D registration_icp: {len(c.source_xy)} source, "
+          f"{len(c.target_xy)} target points, offset 1.5 m / 1.5 deg, median of {repeats}\n")
+    t_s, (T_s, it_s) = so.timed(lambda: so.run_fgloc(c, cfg), repeats)
+    t_o, T_o = so.timed(lambda: so.open3d_icp(c, cfg.max_correspondence, cfg.max_iterations),
+                        repeats)
+    print("| method | time ms | ratio to Open3D | 2D error m | yaw error deg |")
+    print("|---|---:|---:|---:|---:|")
+    for name, t, T in (("fgloc SICP (hard, 50 -> 1.5 m)", t_s, T_s),
+                       (f"Open3D p2p ICP ({cfg.max_correspondence:g} m)", t_o, T_o)):
+        e2d, eyaw = so.errors(T, c)
+        print(f"| {name} | {1e3 * t:.1f} | {t / t_o:.2f} | {e2d:.3f} | {eyaw:.3f} |")
+    print(f"(SICP iterations: {it_s})")
+
+
+def section_realtime(scn: Scenario) -> None:
+    assert scn.truth is not None
+    rec = scn.radar.duration
+    print(f"\n## (3) tracker real-time factors, oracle pose, one core: {describe(scn)}\n")
+    print("| tracker | CPU s | real-time factor (CPU) | wall s |")
+    print("|---|---:|---:|---:|")
+    for name, fn in TRACKERS.items():
+        c0, w0 = time.process_time(), time.perf_counter()
+        fn(scn, scn.truth.sensor_pose)
+        cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+        print(f"| {name} | {cpu:.1f} | {rec / cpu:.1f} | {wall:.1f} |")
+
+
+def section_scaling(work: Path, methods: list[str], durations: list[float],
+                    vehicle_counts: list[int]) -> None:
+    print("\n## (4) scaling with recording length (vehicle arrivals proportional)\n")
+    for dur in durations:
+        d, scn = make_scenario(work, "intersection", 2, dur, None)
+        print(f"\n### {dur:g} s: {describe(scn)}\n")
+        stage_table({m: run_child(m, d, work) for m in methods})
+    print("\n## (4b) scaling with vehicle count (60 s)\n")
+    for nv in vehicle_counts:
+        d, scn = make_scenario(work, "intersection", 3, 60.0, nv)
+        print(f"\n### {nv} vehicles: {describe(scn)}\n")
+        stage_table({m: run_child(m, d, work) for m in methods})
+
+
+def main() -> int:
+    if len(sys.argv) == 5 and sys.argv[1] == "--child":
+        return child_main(*sys.argv[2:])
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="smaller scenarios, fewer points")
+    ap.add_argument("--methods", nargs="+", default=sorted(METHODS), choices=sorted(METHODS))
+    ap.add_argument("--sections", nargs="+", default=["stages", "sicp", "realtime", "scaling"],
+                    choices=["stages", "sicp", "realtime", "scaling"])
+    args = ap.parse_args()
+    quick = args.quick
+    print(f"# fgloc speed: {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.2f}, "
+          f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}, "
+          f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}")
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        dur, nveh = (60.0, 30) if quick else (120.0, 60)
+        if "stages" in args.sections:
+            section_stages(work, args.methods, dur, nveh)
+        if "sicp" in args.sections:
+            section_sicp(3 if quick else 7)
+        if "realtime" in args.sections:
+            section_realtime(simulate("intersection", 1, duration=dur, vehicles=nveh))
+        if "scaling" in args.sections:
+            section_scaling(work, args.methods,
+                            [30.0, 60.0] if quick else [30.0, 60.0, 120.0, 300.0],
+                            [20, 50] if quick else [20, 50, 100])
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
