@@ -9,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import os
 import sys
 import tempfile
 from collections.abc import Callable, Sequence
@@ -242,6 +243,26 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_batch(args: argparse.Namespace) -> int:
+    from fgloc.batch import aggregate_table, make_engine, read_manifest, run_batch
+
+    manifest = read_manifest(args.manifest)
+    engine = make_engine(args.engine, args.workers, args.scheduler)
+    try:
+        report = run_batch(manifest, args.out, engine, progress=None if args.quiet else sys.stderr)
+    except KeyboardInterrupt:
+        print("fgloc: batch interrupted; run the same command again to resume", file=sys.stderr)
+        return 130
+    print(aggregate_table(report.aggregate))
+    print(f"{len(report.records)} jobs: {report.skipped} already done, {report.ran} run now, "
+          f"{report.failed} failed")
+    for r in report.records:
+        if r.get("status") != "ok":
+            print(f"  FAILED {r['job']}: {r.get('error', '')}")
+    print(f"wrote {Path(args.out) / 'summary.csv'}, {Path(args.out) / 'aggregate.csv'}")
+    return 1 if report.failed else 0
+
+
 def cmd_config(args: argparse.Namespace) -> int:
     from fgloc.config import dump_config, load_config
 
@@ -322,6 +343,19 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--dump", action="store_true", help="(default action) print the full config")
     s.add_argument("--config", default=None, help="a config TOML to validate and print merged")
     s.set_defaults(fn=cmd_config)
+
+    s = sub.add_parser(
+        "batch", help="localize many scenarios with several methods (resumable; docs/batch.md)"
+    )
+    s.add_argument("manifest", help="batch manifest TOML (scenarios, methods, config)")
+    s.add_argument("--out", required=True, help="output directory (re-run to resume)")
+    s.add_argument("--workers", type=int, default=max(1, (os.cpu_count() or 2) // 2),
+                   help="parallel jobs (default: half the CPU cores)")
+    s.add_argument("--engine", choices=["local", "dask"], default="local",
+                   help="local process pool (default) or dask.distributed")
+    s.add_argument("--scheduler", default=None,
+                   help="dask scheduler address (default: a local dask cluster)")
+    s.set_defaults(fn=cmd_batch)
     return p
 
 
