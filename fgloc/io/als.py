@@ -9,7 +9,8 @@ exist for one chunk at a time only.
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -59,9 +60,21 @@ def find_als_tiles(als_dir: str | Path) -> list[Path]:
     return tiles
 
 
+@contextmanager
+def _quiet_laspy() -> Iterator[None]:
+    """Silence laspy's own ERROR log lines while reading: a failure becomes one InputError."""
+    logger = logging.getLogger("laspy")
+    level = logger.level
+    logger.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
 def _open_tile(path: Path) -> _Tile:
     try:
-        with laspy.open(path) as reader:
+        with _quiet_laspy(), laspy.open(path) as reader:
             header = reader.header
             count = int(header.point_count)
             try:
@@ -141,7 +154,7 @@ def read_als(
         end = start + tile.point_count
         i = start
         try:
-            with laspy.open(tile.path) as reader:
+            with _quiet_laspy(), laspy.open(tile.path) as reader:
                 for chunk in reader.chunk_iterator(chunk_points):
                     m = len(chunk)
                     if i + m > end:
@@ -166,7 +179,9 @@ def read_als(
         except InputError:
             raise
         except Exception as exc:  # corrupt LAZ stream, truncated file...
-            raise InputError(tile.path, f"cannot read the points: {exc}") from None
+            raise InputError(
+                tile.path, f"cannot read the points (truncated or corrupt LAS/LAZ file?): {exc}"
+            ) from None
         if i != end:
             raise InputError(
                 tile.path, f"holds {i - start} points, its header says {tile.point_count}"

@@ -29,6 +29,9 @@ from fgloc.scenario import GroundTruth, TrackTruth
 
 SENSOR_KEYS: tuple[str, ...] = ("x", "y", "z", "yaw_deg", "pitch_deg", "roll_deg")
 TRACK_KEYS: tuple[str, ...] = ("id", "length", "width", "states")
+#: Largest distance (m) of a ground-truth position from the local origin (the approximate
+#: sensor position): farther means another site, CRS or unit.
+MAX_DISTANCE = 10_000.0
 
 
 def read_ground_truth(path: str | Path, frame: LocalFrame) -> GroundTruth:
@@ -56,11 +59,19 @@ def read_ground_truth(path: str | Path, frame: LocalFrame) -> GroundTruth:
     sensor = data["sensor"]
     _require_keys(p, sensor, SENSOR_KEYS, "sensor.")
     x, y, z, yaw, pitch, roll = (_number(p, sensor[k], f"sensor.{k}") for k in SENSOR_KEYS)
+    for key, value, origin in (("x", x, frame.origin[0]), ("y", y, frame.origin[1])):
+        _check_near(p, np.array([value]), origin, f"sensor.{key}")
     pose_w = se3_from_pose(x, y, z, math.radians(yaw), math.radians(pitch), math.radians(roll))
     tracks_raw = data.get("tracks") or []
     if not isinstance(tracks_raw, list):
         raise InputError(p, "expected a list of tracks", field="tracks")
     tracks = [_read_track(p, tr, frame, f"tracks[{k}].") for k, tr in enumerate(tracks_raw)]
+    seen: dict[int, int] = {}
+    for k, tr in enumerate(tracks):
+        if tr.id in seen:
+            raise InputError(p, f"track id {tr.id} appears twice (also tracks[{seen[tr.id]}])",
+                             field=f"tracks[{k}].id")
+        seen[tr.id] = k
     return GroundTruth(crs=crs, sensor_pose=frame.pose_to_local(pose_w), tracks=tracks)
 
 
@@ -71,6 +82,10 @@ def _read_track(path: Path, tr: Any, frame: LocalFrame, prefix: str) -> TrackTru
         raise InputError(path, f"expected an integer, got {tid!r}", field=f"{prefix}id")
     length = _number(path, tr["length"], f"{prefix}length")
     width = _number(path, tr["width"], f"{prefix}width")
+    for key, value in (("length", length), ("width", width)):
+        if not value > 0.0:
+            raise InputError(path, f"a vehicle {key} must be > 0 m, got {value!r}",
+                             field=f"{prefix}{key}")
     rows = tr["states"]
     ok = isinstance(rows, list) and all(
         isinstance(r, list) and len(r) == 6
@@ -86,8 +101,28 @@ def _read_track(path: Path, tr: Any, frame: LocalFrame, prefix: str) -> TrackTru
     bad = ~np.isfinite(states).all(axis=1)
     if bad.any():
         raise InputError(path, "non-finite value", field=f"{prefix}states[{int(np.argmax(bad))}]")
+    back = np.diff(states[:, 0]) <= 0
+    if back.any():
+        i = int(np.argmax(back)) + 1
+        raise InputError(path, f"t must increase along a track ({states[i, 0]!r} after "
+                         f"{states[i - 1, 0]!r})", field=f"{prefix}states[{i}]")
+    _check_near(path, states[:, 1], frame.origin[0], f"{prefix}states", "x")
+    _check_near(path, states[:, 2], frame.origin[1], f"{prefix}states", "y")
     states[:, 1:3] -= np.asarray(frame.origin[:2])
     return TrackTruth(id=tid, length=length, width=width, states=states)
+
+
+def _check_near(path: Path, values: np.ndarray, origin: float, field: str, what: str = "") -> None:
+    """World coordinates must lie within :data:`MAX_DISTANCE` m of the scenario's origin."""
+    far = np.abs(values - origin) > MAX_DISTANCE
+    if far.any():
+        i = int(np.argmax(far))
+        where = f"{field}[{i}]" if what else field
+        raise InputError(
+            path, f"{what + ' ' if what else ''}{float(values[i])!r} lies more than "
+            f"{MAX_DISTANCE:g} m from the sensor's approx_position: another site or CRS?",
+            field=where,
+        )
 
 
 def _require_keys(path: Path, obj: Any, keys: tuple[str, ...], prefix: str) -> None:

@@ -115,8 +115,14 @@ def _parse_osm(path: Path) -> tuple[dict[int, tuple[float, float, float]], set[i
                 path, f"node needs integer id, numeric lat/lon (and ele): {exc}",
                 field=f"node {node.get('id')}",
             ) from None
+        if not (abs(lat) <= 90.0 and abs(lon) <= 180.0 and not np.isinf(ele)):
+            raise InputError(
+                path, f"expected WGS84 lat in [-90, 90], lon in [-180, 180] and a finite ele, "
+                f"got lat={lat!r} lon={lon!r} ele={ele!r}", field=f"node {nid}",
+            )
         nodes[nid] = (lat, lon, ele)
     lanelet_ids: set[int] = set()
+    bound_ways: set[str] = set()
     for rel in root.iter("relation"):
         if any(t.get("k") == "type" and t.get("v") == "lanelet" for t in rel.iter("tag")):
             try:
@@ -124,6 +130,15 @@ def _parse_osm(path: Path) -> tuple[dict[int, tuple[float, float, float]], set[i
             except (KeyError, ValueError):
                 raise InputError(path, "a lanelet relation needs an integer id",
                                  field=f"relation {rel.get('id')}") from None
+            bound_ways.update(m.get("ref", "") for m in rel.iter("member")
+                              if m.get("type") == "way" and m.get("role") in ("left", "right"))
+    known = {str(nid) for nid in nodes}
+    for way in root.iter("way"):
+        if way.get("id") in bound_ways:
+            missing = [nd.get("ref") for nd in way.iter("nd") if nd.get("ref") not in known]
+            if missing:
+                raise InputError(path, f"the lanelet bound references the node {missing[0]}, "
+                                 "which the map does not define", field=f"way {way.get('id')}")
     return nodes, lanelet_ids
 
 

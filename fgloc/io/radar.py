@@ -38,6 +38,16 @@ _CSV_FORMATS: dict[str, str] = {
     "frame": "%d",
 }
 _CSV_CHUNK_ROWS = 200_000
+#: Largest magnitude accepted per column (beyond them the file is broken or in wrong units).
+PLAUSIBLE_LIMITS: dict[str, tuple[float, str]] = {
+    "t": (1e11, "(t is in seconds: nanosecond or microsecond stamps must be converted)"),
+    "x": (1e5, "m (sensor frame)"),
+    "y": (1e5, "m (sensor frame)"),
+    "z": (1e5, "m (sensor frame)"),
+    "doppler": (1e3, "m/s"),
+    "rcs": (1e3, "dBsm"),
+    "frame": (2.0**53, "(frame index)"),
+}
 
 RowOf = Callable[[int], int | None]
 
@@ -66,6 +76,13 @@ def read_radar(path: str | Path) -> RadarData:
 
 
 def _read_csv(path: Path) -> RadarData:
+    try:
+        return _read_csv_text(path)
+    except UnicodeDecodeError as exc:
+        raise InputError(path, f"not UTF-8 text: {exc}") from None
+
+
+def _read_csv_text(path: Path) -> RadarData:
     with path.open("r", encoding="utf-8-sig", newline=None) as fh:
         header = fh.readline()
         if not header.strip():
@@ -94,10 +111,18 @@ def _read_npz(path: Path) -> RadarData:
         with np.load(path, allow_pickle=False) as npz:
             names = list(npz.files)
             wanted = _select_columns(path, names, row=None)
-            columns = {c: _numeric_1d(path, c, npz[c]) for c in wanted}
+            columns = {c: _numeric_1d(path, c, _npz_array(path, npz, c)) for c in wanted}
     except (OSError, ValueError, zipfile.BadZipFile) as exc:
         raise InputError(path, f"not a readable .npz of numeric arrays: {exc}") from None
     return _radar_from_columns(path, columns, None)
+
+
+def _npz_array(path: Path, npz: Mapping[str, np.ndarray], name: str) -> np.ndarray:
+    try:
+        return npz[name]
+    except ValueError as exc:  # object arrays: numpy refuses to unpickle them
+        raise InputError(path, f"expected a 1-D numeric array ({exc}; fgloc never unpickles "
+                         "object arrays)", field=name) from None
 
 
 def _read_parquet(path: Path) -> RadarData:
@@ -184,6 +209,9 @@ def _locate_csv_error(path: Path, names: list[str], wanted: list[str], reason: s
     cols = {c: names.index(c) for c in wanted}
     for lineno, text in _csv_data_lines(path):
         fields = text.split(",")
+        if [f.strip().strip('"').strip().lower() for f in fields] == names:
+            return InputError(path, "the header line is repeated here (files concatenated?); "
+                              "expected a data row of numbers", row=lineno)
         for c, j in cols.items():
             if j >= len(fields):
                 return InputError(
@@ -221,6 +249,13 @@ def _radar_from_columns(
             i = int(np.argmax(bad))
             kind = "NaN" if np.isnan(a[i]) else "infinite value"
             raise fail(f"{kind} ({float(a[i])!r}) is not allowed", i, c)
+    for c, a in columns.items():
+        limit, hint = PLAUSIBLE_LIMITS.get(c, (np.inf, ""))
+        bad = np.abs(a) > limit
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise fail(f"implausible value {float(a[i])!r}: |{c}| must be <= {limit:g} {hint}",
+                       i, c)
     frame = None
     if "frame" in columns:
         f = columns["frame"]

@@ -14,12 +14,13 @@ from pathlib import Path
 import numpy as np
 
 from fgloc.errors import InputError
+from fgloc.geo import LocalFrame
 from fgloc.io.als import ALS_SUFFIXES, find_als_tiles, read_als, write_als
 from fgloc.io.ground_truth import read_ground_truth, write_ground_truth
 from fgloc.io.lanelet_map import read_lanelet_map, write_lanelet_map
 from fgloc.io.radar import read_radar, write_radar
 from fgloc.io.sensor_file import read_sensor_toml, write_sensor_toml
-from fgloc.scenario import Scenario
+from fgloc.scenario import Scenario, SensorConfig
 
 SENSOR_FILE = "sensor.toml"
 MAP_FILE = "map.osm"
@@ -62,11 +63,33 @@ def load_scenario(path: str | Path) -> Scenario:
     )
     lo, hi = als.xyz[:, :2].min(axis=0), als.xyz[:, :2].max(axis=0)
     bbox = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
+    _check_sensor_near_als(d / SENSOR_FILE, sensor, frame, bbox)
     lanelets = read_lanelet_map(d / MAP_FILE, frame.crs, frame, overlap_bbox=bbox)
     gt_path = d / GROUND_TRUTH_FILE
     truth = read_ground_truth(gt_path, frame) if gt_path.is_file() else None
     return Scenario(frame=frame, sensor=sensor, radar=radar, als=als, lanelets=lanelets,
                     truth=truth, path=d)
+
+
+def _check_sensor_near_als(
+    path: Path, sensor: SensorConfig, frame: LocalFrame, bbox: tuple[float, float, float, float]
+) -> None:
+    """The approximate position must lie within ``max_range`` of the ALS bounding box (bbox in
+    L): otherwise the sensor cannot see the scanned road (wrong position, CRS or tiles)."""
+    e, n = (float(v) for v in sensor.approx_position)
+    x, y = e - frame.origin[0], n - frame.origin[1]
+    dx = max(bbox[0] - x, 0.0, x - bbox[2])
+    dy = max(bbox[1] - y, 0.0, y - bbox[3])
+    gap = float(np.hypot(dx, dy))
+    if gap > sensor.max_range:
+        (e0, n0), (e1, n1) = frame.to_world(np.array([bbox[:2], bbox[2:]]))[:, :2].tolist()
+        raise InputError(
+            path,
+            f"approx_position ({e:.1f}, {n:.1f}) lies {gap:.0f} m from the ALS tiles "
+            f"(E {e0:.0f}..{e1:.0f}, N {n0:.0f}..{n1:.0f} in {frame.crs}), farther than "
+            f"max_range {sensor.max_range:g} m: wrong position, CRS or tiles?",
+            field="sensor.approx_position",
+        )
 
 
 def write_scenario(scn: Scenario, out_dir: str | Path, *, radar_format: str = "csv") -> None:

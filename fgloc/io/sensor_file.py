@@ -17,6 +17,10 @@ from fgloc.io._crs import canonical_world_crs
 from fgloc.io.atomic import write_text_atomic
 from fgloc.scenario import SensorConfig
 
+#: Largest |E| or |N| (m) accepted for approx_position (projected CRS coordinates, including
+#: zone-prefixed eastings such as EPSG:4647's 32 500 000 m, stay far below it).
+MAX_COORDINATE = 1e8
+
 
 @dataclass
 class _SensorTable:
@@ -40,9 +44,9 @@ def read_sensor_toml(path: str | Path) -> SensorConfig:
     """Read and validate ``sensor.toml``.
 
     Raises :class:`InputError` naming the dotted key for unknown keys, wrong types, a missing
-    ``[sensor] approx_position``, non-finite numbers, out-of-range fields of view or range
-    (0 < hfov_deg <= 360, 0 < vfov_deg <= 180, max_range > 0) and an invalid or non-projected
-    ``crs``. ``crs`` stays as written (None when absent).
+    ``[sensor] approx_position``, non-finite numbers, out-of-range values (|E|, |N| <=
+    :data:`MAX_COORDINATE`, 0 < hfov_deg <= 360, 0 < vfov_deg <= 180, max_range > 0) and an
+    invalid or non-projected ``crs``. ``crs`` stays as written (None when absent).
     """
     p = Path(path)
     if not p.is_file():
@@ -60,6 +64,10 @@ def read_sensor_toml(path: str | Path) -> SensorConfig:
         if not all(v is None or math.isfinite(v) for v in values):
             raise InputError(p, f"must be finite, got {value!r}", field=f"sensor.{key}")
     ranges = {
+        "approx_position": (
+            all(abs(v) <= MAX_COORDINATE for v in s.approx_position),
+            f"projected coordinates within +-{MAX_COORDINATE:g} m (E, N in the world CRS)",
+        ),
         "hfov_deg": (0.0 < s.hfov_deg <= 360.0, "in (0, 360]"),
         "vfov_deg": (0.0 < s.vfov_deg <= 180.0, "in (0, 180]"),
         "max_range": (s.max_range > 0.0, "> 0"),
