@@ -243,6 +243,28 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_import_rosbag(args: argparse.Namespace) -> int:
+    from fgloc.io.rosbag import import_rosbag
+
+    radar, written = import_rosbag(
+        args.bag, args.topic, args.out, als=args.als or (), map_file=args.map,
+        sensor=args.sensor, ground_truth=args.ground_truth, doppler_field=args.doppler_field,
+        negate_doppler=args.negate_doppler, msg_defs=args.msg_def or (),
+    )
+    n_frames = len(np.unique(radar.frame_ids()))
+    print(f"{len(radar):,} detections in {n_frames:,} frames over {radar.duration:.1f} s from "
+          f"{args.topic}")
+    print(f"wrote {', '.join(str(Path(args.out) / n) for n in written)}")
+    missing = [n for n, flag in (("als/", "--als"), ("map.osm", "--map"),
+                                 ("sensor.toml", "--sensor"))
+               if not any(w.startswith(n) for w in written)
+               and not (Path(args.out) / n).exists()]
+    if missing:
+        print(f"still needed for a scenario: {', '.join(missing)} (copy them into {args.out} "
+              "or pass --als / --map / --sensor); then check it with `fgloc info`")
+    return 0
+
+
 def cmd_batch(args: argparse.Namespace) -> int:
     from fgloc.batch import aggregate_table, make_engine, read_manifest, run_batch
 
@@ -356,6 +378,25 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--scheduler", default=None,
                    help="dask scheduler address (default: a local dask cluster)")
     s.set_defaults(fn=cmd_batch)
+
+    s = sub.add_parser("import", help="make a scenario from recorded data (docs/cli.md)")
+    kinds = s.add_subparsers(dest="kind", required=True)
+    s = kinds.add_parser("rosbag", help="radar detections from a ROS 2 bag (MCAP or sqlite3)")
+    s.add_argument("bag", help="bag directory (with metadata.yaml), .mcap or .db3 file")
+    s.add_argument("--topic", required=True, help="PointCloud2 or detection-list topic")
+    s.add_argument("--out", required=True, help="scenario directory to write")
+    s.add_argument("--als", nargs="+", default=None, metavar="PATH",
+                   help="ALS tiles (.las/.laz files or directories) copied into OUT/als/")
+    s.add_argument("--map", default=None, help="Lanelet2 map copied to OUT/map.osm")
+    s.add_argument("--sensor", default=None, help="sensor.toml copied (validated) into OUT")
+    s.add_argument("--ground-truth", default=None, help="ground_truth.json copied into OUT")
+    s.add_argument("--doppler-field", default=None,
+                   help="PointCloud2 range-rate field name (default: found by name)")
+    s.add_argument("--negate-doppler", action="store_true",
+                   help="the driver's range rate is positive towards the sensor")
+    s.add_argument("--msg-def", nargs="+", default=None, metavar="MSG",
+                   help="message definitions .../<package>/msg/<Name>.msg for bags without them")
+    s.set_defaults(fn=cmd_import_rosbag)
     return p
 
 
