@@ -28,6 +28,7 @@ from factors.measurement import (
     contour_point,
     normal_offset,
     normal_offset_jacobian,
+    unit,
 )
 from factors.state import N_CONTOUR, N_KIN, N_STATE, YAW, X, Y
 
@@ -127,31 +128,41 @@ def process_jacobian_x0(x0: np.ndarray, dt: float, tau: float) -> np.ndarray:
 
 def process_covariance(x_ref: np.ndarray, dt: float, gp: ContourGP, tau: float,
                        sigma_jerk: float, sigma_yaw_acc: float, sigma_pos: float = 0.0,
-                       q_floor: float = 1e-8) -> np.ndarray:
-    """(26, 26) process noise ``Q_ctra(x_ref) (+) (1 - exp(-2 tau dt)) K`` plus ``q_floor`` on
-    the diagonal (each component's squared unit): the CTRA noise has rank 4 of 6 (jerk and
-    yaw acceleration only), the floor makes ``Q`` invertible. ``Q_ctra`` depends on the speed
-    and yaw of ``x_ref`` (the state the factor is built around); it is kept fixed."""
+                       q_floor: float = 1e-8, contour_rw: np.ndarray | None = None
+                       ) -> np.ndarray:
+    """(26, 26) process noise ``Q_ctra(x_ref) (+) ((1 - exp(-2 tau dt)) K + dt contour_rw)``
+    plus ``q_floor`` on the diagonal (each component's squared unit): the CTRA noise has rank
+    4 of 6 (jerk and yaw acceleration only), the floor makes ``Q`` invertible. ``Q_ctra``
+    depends on the speed and yaw of ``x_ref`` (the state the factor is built around); it is
+    kept fixed. ``contour_rw`` (20, 20) m^2/s is an optional random walk of the radii (the
+    tracker's length/width random walk ``Q_size``), None for none."""
     Q = np.zeros((N_STATE, N_STATE))
     Q[:N_KIN, :N_KIN] = ctra_process_noise(np.asarray(x_ref, dtype=float)[:N_KIN], dt,
                                            sigma_jerk, sigma_yaw_acc, sigma_pos)
     Q[N_KIN:, N_KIN:] = (1.0 - np.exp(-2.0 * tau * dt)) * gp.K
+    if contour_rw is not None:
+        rw = np.asarray(contour_rw, dtype=float)
+        if rw.shape != (N_CONTOUR, N_CONTOUR):
+            raise ValueError(f"contour_rw shape {rw.shape}, expected ({N_CONTOUR}, "
+                             f"{N_CONTOUR})")
+        Q[N_KIN:, N_KIN:] += dt * rw
     Q[np.diag_indices(N_STATE)] += q_floor
     return 0.5 * (Q + Q.T)
 
 
 def process_factor(key_k: int, key_k1: int, dt: float, gp: ContourGP, tau: float,
                    sigma_jerk: float, sigma_yaw_acc: float, sigma_pos: float = 0.0,
-                   x_ref: np.ndarray | None = None, q_floor: float = 1e-8
-                   ) -> gtsam.CustomFactor:
+                   x_ref: np.ndarray | None = None, q_floor: float = 1e-8,
+                   contour_rw: np.ndarray | None = None) -> gtsam.CustomFactor:
     """Factor between consecutive states of one track, ``dt`` s apart.
 
     Residual (26,) = :func:`process_error` ``(x_k, x_{k+1})``, whitened by a
     ``noiseModel.Gaussian.Covariance`` of :func:`process_covariance` evaluated at ``x_ref``
     (the speed/heading that scale the CTRA noise; default: a state at rest, heading 0 -- pass
     the initial estimate of ``x_k``). Noise parameters as in ``TrackingConfig``: ``tau``
-    (1/s), ``sigma_jerk`` (m/s^3), ``sigma_yaw_acc`` (rad/s^2), ``sigma_pos`` (m/sqrt(s)).
-    Jacobians analytic: ``d/dx_k = -blockdiag(J_ctra, exp(-tau dt) I)``, ``d/dx_{k+1} = I``.
+    (1/s), ``sigma_jerk`` (m/s^3), ``sigma_yaw_acc`` (rad/s^2), ``sigma_pos`` (m/sqrt(s)),
+    ``contour_rw`` (m^2/s, see :func:`process_covariance`). Jacobians analytic:
+    ``d/dx_k = -blockdiag(J_ctra, exp(-tau dt) I)``, ``d/dx_{k+1} = I``.
     """
     _check_gp(gp)
     if not dt > 0:
@@ -159,7 +170,8 @@ def process_factor(key_k: int, key_k1: int, dt: float, gp: ContourGP, tau: float
     x_ref = np.zeros(N_STATE) if x_ref is None else np.asarray(x_ref, dtype=float)
     if x_ref.shape != (N_STATE,):
         raise ValueError(f"x_ref shape {x_ref.shape}, expected ({N_STATE},)")
-    Q = process_covariance(x_ref, dt, gp, tau, sigma_jerk, sigma_yaw_acc, sigma_pos, q_floor)
+    Q = process_covariance(x_ref, dt, gp, tau, sigma_jerk, sigma_yaw_acc, sigma_pos, q_floor,
+                           contour_rw)
     noise = gtsam.noiseModel.Gaussian.Covariance(Q)
     eye = np.asfortranarray(np.eye(N_STATE))
 
@@ -204,10 +216,21 @@ class ContourMeasurement:
     the (small) mismatch between the polyline and the smooth contour. Robust weights: Huber
     on ``row / sigma`` with threshold ``huber_k`` (in sigmas), recomputed at each evaluation
     (IRLS); rows of residual and Jacobian are scaled by ``sqrt(w)``.
+
+    Per-row noise (optional, like the tracker's measurement noise): with ``sigma_range`` (m)
+    and/or ``sigma_azimuth`` (rad) > 0, or ``gp_variance``, row i has the std. dev.
+    ``s_i = sqrt(sigma^2 + var_f (u . n)^2 + sigma_range^2 (e_r . n)^2
+    + (sigma_azimuth r)^2 (e_t . n)^2)`` (``e_r``, ``e_t`` the radial and tangential
+    directions of the detection seen from the sensor at 2D range ``r``, ``u`` the contour ray,
+    ``var_f`` the GP interpolation variance at ``theta*``); the row enters with the weight
+    ``(sigma / s_i)^2`` (times the Huber weight of ``row / s_i``), fixed per evaluation like
+    the association, so the factor keeps its isotropic ``sigma`` noise model.
     """
 
     def __init__(self, detections: np.ndarray, sensor: np.ndarray, gp: ContourGP,
-                 sigma: float = 0.3, huber_k: float = 1.345, n_candidates: int = 48) -> None:
+                 sigma: float = 0.3, huber_k: float = 1.345, n_candidates: int = 48,
+                 sigma_range: float = 0.0, sigma_azimuth: float = 0.0,
+                 gp_variance: bool = False) -> None:
         _check_gp(gp)
         z = np.asarray(detections, dtype=float)
         s = np.asarray(sensor, dtype=float)
@@ -221,6 +244,14 @@ class ContourMeasurement:
             raise ValueError("non-finite detections or sensor position")
         self.z, self.sensor, self.gp = z, s, gp
         self.sigma, self.huber_k = float(sigma), float(huber_k)
+        self.gp_variance = bool(gp_variance)
+        self.radar_var = None
+        if sigma_range > 0 or sigma_azimuth > 0:
+            los = z - s
+            r2d = np.maximum(np.linalg.norm(los, axis=1), 1e-6)
+            self.e_r = los / r2d[:, None]
+            self.e_t = np.stack([-self.e_r[:, 1], self.e_r[:, 0]], axis=1)
+            self.radar_var = (float(sigma_range) ** 2, (float(sigma_azimuth) * r2d) ** 2)
         self.cand_theta = 2.0 * np.pi * np.arange(int(n_candidates)) / int(n_candidates)
         self.cand_H, _ = gp.conditional(self.cand_theta)
         self.cand_mean = gp.mean(self.cand_theta)
@@ -238,6 +269,18 @@ class ContourMeasurement:
         vis = contour_candidates(pts, self.sensor)
         return closest_on_chain(self.z, pts, self.cand_theta, vis)
 
+    def row_sigma(self, yaw: float, theta: np.ndarray, normal: np.ndarray,
+                  var_f: np.ndarray) -> np.ndarray:
+        """(m,) std. dev. (m) of each row (class doc); ``sigma`` everywhere without per-row
+        noise."""
+        var = np.full(self.dim, self.sigma**2)
+        if self.gp_variance:
+            var += var_f * np.sum(unit(theta + yaw) * normal, axis=1) ** 2
+        if self.radar_var is not None:
+            var += (self.radar_var[0] * np.sum(self.e_r * normal, axis=1) ** 2
+                    + self.radar_var[1] * np.sum(self.e_t * normal, axis=1) ** 2)
+        return np.sqrt(var)
+
     def rows(self, x: np.ndarray, assoc: tuple[np.ndarray, np.ndarray] | None = None,
              weights: np.ndarray | None = None, jacobian: bool = False
              ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
@@ -249,11 +292,12 @@ class ContourMeasurement:
         if x.shape != (N_STATE,):
             raise ValueError(f"state shape {x.shape}, expected ({N_STATE},)")
         theta, normal = self.associate(x) if assoc is None else assoc
-        H, _ = self.gp.conditional(theta)
+        H, var_f = self.gp.conditional(theta)
         radius = self.gp.mean(theta) + (x[N_KIN:] - self.gp.mu) @ H.T
         e = normal_offset(self.z, x[[X, Y]], x[YAW], radius, theta, normal)
         if weights is None:
-            weights = huber_weights(e / self.sigma, self.huber_k)
+            scale = self.row_sigma(x[YAW], theta, normal, var_f) / self.sigma
+            weights = huber_weights(e / (self.sigma * scale), self.huber_k) / scale**2
         sw = np.sqrt(weights)
         J = None
         if jacobian:
@@ -267,15 +311,20 @@ class ContourMeasurement:
 
 def contour_measurement_factor(key: int, detections_xy: np.ndarray, sensor_xy: np.ndarray,
                                gp: ContourGP, sigma: float = 0.3, huber_k: float = 1.345,
-                               n_candidates: int = 48) -> gtsam.CustomFactor:
+                               n_candidates: int = 48, sigma_range: float = 0.0,
+                               sigma_azimuth: float = 0.0, gp_variance: bool = False
+                               ) -> gtsam.CustomFactor:
     """One factor for all ``m`` detections (m, 2) (m, tracking frame) of one track in one
     frame, seen from ``sensor_xy`` (2,) (m): ``m`` stacked normal-offset rows of
     :class:`ContourMeasurement`, noise ``Isotropic.Sigma(m, sigma)`` (``sigma`` m, the
     contour scatter, ``TrackingConfig.sigma_contour``), Huber weights with threshold
     ``huber_k`` sigmas applied per row inside the callback (a gtsam robust model on the
-    stacked block would weigh the block as one residual). Wrong input shapes raise
+    stacked block would weigh the block as one residual); optional per-row radar noise
+    ``sigma_range`` (m), ``sigma_azimuth`` (rad) and GP interpolation variance
+    (``gp_variance``) as in :class:`ContourMeasurement`. Wrong input shapes raise
     ``ValueError`` here, before gtsam sees anything."""
-    meas = ContourMeasurement(detections_xy, sensor_xy, gp, sigma, huber_k, n_candidates)
+    meas = ContourMeasurement(detections_xy, sensor_xy, gp, sigma, huber_k, n_candidates,
+                              sigma_range, sigma_azimuth, gp_variance)
     shape = (meas.dim, N_STATE)
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list) -> np.ndarray:

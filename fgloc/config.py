@@ -16,6 +16,7 @@ from typing import Any, TypeVar
 
 from fgloc.errors import InputError
 from fgloc.registration.config import FineConfig, SicpConfig
+from fgloc.smoothing.config import SmoothingConfig
 from fgloc.tracking.config import TrackingConfig
 
 if sys.version_info >= (3, 11):
@@ -120,6 +121,7 @@ class Config:
     tracking: TrackingConfig = field(default_factory=TrackingConfig)
     sicp: SicpConfig = field(default_factory=SicpConfig)
     fine: FineConfig = field(default_factory=FineConfig)
+    smoothing: SmoothingConfig = field(default_factory=SmoothingConfig)
 
 
 # --------------------------------------------------------------------------------------------
@@ -197,7 +199,10 @@ def from_dict(cls: type[T], data: dict[str, Any], path: str | Path | None, prefi
                 path, f"expected {_type_name(tp)}, got {type(value).__name__} {value!r}", field=key
             )
         kwargs[name] = coerced
-    return cls(**kwargs)
+    try:
+        return cls(**kwargs)
+    except ValueError as exc:  # a section's own validation (__post_init__)
+        raise InputError(path, str(exc), field=prefix.rstrip(".") or None) from None
 
 
 def to_dict(obj: Any) -> dict[str, Any]:

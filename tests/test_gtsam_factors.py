@@ -268,3 +268,30 @@ def test_levenberg_marquardt_recovers_trajectory() -> None:
     yaw_err = np.array([result.atVector(track_key(1, k))[YAW] - truth[k, YAW]
                         for k in range(len(truth))])
     assert np.abs(yaw_err).max() < 0.05
+
+
+def test_per_row_radar_noise_weights_and_jacobian() -> None:
+    rng = np.random.default_rng(11)
+    sensor = np.array([0.0, -40.0])
+    x = random_state(rng, 0.2)
+    z = box_detections(x, sensor) + rng.normal(0, 0.05, (1, 2))
+    sr, sa = 0.25, np.deg2rad(0.5)
+    meas = ContourMeasurement(z, sensor, GP, sigma=0.3, huber_k=np.inf, sigma_range=sr,
+                              sigma_azimuth=sa, gp_variance=True)
+    theta, normal = meas.associate(x)
+    _, var_f = GP.conditional(theta)
+    los = z - sensor
+    r = np.linalg.norm(los, axis=1)
+    er = los / r[:, None]
+    et = np.stack([-er[:, 1], er[:, 0]], axis=1)
+    u = np.stack([np.cos(theta + x[YAW]), np.sin(theta + x[YAW])], axis=1)
+    expect = np.sqrt(0.09 + var_f * np.sum(u * normal, 1) ** 2
+                     + sr**2 * np.sum(er * normal, 1) ** 2
+                     + (sa * r) ** 2 * np.sum(et * normal, 1) ** 2)
+    np.testing.assert_allclose(meas.row_sigma(x[YAW], theta, normal, var_f), expect)
+    e, J, w = meas.rows(x, jacobian=True)
+    np.testing.assert_allclose(w, (0.3 / expect) ** 2)              # no Huber: noise only
+    Jn = numeric_jacobian(lambda v: meas.rows(v, (theta, normal), w)[0], x)
+    np.testing.assert_allclose(J, Jn, atol=1e-7, rtol=1e-6)
+    plain = ContourMeasurement(z, sensor, GP, sigma=0.3, huber_k=np.inf)
+    np.testing.assert_allclose(e, plain.rows(x)[0] * 0.3 / expect, atol=1e-12)
