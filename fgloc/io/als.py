@@ -148,7 +148,7 @@ def read_als(
     xyz = np.empty((total, 3), dtype=np.float32)
     cls = np.empty(total, dtype=np.uint8)
     z_ref: float | None = None  # provisional integer height offset, fixed by the first chunk
-    road_z: list[np.ndarray] = []  # world heights (float64) of ground/road points near E, N
+    road_z: list[np.ndarray] = []  # heights - z_ref (float32) of ground/road points near E, N
     start = 0
     for tile in tiles:
         end = start + tile.point_count
@@ -174,7 +174,7 @@ def read_als(
                             (x - approx_position[0]) ** 2 + (y - approx_position[1]) ** 2
                             <= Z0_RADIUS**2
                         )
-                        road_z.append(z[near])
+                        road_z.append((z[near] - z_ref).astype(np.float32))
                     i += m
         except InputError:
             raise
@@ -189,12 +189,23 @@ def read_als(
         start = end
     assert z_ref is not None
     if z0 is None:
-        near_z = np.concatenate(road_z)
-        z0 = float(np.median(near_z)) if near_z.size else z_ref + float(np.median(xyz[:, 2]))
+        near_z = np.concatenate(road_z) if road_z else np.zeros(0, dtype=np.float32)
+        del road_z[:]
+        z0 = z_ref + _median_inplace(near_z if near_z.size else xyz[:, 2].copy())
     z0 = float(round(z0))
     xyz[:, 2] -= np.float32(z0 - z_ref)
     frame = LocalFrame((e0, n0, z0), crs)
     return AlsCloud(xyz=xyz, classification=cls, source_files=[t.path for t in tiles]), frame
+
+
+def _median_inplace(a: np.ndarray) -> float:
+    """Median of a 1-D array, partitioning it in place (no sorted copy of a large array)."""
+    n = a.size
+    k = n // 2
+    a.partition(k)
+    if n % 2:
+        return float(a[k])
+    return 0.5 * (float(a[k]) + float(a[:k].max()))
 
 
 def write_als(

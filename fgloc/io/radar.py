@@ -38,6 +38,8 @@ _CSV_FORMATS: dict[str, str] = {
     "frame": "%d",
 }
 _CSV_CHUNK_ROWS = 200_000
+#: Rows parsed per np.loadtxt call when reading a CSV.
+CSV_READ_ROWS = 500_000
 #: Largest magnitude accepted per column (beyond them the file is broken or in wrong units).
 PLAUSIBLE_LIMITS: dict[str, tuple[float, str]] = {
     "t": (1e11, "(t is in seconds: nanosecond or microsecond stamps must be converted)"),
@@ -92,18 +94,42 @@ def _read_csv_text(path: Path) -> RadarData:
             raise InputError(path, f"header missing: row 1 holds numbers; {_HEADER_HINT}", row=1)
         wanted = _select_columns(path, names, row=1)
         usecols = [names.index(c) for c in wanted]
+        # filled chunk by chunk: peak memory is the result plus one chunk, and x, y, z land
+        # directly in the (n, 3) array RadarData keeps
+        capacity = _count_lines(path)
+        xyz = np.empty((capacity, 3))
+        other = np.empty((len(wanted) - 3, capacity))
+        n = 0
         try:
             with warnings.catch_warnings():
                 warnings.filterwarnings("ignore", "loadtxt: input contained no data")
-                data = np.loadtxt(
-                    fh, delimiter=",", comments=None, usecols=usecols, ndmin=2, dtype=np.float64
-                )
+                warnings.filterwarnings("ignore", "Input line .* contained no data")
+                while True:
+                    chunk = np.loadtxt(fh, delimiter=",", comments=None, usecols=usecols,
+                                       ndmin=2, dtype=np.float64, max_rows=CSV_READ_ROWS)
+                    m = chunk.shape[0]
+                    if m == 0:
+                        break
+                    xyz[n : n + m] = chunk[:, 1:4]
+                    other[:, n : n + m] = chunk[:, [0, *range(4, len(wanted))]].T
+                    n += m
         except ValueError as exc:
             raise _locate_csv_error(path, names, wanted, str(exc)) from None
-    if data.shape[0] == 0:
+    if n == 0:
         raise InputError(path, "no data rows (the file holds only a header)", row=2)
-    columns = {c: data[:, k] for k, c in enumerate(wanted)}
-    return _radar_from_columns(path, columns, lambda i: _csv_line_of(path, i))
+    rest = [c for c in wanted if c not in ("x", "y", "z")]
+    columns = {c: other[k, :n] for k, c in enumerate(rest)}
+    columns.update(x=xyz[:n, 0], y=xyz[:n, 1], z=xyz[:n, 2])
+    return _radar_from_columns(path, columns, lambda i: _csv_line_of(path, i), xyz=xyz[:n])
+
+
+def _count_lines(path: Path) -> int:
+    """Newlines in the file + 1: an upper bound of its data rows (a fast binary scan)."""
+    n = 1
+    with path.open("rb") as fh:
+        while block := fh.read(1 << 24):
+            n += block.count(b"\n")
+    return n
 
 
 def _read_npz(path: Path) -> RadarData:
@@ -225,11 +251,13 @@ def _locate_csv_error(path: Path, names: list[str], wanted: list[str], reason: s
 
 
 def _radar_from_columns(
-    path: Path, columns: Mapping[str, np.ndarray], row_of: RowOf | None
+    path: Path, columns: Mapping[str, np.ndarray], row_of: RowOf | None,
+    xyz: np.ndarray | None = None,
 ) -> RadarData:
     """Validate parsed columns (finite, integer frame, non-decreasing t) into RadarData.
 
     ``row_of(i)`` maps a data index to the file row for error messages (None: no rows).
+    ``xyz``: the (n, 3) array whose columns are x, y, z, when the caller has one already.
     """
 
     def fail(message: str, index: int, column: str) -> InputError:
@@ -272,7 +300,7 @@ def _radar_from_columns(
         raise fail(message, i, "t")
     return RadarData(
         t=t,
-        xyz=np.column_stack([columns["x"], columns["y"], columns["z"]]),
+        xyz=np.column_stack([columns["x"], columns["y"], columns["z"]]) if xyz is None else xyz,
         doppler=columns["doppler"],
         rcs=columns.get("rcs"),
         frame=frame,

@@ -16,6 +16,7 @@ import numpy as np
 from fgloc.errors import InputError
 from fgloc.geo import LocalFrame
 from fgloc.io.als import ALS_SUFFIXES, find_als_tiles, read_als, write_als
+from fgloc.io.atomic import current_umask
 from fgloc.io.ground_truth import read_ground_truth, write_ground_truth
 from fgloc.io.lanelet_map import read_lanelet_map, write_lanelet_map
 from fgloc.io.radar import read_radar, write_radar
@@ -112,6 +113,7 @@ def write_scenario(scn: Scenario, out_dir: str | Path, *, radar_format: str = "c
         return
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
+    os.chmod(tmp, 0o777 & ~current_umask())  # mkdtemp makes 0700; give the usual mode
     try:
         _write_files(scn, tmp, radar_format)
         os.rename(tmp, out)
