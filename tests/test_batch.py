@@ -229,3 +229,36 @@ def test_kill_and_resume(scenarios, tmp_path):
     assert all(r["status"] == "ok" for r in rows)
     assert {k: (jobs / k / "icp" / JOB_FILE).stat().st_mtime_ns for k in done} == stamp
     assert not list(jobs.glob("**/.tmp-*")) and not list(jobs.glob("**/.trash-*"))
+
+
+@pytest.mark.slow
+def test_worker_death_is_retried_then_recorded(scenarios, tmp_path):
+    """SIGKILL the worker (as the OOM killer would) each time it runs job c: c is retried once,
+    then recorded as failed (WorkerDied); job d, queued behind it, still runs."""
+    psutil = pytest.importorskip("psutil")
+    for k in "cd":
+        shutil.copytree(scenarios / "a", tmp_path / "scn" / k)
+    manifest = _manifest(tmp_path / "m.toml", [str(tmp_path / "scn" / "*")])
+    out = tmp_path / "out"
+    env = {**os.environ, "PYTHONPATH": str(REPO)}
+    proc = subprocess.Popen([sys.executable, "-m", "fgloc", "-q", "batch", str(manifest),
+                             "--out", str(out), "--workers", "1"], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    kills = 0
+    seen: set[str] = set()
+    deadline = time.monotonic() + 240
+    while proc.poll() is None and time.monotonic() < deadline:
+        tmp = {p.name for p in (out / "jobs" / "c").glob(".tmp-*")} - seen
+        if tmp and kills < 2:
+            seen |= tmp
+            for child in psutil.Process(proc.pid).children(recursive=True):
+                if "spawn_main" in " ".join(child.cmdline()):  # not the resource tracker
+                    child.kill()
+            kills += 1
+        time.sleep(0.05)
+    stdout, _ = proc.communicate(timeout=60)
+    assert kills == 2 and proc.returncode == 1, stdout
+    rows = {r["job"]: r for r in _summary(out)}
+    assert rows["d/icp"]["status"] == "ok"
+    assert rows["c/icp"]["status"] == "failed" and "WorkerDied" in rows["c/icp"]["error"]
+    assert "died 2 times" in (out / "jobs" / "c" / "icp" / "error.txt").read_text()

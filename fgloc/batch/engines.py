@@ -2,8 +2,9 @@
 
 Both engines take the jobs to run and yield ``(job, record)`` as jobs finish, in completion
 order. Jobs record their own failures (:func:`fgloc.batch.job.run_job`); an engine only
-handles workers that die (segfault, out-of-memory kill): their jobs are retried on a fresh
-worker up to :data:`MAX_ATTEMPTS` times in all, then recorded as failed.
+handles workers that die (segfault, out-of-memory kill): a job whose worker died is retried on
+a fresh worker until it has died :data:`MAX_ATTEMPTS` times, then recorded as failed; jobs
+only queued in the broken pool are retried without counting.
 """
 
 from __future__ import annotations
@@ -15,11 +16,12 @@ import os
 import signal
 import sys
 from collections.abc import Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
+from pathlib import Path
 from typing import Any, Protocol
 
-from fgloc.batch.job import record_crash, run_job
+from fgloc.batch.job import died_attempts, record_crash, run_job
 from fgloc.batch.manifest import Job
 from fgloc.errors import FglocError
 
@@ -65,22 +67,26 @@ class LocalEngine:
         self.workers = workers
 
     def run(self, jobs: Sequence[Job], out: str) -> Iterator[Outcome]:
-        attempts = {job.key: 0 for job in jobs}
         todo = list(jobs)
+        root = Path(out)
         while todo:
+            started = sum(died_attempts(root, j) for j in todo)
             died: list[Job] = []
-            yield from self._run_pool(todo, out, attempts, died)
+            yield from self._run_pool(todo, out, died)
+            if died and sum(died_attempts(root, j) for j in todo) == started:
+                raise FglocError("the batch's worker processes die before running a job "
+                                 "(see the messages above)")
             todo = []
-            for job in died:
-                if attempts[job.key] >= MAX_ATTEMPTS:
-                    msg = (f"WorkerDied: the worker process died {attempts[job.key]} times while "
-                           "running this job (killed by the OS, out of memory, or a crash)")
+            for job in died:  # queued jobs of a broken pool are retried without counting
+                n = died_attempts(root, job)
+                if n >= MAX_ATTEMPTS:
+                    msg = (f"WorkerDied: the worker process died {n} times while running "
+                           "this job (killed by the OS, out of memory, or a crash)")
                     yield job, record_crash(out, job, msg)
                 else:
                     todo.append(job)
 
-    def _run_pool(self, jobs: list[Job], out: str, attempts: dict[str, int],
-                  died: list[Job]) -> Iterator[Outcome]:
+    def _run_pool(self, jobs: list[Job], out: str, died: list[Job]) -> Iterator[Outcome]:
         saved = {k: os.environ.get(k) for k in THREAD_ENV}
         os.environ.update(single_thread_env())  # inherited by the spawned workers
         try:
@@ -89,10 +95,7 @@ class LocalEngine:
                 mp_context=multiprocessing.get_context("spawn"),
                 initializer=_init_worker,
             )
-            pending: dict[Future, Job] = {}
-            for job in jobs:
-                attempts[job.key] += 1
-                pending[pool.submit(run_job, job, out)] = job
+            pending = {pool.submit(run_job, job, out): job for job in jobs}
         finally:
             for k, v in saved.items():
                 if v is None:

@@ -41,9 +41,10 @@ _TRASH_PREFIX = ".trash-"
 
 
 def _make_tmp(final: Path) -> Path:
-    """A hidden temporary directory beside ``final`` (mode per umask, not mkdtemp's 0700)."""
+    """A hidden temporary directory ``.tmp-<method>-*`` beside ``final`` (mode per umask, not
+    mkdtemp's 0700). One is left behind by every attempt whose process died."""
     final.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=_TMP_PREFIX, dir=final.parent))
+    tmp = Path(tempfile.mkdtemp(prefix=f"{_TMP_PREFIX}{final.name}-", dir=final.parent))
     os.chmod(tmp, 0o777 & ~current_umask())
     return tmp
 
@@ -70,6 +71,12 @@ def is_finished(out: Path, job: Job) -> bool:
     rec = read_record(out, job)
     return rec is not None and rec.get("status") == "ok" and (
         rec.get("fingerprint") == job.fingerprint)
+
+
+def died_attempts(out: Path, job: Job) -> int:
+    """Attempts at ``job`` whose process died in this run (their temporary directories are
+    left; :func:`remove_leftovers` deletes them when a run starts and ends)."""
+    return len(list(job_dir(out, job).parent.glob(f"{_TMP_PREFIX}{job.method}-*")))
 
 
 def remove_leftovers(out: Path) -> int:

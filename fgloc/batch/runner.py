@@ -83,6 +83,7 @@ def run_batch(manifest: Manifest, out: str | Path, engine: Engine, *,
         finally:
             if bar:
                 bar.close()
+        remove_leftovers(out_dir)  # temporary directories of attempts whose worker died
         records = [read_record(out_dir, j) or {**base_record(j), "status": "missing"}
                    for j in jobs]
         rows = write_summary(out_dir, records, manifest.methods)

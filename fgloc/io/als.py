@@ -32,6 +32,9 @@ Z0_CLASSES: tuple[int, ...] = (2, 11)
 Z0_RADIUS = 100.0
 #: Points per chunk when streaming a tile.
 CHUNK_POINTS = 1_000_000
+#: Single-threaded LAZ decompression (as fast per chunk here, and the memory of one chunk
+#: instead of one per decompression thread); None lets laspy choose when lazrs is missing.
+_LAZ_BACKEND = laspy.LazBackend.Lazrs if laspy.LazBackend.Lazrs.is_available() else None
 
 
 @dataclass(frozen=True)
@@ -154,7 +157,7 @@ def read_als(
         end = start + tile.point_count
         i = start
         try:
-            with _quiet_laspy(), laspy.open(tile.path) as reader:
+            with _quiet_laspy(), laspy.open(tile.path, laz_backend=_LAZ_BACKEND) as reader:
                 for chunk in reader.chunk_iterator(chunk_points):
                     m = len(chunk)
                     if i + m > end:
