@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import csv
+import io
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -109,8 +111,14 @@ def test_local_batch_records_failure_and_resumes(scenarios, tmp_path, capsys):
     # resume: finished jobs are skipped (their directories untouched), the failed one re-runs
     stamp = (out / "jobs" / "a" / "icp" / JOB_FILE).stat().st_mtime_ns
     m = read_manifest(manifest)
-    report = run_batch(m, out, DaskEngine(1, processes=False))
+    log = io.StringIO()
+    report = run_batch(m, out, DaskEngine(1, processes=False), progress=log)
     assert (report.skipped, report.ran, report.failed) == (2, 1, 1)
+    lines = log.getvalue().splitlines()  # not a terminal: one line per event
+    assert lines[0].startswith("[fgloc batch] [") and "2/3 jobs (2 already done), 0 failed" in (
+        lines[0])
+    assert "3/3 jobs (2 already done), 1 failed" in lines[-1] and "ETA 0s" in lines[-1]
+    assert re.search(r"bad/icp failed in \d+\.\d s$", lines[-1]), lines[-1]
     assert (out / "jobs" / "a" / "icp" / JOB_FILE).stat().st_mtime_ns == stamp
     assert sorted(r["job"] for r in _summary(out)) == ["a/icp", "b/icp", "bad/icp"]
 

@@ -129,6 +129,7 @@ def run_job(job: Job, out: str) -> dict[str, Any]:
             rec.update(dx=err.dx, dy=err.dy, d2d=err.d2d, dyaw_deg=err.dyaw_deg)
     except Exception as exc:  # noqa: BLE001 - every job failure is recorded, the batch goes on
         rec.update(status="failed", error=_one_line(exc))
+        shutil.rmtree(tmp / "out", ignore_errors=True)  # no partial outputs in a failed job
         (tmp / ERROR_FILE).write_text(rec["error"] + "\n", encoding="utf-8")
         (tmp / TRACEBACK_FILE).write_text(traceback.format_exc(), encoding="utf-8")
     rec.update(time_s=time.perf_counter() - t0, peak_rss_mb=_peak_rss_mb())
