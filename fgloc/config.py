@@ -16,6 +16,7 @@ from typing import Any, TypeVar
 
 from fgloc.errors import InputError
 from fgloc.registration.config import FineConfig, SicpConfig
+from fgloc.registration.joint_config import JointConfig
 from fgloc.smoothing.config import SmoothingConfig
 from fgloc.tracking.config import TrackingConfig
 
@@ -122,6 +123,7 @@ class Config:
     sicp: SicpConfig = field(default_factory=SicpConfig)
     fine: FineConfig = field(default_factory=FineConfig)
     smoothing: SmoothingConfig = field(default_factory=SmoothingConfig)
+    joint: JointConfig = field(default_factory=JointConfig)
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,0 +1,695 @@
+"""``--method joint``: one SE(2) sensor-pose correction shared by semantic point-to-point
+factors, optimized jointly with every track state, with a calibrated covariance.
+
+Pipeline: target cloud -> coarse pose -> GP-EOT tracks in C -> filter-sicp's registration
+(the start, :func:`fgloc.fine.register_tracks`) -> the joint graph below -> ``T_fine`` (C -> L)
+with its marginal covariance -> ``T_utm = T~_fine · T_coarse``.
+
+The graph (gtsam, all variables Vectors, frame C unless stated)
+--------------------------------------------------------------
+* the track graph of :mod:`fgloc.smoothing.graph` (prior on each track's first state, process
+  factors, stacked contour measurement factors) on every ``step_stride``-th step of every
+  track used (``fine.n_trajectories`` / ``trajectory_share`` pick a seeded subset, the same
+  one filter-sicp uses);
+* the pose ``T = (tx, ty, phi)``: C -> L, started at SICP's result (or the coarse pose), with
+  a loose prior at the coarse pose (``pose_prior_sigma``), so a direction no factor observes
+  stays finite and shows up as weak instead of taking an arbitrary value;
+* per track a lateral offset ``b`` (m) with prior ``N(0, offset_sigma^2)``;
+* per (track, step) one point-to-point factor
+  (:func:`factors.registration_factors.point_to_point_factor`): the track's contour at the
+  object-frame angles of up to ``max_points_per_frame`` of its detections in that frame (the
+  sensor-aware angles of the filter's state, fixed), moved by ``T`` into L, against their
+  correspondences on the lanelet centre lines shifted towards the sensor by
+  ``coarse.visible_side_offset`` (filter-sicp's default target), point-to-line
+  (``along_weight`` 0), each point weighted by its label compatibility and a per-point Huber
+  weight inside the factor.
+
+Rounds: correspondences are found for the current estimate with one KD-tree per label (built
+once, :class:`fgloc.registration.sicp.SemanticTargets`; least ``d^2 / compatibility`` within
+``max_correspondence``), the graph is optimized with a few Levenberg-Marquardt iterations,
+the noise levels are re-estimated (``estimate_noise``), and this repeats until the pose moves
+by less than ``tol_position`` / ``tol_yaw_deg`` or ``max_rounds``.
+
+Correlation and the covariance
+------------------------------
+The points of one vehicle are not independent: a driver off the lane centre, or a side seen
+more or less than the mean visible-side offset, moves all of them together. The per-track
+offset ``b`` carries that shared error: with it, one track's many points can fix its offset
+but tell the pose only as much as one line measurement of std. dev. ``offset_sigma`` does,
+and errors of the track shape are shared through its states. ``sigma_line`` (the residual
+scatter about the offset line, a robust MAD estimate) and ``offset_sigma`` (RMS of the
+estimated offsets) are re-estimated from the data each round, so the covariance follows the
+data rather than a tuned constant. The covariance is ``gtsam.Marginals`` of ``T`` at the
+solution, mapped to the sensor's (x, y, yaw) in L. Its calibration (NEES) is measured in
+docs/benchmarks.md.
+
+Degeneracy report: the information of ``T`` (inverse marginal covariance) re-expressed in
+metric coordinates about the matched points' centroid (translation, and rotation as arc length
+at their RMS radius, as in :func:`fgloc.registration.sicp.sicp`); every eigen-direction whose
+standard deviation exceeds ``weak_sigma`` is listed as weakly observed (on a straight road
+without a junction: the along-road translation).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import gtsam
+import numpy as np
+from scipy.linalg import solveh_banded
+from scipy.spatial import cKDTree
+
+from factors.gp import ContourGP
+from factors.gtsam_factors import (
+    TRACK_CHAR,
+    ContourMeasurement,
+    decode_track_key,
+    prior_factor,
+    sensor_key,
+    track_key,
+)
+from factors.registration_factors import (
+    OFFSET_CHAR,
+    PointRows,
+    line_sqrt_info,
+    offset_key,
+    point_to_point_factor,
+)
+from fgloc.config import Config
+from fgloc.geo import se2, se2_params, se2_to_se3, transform_points, wrap_angle
+from fgloc.labels import NAMES
+from fgloc.progress import Timer
+from fgloc.registration.joint_config import JointConfig, check_joint_config
+from fgloc.registration.sicp import _degeneracy
+from fgloc.result import LocalizationResult, json_ready
+from fgloc.scenario import Scenario
+from fgloc.tracks import N_KIN, N_STATE, YAW, Track, TrackSet, X, Y
+
+if TYPE_CHECKING:
+    from fgloc.map import TargetCloud
+
+
+# ---- target lines ------------------------------------------------------------------------
+@dataclass
+class LaneLines:
+    """Labelled, directed target lines in L: samples (M, 2) of the lanelet centre lines
+    (optionally shifted sideways towards the sensor), their unit left normals (M, 2) -- the
+    driving direction is ``(n_y, -n_x)`` -- and label codes (M,). One KD-tree per label over
+    ``(x, y, w cos psi, w sin psi)`` (psi the driving direction, ``w`` the heading weight in m)
+    is built on first use and kept, so a vehicle is matched to a lane it drives along, not to
+    a crossing one."""
+
+    xy: np.ndarray
+    normal: np.ndarray
+    label: np.ndarray
+    _trees: dict[tuple[int, float], tuple[np.ndarray, cKDTree]] = field(
+        default_factory=dict, init=False, repr=False)
+
+    @classmethod
+    def build(cls, scn: Scenario, target: TargetCloud, step: float, sensor_xy: np.ndarray,
+              offset: float) -> LaneLines:
+        """Lines of the lanelets that hold target points, sampled every about ``step`` m and
+        shifted ``offset`` m towards ``sensor_xy`` (2,) (0: the centre lines)."""
+        from fgloc.coarse import LaneCentres
+
+        used = set(np.unique(target.lanelet_id).tolist())
+        lanelets = [ll for ll in scn.lanelets.lanelets if ll.id in used]
+        lanes = [LaneCentres.build([ll], step) for ll in lanelets]
+        xy = np.vstack([lc.xy for lc in lanes])
+        normal = np.vstack([lc.normal for lc in lanes])
+        label = np.concatenate([np.full(len(lc.xy), target.lanelet_labels[ll.id], np.int64)
+                                for lc, ll in zip(lanes, lanelets)])
+        side = np.sign(np.einsum("ij,ij->i", np.asarray(sensor_xy) - xy, normal))
+        return cls.of(xy + (offset * side)[:, None] * normal, normal, label)
+
+    @classmethod
+    def of(cls, xy: np.ndarray, normal: np.ndarray, label: np.ndarray) -> LaneLines:
+        """Lines from samples (M, 2), unit left normals (M, 2) and label codes (M,)."""
+        xy, normal = np.asarray(xy, dtype=float), np.asarray(normal, dtype=float)
+        label = np.asarray(label, dtype=np.int64)
+        if normal.shape != xy.shape or label.shape != (xy.shape[0],) or xy.ndim != 2:
+            raise ValueError(f"LaneLines: xy {xy.shape}, normal {normal.shape} and label "
+                             f"{label.shape} do not match")
+        return cls(xy, normal, label)
+
+    def tree(self, code: int, weight: float) -> tuple[np.ndarray, cKDTree]:
+        """(indices, KD-tree over (x, y, weight * direction)) of label ``code``."""
+        key = (code, weight)
+        if key not in self._trees:
+            idx = np.flatnonzero(self.label == code)
+            d = np.column_stack([self.normal[idx, 1], -self.normal[idx, 0]])
+            self._trees[key] = (idx, cKDTree(np.hstack([self.xy[idx], weight * d])))
+        return self._trees[key]
+
+    def match(self, xy: np.ndarray, heading: np.ndarray, label: np.ndarray, other: float,
+              rmax: float, weight: float) -> tuple[np.ndarray, np.ndarray]:
+        """Correspondence of points xy (n, 2) (m, L) of vehicles heading ``heading`` (n,)
+        (rad, L) with label codes (n,): the line index (-1 none) of least ``d^2 / c``, ``d``
+        the distance in (x, y, weight * direction) within ``rmax``, over the labels with
+        compatibility ``c > 0`` (1 for the same label, ``other`` otherwise), and that
+        compatibility (0 without a match)."""
+        n = len(xy)
+        q = np.hstack([xy, weight * np.column_stack([np.cos(heading), np.sin(heading)])])
+        index, compat, cost = np.full(n, -1, np.int64), np.zeros(n), np.full(n, np.inf)
+        for code in NAMES:
+            c_all = np.where(label == code, 1.0, other)
+            sel = np.flatnonzero(c_all > 0.0)
+            if sel.size == 0 or not np.any(self.label == code):
+                continue
+            idx, tree = self.tree(code, weight)
+            d, j = tree.query(q[sel], distance_upper_bound=rmax)
+            ok = np.isfinite(d)
+            sel, d, j = sel[ok], d[ok], j[ok]
+            c = c_all[sel]
+            better = d * d / c < cost[sel]
+            sel, d, j, c = sel[better], d[better], j[better], c[better]
+            index[sel], compat[sel], cost[sel] = idx[j], c, d * d / c
+        return index, compat
+
+
+# ---- the points of the tracks ------------------------------------------------------------
+def decimate(tracks: TrackSet, stride: int, min_steps: int) -> TrackSet:
+    """Every ``stride``-th step of every track (with the detections of those steps only);
+    tracks with fewer than ``min_steps`` steps left are dropped."""
+    out = []
+    for tr in tracks.tracks:
+        keep = np.arange(0, len(tr), stride)
+        if keep.size < min_steps:
+            continue
+        new_step = np.full(len(tr), -1, np.int64)
+        new_step[keep] = np.arange(keep.size)
+        sel = new_step[tr.det_step] >= 0
+        out.append(Track(tr.id, tr.t[keep], tr.states[keep], tr.labels[keep],
+                         None if tr.covariances is None else tr.covariances[keep],
+                         tr.det_index[sel], new_step[tr.det_step[sel]]))
+    return dataclasses.replace(tracks, tracks=out)
+
+
+@dataclass
+class FramePoints:
+    """The contour points of all (track, step) frames, stacked.
+
+    frame_track / frame_step / frame_key: (F,) track index, step and state key of each frame.
+    start: (F + 1,) offsets of each frame's points. theta: (P,) object-frame angles (rad).
+    label: (P,) label code of each point (its track's label at that step). H, mean: (P, n),
+    (P,) GP conditional of each angle.
+    """
+
+    frame_track: np.ndarray
+    frame_step: np.ndarray
+    frame_key: np.ndarray
+    start: np.ndarray
+    theta: np.ndarray
+    label: np.ndarray
+    H: np.ndarray
+    mean: np.ndarray
+
+    @property
+    def point_frame(self) -> np.ndarray:
+        return np.repeat(np.arange(len(self.frame_key)), np.diff(self.start))
+
+    def points(self, states: np.ndarray, gp_mu: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """For the per-frame states (F, 26): the (P, 2) contour points in C, their (P,)
+        lateral coordinates in the vehicle frame (m, left positive) and their (P,) vehicles'
+        yaw (rad, C)."""
+        s = states[self.point_frame]
+        radius = self.mean + np.einsum("pn,pn->p", s[:, N_KIN:] - gp_mu, self.H)
+        ang = self.theta + s[:, YAW]
+        xy = s[:, [X, Y]] + radius[:, None] * np.column_stack([np.cos(ang), np.sin(ang)])
+        return xy, radius * np.sin(self.theta), s[:, YAW]
+
+
+def frame_points(tracks: TrackSet, keys: list[np.ndarray], det_xy: np.ndarray,
+                 sensor_xy: np.ndarray, gp, max_points: int) -> FramePoints:
+    """Per (track, step) with detections: the sensor-aware contour angles of up to
+    ``max_points`` of them (a regular subsample) on the track's state there."""
+    from fgloc.smoothing.graph import regular_subsample, step_detections
+
+    ft, fs, fk, theta, label, start = [], [], [], [], [], [0]
+    for j, (tr, k) in enumerate(zip(tracks.tracks, keys)):
+        for s, idx in enumerate(step_detections(tr)):
+            if len(idx) == 0:
+                continue
+            z = det_xy[idx[regular_subsample(len(idx), max_points)]]
+            th, _ = ContourMeasurement(z, sensor_xy, gp).associate(tr.states[s])
+            ft.append(j)
+            fs.append(s)
+            fk.append(int(k[s]))
+            theta.append(th)
+            label.append(np.full(len(th), tr.labels[s], np.int64))
+            start.append(start[-1] + len(th))
+    th = np.concatenate(theta) if theta else np.zeros(0)
+    H, _ = gp.conditional(th)
+    return FramePoints(np.array(ft, np.int64), np.array(fs, np.int64), np.array(fk, np.int64),
+                       np.array(start, np.int64), th,
+                       np.concatenate(label) if label else np.zeros(0, np.int64), H,
+                       gp.mean(th))
+
+
+# ---- the joint optimization --------------------------------------------------------------
+@dataclass
+class JointResult:
+    """Outcome of :func:`joint_refine`.
+
+    T: 3x3 SE(2) C -> L. covariance: 3x3 of (tx, ty, phi) of T (m^2, m rad, rad^2) or None.
+    tracks: the refined tracks (decimated, frame C, ``T_frame_to_L = T``). rounds: rounds run;
+    converged: the pose (and the noise levels) settled before ``max_rounds``. sigma_line /
+    offset_sigma: the final noise levels (m). offsets: track id -> lateral offset (m).
+    matched: (P, 2) matched contour points in L, matched_label (P,) their labels. history:
+    per round pose, noise and error. timing: seconds of building, association, graph
+    assembly, track-factor linearization, optimization, marginals, and the optimization's
+    split into Python factor callbacks (estimated from one timed linearization and error
+    evaluation) and the rest (gtsam).
+    """
+
+    T: np.ndarray
+    covariance: np.ndarray | None
+    tracks: TrackSet
+    rounds: int
+    converged: bool
+    sigma_line: float
+    offset_sigma: float
+    offsets: dict[int, float]
+    matched: np.ndarray
+    matched_label: np.ndarray
+    n_points: int
+    n_tracks: int
+    n_states: int
+    history: list[dict[str, float]]
+    timing: dict[str, float]
+
+
+def _pose_vec(values: gtsam.Values) -> np.ndarray:
+    return np.asarray(values.atVector(sensor_key()), dtype=float)
+
+
+def _add_time(timing: dict[str, float], key: str, t0: float) -> None:
+    timing[key] = timing.get(key, 0.0) + time.perf_counter() - t0
+
+
+def _track_factors(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray, cfg: Config
+                   ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[np.ndarray],
+                              ContourGP]:
+    """The smoother's track graph (or, without ``refine_tracks``, tight priors holding the
+    states at the filter's), its initial values, per-track keys and the contour model."""
+    from fgloc.smoothing.graph import TrackModel, build_track_graph
+
+    smoothing = getattr(cfg, "smoothing", None)
+    if cfg.joint.refine_tracks:
+        tg = build_track_graph(tracks, det_xy, sensor_xy, smoothing, cfg.tracking)
+        return tg.graph, tg.values, tg.keys, tg.model.gp
+    graph, values, keys = gtsam.NonlinearFactorGraph(), gtsam.Values(), []
+    hold = 1e-8 * np.eye(N_STATE)
+    for tr in tracks.tracks:
+        k = np.array([track_key(tr.id, s) for s in range(len(tr))], np.int64)
+        keys.append(k)
+        for s in range(len(tr)):
+            values.insert(int(k[s]), tr.states[s])
+            graph.add(prior_factor(int(k[s]), tr.states[s], hold))
+    return graph, values, keys, TrackModel.of(cfg.tracking, smoothing).gp
+
+
+def linearized(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
+               ) -> gtsam.NonlinearFactorGraph:
+    """``graph`` linearized at ``values``, each factor kept as a C++ ``LinearContainerFactor``
+    (its Gaussian at that point), so optimizing with it calls no Python."""
+    lin = graph.linearize(values)
+    out = gtsam.NonlinearFactorGraph()
+    for i in range(lin.size()):
+        f = lin.at(i)
+        if f is None:
+            continue
+        point = gtsam.Values()
+        for k in f.keys():
+            point.insert(k, values.atVector(k))
+        out.add(gtsam.LinearContainerFactor(f, point))
+    return out
+
+
+def _optimize(graph: gtsam.NonlinearFactorGraph, python: gtsam.NonlinearFactorGraph,
+              values: gtsam.Values, iterations: int, timing: dict[str, float]) -> gtsam.Values:
+    """A few LM iterations on ``graph``. ``python`` (the Python factors in it) is linearized
+    and evaluated once, timed, to estimate the callback share of the optimization (LM
+    linearizes once per iteration and evaluates the error about twice)."""
+    t0 = time.perf_counter()
+    python.linearize(values)
+    t1 = time.perf_counter()
+    python.error(values)
+    t2 = time.perf_counter()
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(iterations)
+    params.setRelativeErrorTol(1e-6)
+    opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
+    out = opt.optimize()
+    n = int(opt.iterations())
+    _add_time(timing, "optimize", t2)
+    timing["lm_iterations"] = timing.get("lm_iterations", 0) + n
+    timing["python_callbacks_est"] = (timing.get("python_callbacks_est", 0.0)
+                                      + (n + 1) * (t1 - t0) + 2 * (n + 1) * (t2 - t1))
+    return out
+
+
+def _point_factors(fp: FramePoints, index: np.ndarray, compat: np.ndarray,
+                   target: np.ndarray, normal: np.ndarray, okeys: np.ndarray | None,
+                   sigma_line: float, gp: ContourGP, jc: JointConfig
+                   ) -> gtsam.NonlinearFactorGraph:
+    """One point-to-point factor per frame with matched points (module docstring)."""
+    graph = gtsam.NonlinearFactorGraph()
+    huber = jc.huber_k if jc.huber_k > 0 else np.inf
+    sigma_t = sigma_line / np.sqrt(jc.along_weight) if jc.along_weight > 0 else np.inf
+    for f in range(len(fp.frame_key)):
+        sl = slice(fp.start[f], fp.start[f + 1])
+        ok = index[sl] >= 0
+        if not np.any(ok):
+            continue
+        n = normal[sl][ok]
+        rows = PointRows(fp.theta[sl][ok], target[sl][ok], n,
+                         line_sqrt_info(n, sigma_line, sigma_t), compat[sl][ok], huber, gp,
+                         fp.H[sl][ok], fp.mean[sl][ok])
+        graph.add(point_to_point_factor(sensor_key(), int(fp.frame_key[f]), rows,
+                                        None if okeys is None
+                                        else int(okeys[fp.frame_track[f]])))
+    return graph
+
+
+def _correspondences(fp: FramePoints, values: gtsam.Values, lines: LaneLines, gp: ContourGP,
+                     jc: JointConfig) -> tuple[np.ndarray, ...]:
+    """Match every contour point at the current estimate: the target index (-1 none), the
+    compatibility, the target point (P, 2) and the offset direction (P, 2) of each.
+
+    "contour" model: a point's lateral place in its vehicle (``r sin theta``) is where it
+    should lie beside the lane centre line; it is matched by its foot on the vehicle's axis and
+    its target is the matched line point moved by that lateral place along the vehicle's left
+    normal. "visible-side": the point itself is matched to the shifted lines."""
+    T = se2(*_pose_vec(values))
+    states = np.array([values.atVector(int(k)) for k in fp.frame_key])
+    xy, lateral, yaw = fp.points(states, gp.mu)
+    if jc.lateral_model == "visible-side":
+        lateral = np.zeros_like(lateral)
+    yaw_l = yaw + np.arctan2(T[1, 0], T[0, 0])
+    left = np.column_stack([-np.sin(yaw_l), np.cos(yaw_l)])
+    foot = transform_points(T, xy) - lateral[:, None] * left
+    index, compat = lines.match(foot, yaw_l, fp.label, jc.label_weight_other,
+                                jc.max_correspondence, jc.heading_weight)
+    ok = index >= 0
+    n = np.zeros_like(xy)
+    n[ok] = lines.normal[index[ok]]
+    n *= np.where(np.einsum("pi,pi->p", n, left) < 0.0, -1.0, 1.0)[:, None]
+    target = np.zeros_like(xy)
+    target[ok] = lines.xy[index[ok]] + lateral[ok, None] * n[ok]
+    return index, compat, target, n
+
+
+def _owner(key: int) -> int | None:
+    """Track id of a track-state or offset key, None for any other key."""
+    sym = gtsam.Symbol(int(key))
+    c, idx = chr(sym.chr()), int(sym.index())
+    if c == OFFSET_CHAR:
+        return idx
+    return decode_track_key(key)[0] if c == TRACK_CHAR else None
+
+
+def _banded_solve(Hxx: np.ndarray, rhs: np.ndarray) -> np.ndarray:
+    """``Hxx^-1 rhs`` for a symmetric positive definite, banded ``Hxx`` (block tridiagonal
+    track states), by a banded Cholesky; a least-squares solve if that fails."""
+    n = Hxx.shape[0]
+    rows, cols = np.nonzero(Hxx)
+    u = int(np.max(cols - rows)) if rows.size else 0
+    ab = np.zeros((u + 1, n))
+    for d in range(u + 1):
+        ab[u - d, d:] = np.diagonal(Hxx, d)
+    try:
+        return solveh_banded(ab, rhs)
+    except np.linalg.LinAlgError:
+        return np.linalg.lstsq(Hxx, rhs, rcond=1e-12)[0]
+
+
+def pose_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
+                     ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
+    """Marginal information (3x3, of (tx, ty, phi)) of the pose at ``values``, and each
+    track's share of it (track id -> 3x3).
+
+    Given the pose the tracks are independent, so the marginal information is the pose
+    factors' own plus, per track, the Schur complement of its states and offset: the
+    track's linearized factors form an arrow-shaped Hessian (block-tridiagonal states, the
+    offset and the pose dense) that is reduced with a banded Cholesky. Same answer as
+    ``gtsam.Marginals`` where that works, but it does not stop on a poorly conditioned
+    state direction (speed and acceleration of a short track), and gives the per-track
+    shares."""
+    G = sensor_key()
+    lin = graph.linearize(values)
+    groups: dict[int | None, gtsam.GaussianFactorGraph] = {}
+    for i in range(lin.size()):
+        f = lin.at(i)
+        owners = {_owner(k) for k in f.keys() if k != G}
+        owner = owners.pop() if owners else None
+        groups.setdefault(owner, gtsam.GaussianFactorGraph()).push_back(f)
+    info = np.zeros((3, 3))
+    shares: dict[int, np.ndarray] = {}
+    for owner, gfg in groups.items():
+        keys = sorted({k for j in range(gfg.size()) for k in gfg.at(j).keys()} - {G},
+                      key=lambda k: (gtsam.Symbol(k).chr() == ord(OFFSET_CHAR), k))
+        order = gtsam.Ordering()
+        for k in [*keys, G]:
+            order.push_back(k)
+        H, _ = gfg.hessian(order)
+        n_off = 1 if keys and gtsam.Symbol(keys[-1]).chr() == ord(OFFSET_CHAR) else 0
+        nx = H.shape[0] - 3 - n_off
+        y = slice(nx, H.shape[0])
+        S = H[y, y]
+        if nx:
+            S = S - H[y, :nx] @ _banded_solve(H[:nx, :nx], H[:nx, y])
+        if n_off:
+            S = S[1:, 1:] - np.outer(S[1:, 0], S[0, 1:]) / S[0, 0]
+        if owner is None:
+            info += S
+        else:
+            shares[owner] = 0.5 * (S + S.T)
+            info += shares[owner]
+    return 0.5 * (info + info.T), shares
+
+
+def noise_levels(fp: FramePoints, states0: np.ndarray, T: np.ndarray, index: np.ndarray,
+                 target: np.ndarray, normal: np.ndarray, gp: ContourGP, n_tracks: int
+                 ) -> tuple[float, float]:
+    """Moment estimates (m) of ``sigma_line`` and ``offset_sigma`` at the pose T from the
+    filter's states ``states0`` (F, 26), not the refined ones (which the point factors pull
+    towards the lines): each track's mean across-line residual is its raw offset; sigma_line
+    is the MAD scatter of the residuals about their track's raw offset, offset_sigma the RMS
+    of the raw offsets with ``n_tracks - 3`` degrees of freedom (the pose takes up three)."""
+    ok = index >= 0
+    q = transform_points(T, fp.points(states0, gp.mu)[0])[ok]
+    res = np.einsum("pi,pi->p", q - target[ok], normal[ok])
+    track = fp.frame_track[fp.point_frame[ok]]
+    count = np.bincount(track, minlength=n_tracks)
+    raw = np.bincount(track, res, minlength=n_tracks) / np.maximum(count, 1)
+    dev = res - raw[track]
+    sigma_line = 1.4826 * float(np.median(np.abs(dev - np.median(dev))))
+    seen = count > 0
+    dof = max(1, int(seen.sum()) - 3)
+    return sigma_line, float(np.sqrt(np.sum(raw[seen] ** 2) / dof))
+
+
+def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
+                 lines: LaneLines, T0: np.ndarray, cfg: Config) -> JointResult:
+    """The joint optimization of the module docstring.
+
+    tracks: the filter's tracks in C (their ``det_index`` into ``det_xy``). det_xy (N, 2): all
+    radar rows placed in C; sensor_xy (2,): the sensor in C. lines: the target lines in L
+    (lane centres for ``lateral_model = "contour"``, shifted ones for "visible-side"). T0: 3x3
+    start of T (C -> L); the pose prior is at the identity (the coarse pose). Raises
+    ValueError on an invalid ``cfg.joint`` or when no track is long enough.
+    """
+    jc: JointConfig = cfg.joint
+    check_joint_config(jc)
+    timing: dict[str, float] = {}
+    t0 = time.perf_counter()
+    dec = decimate(tracks, jc.step_stride, jc.min_track_steps)
+    if not dec.tracks:
+        raise ValueError(f"no track has {jc.min_track_steps} steps at stride {jc.step_stride}")
+    track_graph, values, keys, gp = _track_factors(dec, det_xy, sensor_xy, cfg)
+    fp = frame_points(dec, keys, det_xy, sensor_xy, gp, jc.max_points_per_frame)
+    states0 = np.array([values.atVector(int(k)) for k in fp.frame_key])
+    G = sensor_key()
+    values.insert(G, np.array(se2_params(T0), dtype=float))
+    prior_sd = np.array([jc.pose_prior_sigma, jc.pose_prior_sigma,
+                         np.deg2rad(jc.pose_prior_sigma_yaw_deg)])
+    pose_prior = gtsam.PriorFactorVector(G, np.zeros(3),
+                                         gtsam.noiseModel.Diagonal.Sigmas(prior_sd))
+    okeys = (np.array([offset_key(tr.id) for tr in dec.tracks], np.int64)
+             if jc.offset_sigma > 0.0 else None)
+    for k in [] if okeys is None else okeys:
+        values.insert(int(k), np.zeros(1))
+    _add_time(timing, "build", t0)
+
+    sigma_line, offset_sd = jc.sigma_line, jc.offset_sigma
+    history: list[dict[str, float]] = []
+    converged, rounds, lin_tracks = False, 0, None
+    for rounds in range(1, jc.max_rounds + 1):
+        t0 = time.perf_counter()
+        if lin_tracks is None or jc.relinearize_tracks:
+            lin_tracks = linearized(track_graph, values)
+        _add_time(timing, "linearize_tracks", t0)
+        t0 = time.perf_counter()
+        pose = _pose_vec(values)
+        index, compat, target, normal = _correspondences(fp, values, lines, gp, jc)
+        _add_time(timing, "associate", t0)
+        t0 = time.perf_counter()
+        points = _point_factors(fp, index, compat, target, normal, okeys, sigma_line, gp, jc)
+        graph = gtsam.NonlinearFactorGraph(lin_tracks)
+        graph.push_back(points)
+        graph.add(pose_prior)
+        for k in [] if okeys is None else okeys:
+            graph.add(gtsam.PriorFactorVector(int(k), np.zeros(1),
+                                              gtsam.noiseModel.Isotropic.Sigma(1, offset_sd)))
+        _add_time(timing, "graph", t0)
+        values = _optimize(graph, points, values, jc.lm_iterations, timing)
+        new = _pose_vec(values)
+        step_xy = float(np.hypot(*(new[:2] - pose[:2])))
+        step_yaw = float(abs(wrap_angle(new[2] - pose[2])))
+        history.append({"round": rounds, "tx": float(new[0]), "ty": float(new[1]),
+                        "yaw_deg": float(np.rad2deg(new[2])), "step_m": step_xy,
+                        "step_yaw_deg": float(np.rad2deg(step_yaw)), "sigma_line": sigma_line,
+                        "offset_sigma": offset_sd, "matched": int(np.sum(index >= 0)),
+                        "error": float(graph.error(values))})
+        if step_xy >= jc.tol_position or step_yaw >= np.deg2rad(jc.tol_yaw_deg):
+            continue
+        if not jc.estimate_noise or np.count_nonzero(index >= 0) < 10:
+            converged = True
+            break
+        # the pose settled: re-estimate the noise levels; done when they settled too
+        line, off = noise_levels(fp, states0, se2(*new), index, target, normal, gp,
+                                 len(dec.tracks))
+        line, off = max(jc.min_sigma, line), max(jc.min_sigma, off) if okeys is not None else 0
+        settled = (abs(line / sigma_line - 1.0) < 0.1
+                   and (okeys is None or abs(off / offset_sd - 1.0) < 0.1))
+        sigma_line, offset_sd = line, off
+        if settled:
+            converged = True
+            break
+
+    t0 = time.perf_counter()
+    info, _ = pose_information(graph, values)
+    cov = np.linalg.inv(info) if np.linalg.cond(info) < 1e12 else None
+    _add_time(timing, "marginals", t0)
+    timing["gtsam_est"] = max(0.0, timing["optimize"] - timing["python_callbacks_est"])
+
+    from fgloc.smoothing.graph import tracks_from_values
+
+    T = se2(*_pose_vec(values))
+    refined = dataclasses.replace(tracks_from_values(dec, values, keys, cfg.tracking,
+                                                     smoother="joint"), T_frame_to_L=T)
+    ok = index >= 0
+    states = np.array([values.atVector(int(k)) for k in fp.frame_key])
+    matched = transform_points(T, fp.points(states, gp.mu)[0])[ok]
+    offsets = ({} if okeys is None else
+               {int(tr.id): float(values.atVector(int(k))[0]) for tr, k in zip(dec.tracks, okeys)})
+    return JointResult(T, cov, refined, rounds, converged, sigma_line, offset_sd, offsets,
+                       matched, fp.label[ok], int(ok.sum()), len(dec.tracks),
+                       int(sum(len(tr) for tr in dec.tracks)), history, timing)
+
+
+# ---- degeneracy --------------------------------------------------------------------------
+def degeneracy_report(cov_T: np.ndarray | None, T: np.ndarray, matched: np.ndarray,
+                      weak_sigma: float) -> dict[str, object]:
+    """JSON-ready eigen-analysis of the pose information ``inv(cov_T)`` in metric coordinates
+    (module docstring): eigenvalues (1/m^2), eigenvectors (unit columns in (u, v, a): centroid
+    translation east / north, arc length), the std. dev. (m) along each, and the weakly
+    observed ones (std. dev. above ``weak_sigma`` m) with their direction in L (deg from east,
+    for the translation part)."""
+    if cov_T is None or len(matched) < 3:
+        return {"available": False, "weakly_observed": True, "weak_directions": []}
+    deg = _degeneracy(np.linalg.inv(cov_T), T, matched, np.ones(len(matched)))
+    sd = 1.0 / np.sqrt(np.maximum(deg.eigenvalues, 1e-300))
+    weak = []
+    for i in np.flatnonzero(sd > weak_sigma):
+        v = deg.eigenvectors[:, i]
+        weak.append({"std_m": float(sd[i]), "direction_u_v_arc": v.tolist(),
+                     "translation_heading_deg": float(np.rad2deg(np.arctan2(v[1], v[0]))),
+                     "rotation_share": float(v[2] ** 2)})
+    return {
+        "available": True,
+        "centre_L": deg.centre.tolist(),
+        "radius_m": deg.radius,
+        "eigenvalues": deg.eigenvalues.tolist(),
+        "eigenvectors_u_v_arc": deg.eigenvectors.tolist(),
+        "std_m": sd.tolist(),
+        "condition_number": deg.condition_number,
+        "weak_sigma_m": weak_sigma,
+        "weakly_observed": bool(weak),
+        "weak_directions": weak,
+    }
+
+
+# ---- the method ----------------------------------------------------------------------------
+def run_joint(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
+    """``--method joint`` (module docstring); stage times go to ``timer``.
+
+    Raises :class:`fgloc.errors.LocalizationError` when the coarse stage cannot find a pose.
+    """
+    from fgloc.coarse import target_and_coarse
+    from fgloc.fine import register_tracks, sensor_covariance
+    from fgloc.smoothing.graph import placed_detections
+    from fgloc.source import choose_tracks
+    from fgloc.tracking import track_scenario
+
+    check_joint_config(cfg.joint)
+    target, coarse = target_and_coarse(scn, cfg, timer)
+    with timer.stage("tracking"):
+        tracks = track_scenario(scn, coarse.T_coarse, cfg.tracking)
+    start = register_tracks(scn, cfg, target, coarse, tracks, timer, method="joint")
+    with timer.stage("joint"):
+        det_xy, sensor_c = placed_detections(scn, coarse.T_coarse)
+        offset = (cfg.coarse.visible_side_offset if cfg.joint.lateral_model == "visible-side"
+                  else 0.0)
+        lines = LaneLines.build(scn, target, cfg.fine.lane_sample_step, sensor_c, offset)
+        used = choose_tracks(len(tracks), cfg.fine, np.random.default_rng(cfg.seed))
+        subset = dataclasses.replace(tracks, tracks=[tracks.tracks[i] for i in used])
+        T0 = start.tracks.T_frame_to_L if cfg.joint.start == "sicp" else np.eye(3)
+        jr = joint_refine(subset, det_xy, sensor_c, lines, T0, cfg)
+    cov = sensor_covariance(jr.covariance, jr.T, sensor_c)
+    degen = degeneracy_report(jr.covariance, jr.T, jr.matched, cfg.joint.weak_sigma)
+    warnings = list(start.warnings)
+    if not jr.converged:
+        warnings.append(f"joint: the pose still moved after {jr.rounds} rounds (max_rounds)")
+    if degen["weakly_observed"]:
+        dirs = ", ".join(f"{d['std_m']:.2f} m at {d['translation_heading_deg']:.0f} deg"
+                         for d in degen["weak_directions"])
+        warnings.append(f"joint: weakly observed pose direction(s) (std. dev. > "
+                        f"{cfg.joint.weak_sigma} m): {dirs or 'no covariance'}")
+    tx, ty, yaw = se2_params(jr.T)
+    diag = {
+        "start": cfg.joint.start,
+        "T_fine": {"x": tx, "y": ty, "yaw_deg": float(np.rad2deg(yaw))},
+        "rounds": jr.rounds,
+        "converged": jr.converged,
+        "n_tracks": jr.n_tracks,
+        "n_states": jr.n_states,
+        "n_points": jr.n_points,
+        "sigma_line": jr.sigma_line,
+        "offset_sigma": jr.offset_sigma,
+        "sensor_std": None if cov is None else {
+            "x_m": float(np.sqrt(cov[0, 0])), "y_m": float(np.sqrt(cov[1, 1])),
+            "yaw_deg": float(np.rad2deg(np.sqrt(cov[2, 2])))},
+        "degeneracy": degen,
+        "history": jr.history,
+        "timing_s": jr.timing,
+    }
+    # the start's source points, moved from SICP's pose to the joint one (for the plot)
+    delta = jr.T @ np.linalg.inv(start.tracks.T_frame_to_L)
+    src = start.source_xyz.copy()
+    src[:, :2] = transform_points(delta, src[:, :2])
+    return dataclasses.replace(
+        start,
+        T_local=se2_to_se3(jr.T) @ coarse.T_coarse,
+        converged=start.converged and jr.converged and cov is not None,
+        covariance=cov,
+        diagnostics=json_ready({**start.diagnostics, "joint": diag}),
+        warnings=warnings,
+        source_xyz=src,
+        tracks=jr.tracks,
+    )

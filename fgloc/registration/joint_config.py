@@ -1,0 +1,125 @@
+"""Configuration of ``--method joint`` (``[joint]`` in the fgloc config TOML)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+#: Where the joint optimization starts the sensor pose.
+STARTS: tuple[str, ...] = ("sicp", "coarse")
+#: Where a contour point should lie beside its target line (:mod:`fgloc.registration.joint`).
+LATERAL_MODELS: tuple[str, ...] = ("contour", "visible-side")
+
+
+@dataclass
+class JointConfig:
+    """Joint refinement: one SE(2) sensor-pose correction shared by semantic point-to-point
+    factors, optimized together with every track state (:mod:`fgloc.registration.joint`).
+    Distances in metres, angles in degrees. The track factors (process, contour measurement,
+    prior) are the smoother's (``[smoothing]``, ``[tracking]``); the target lines are
+    ``[fine]``'s lanelet centre lines shifted by ``coarse.visible_side_offset``; the trajectory
+    subset is ``fine.n_trajectories`` / ``fine.trajectory_share``."""
+
+    start: str = "sicp"
+    """Initial pose: "sicp" = filter-sicp's result, "coarse" = the coarse pose."""
+    lateral_model: str = "contour"
+    """Target of a contour point: "contour" = the lane centre line moved sideways by the
+    point's lateral place in its vehicle (r sin theta: a vehicle drives centred in its lane);
+    "visible-side" = the lane centre lines shifted ``coarse.visible_side_offset`` towards the
+    sensor (filter-sicp's target), the same for every point."""
+    relinearize_tracks: bool = False
+    """Relinearize the track factors (process, contour measurement) at every round; False =
+    linearize them once at the filter's states (they are nearly linear there; the rounds then
+    call Python only for the point factors)."""
+    step_stride: int = 4
+    """Every this many steps of a track enter the graph (with their detections; the process
+    factors span the gap): 4 = 5 Hz states from a 20 Hz radar. The refined tracks are output
+    at that rate."""
+    min_track_steps: int = 5
+    """Tracks with fewer steps (after the stride) are left out."""
+    max_points_per_frame: int = 8
+    """At most this many detections (a regular subsample) of one track in one frame become
+    points of its point-to-point factor."""
+    max_correspondence: float = 3.0
+    """A contour point farther than this (m) from every compatible target point gets no
+    correspondence in that round."""
+    heading_weight: float = 4.0
+    """Correspondences are searched in (x, y, w cos psi, w sin psi) with this w (m): a line
+    whose direction differs from the vehicle's heading by 30 deg looks about 2 m farther
+    away, so vehicles match the lane they drive along, not a crossing one."""
+    label_weight_other: float = 0.1
+    """Compatibility of a point with a target of another label (same label: 1); the match is
+    the least d^2 / compatibility and the point is weighted by it. 0 = labels must agree."""
+    sigma_line: float = 0.3
+    """Initial standard deviation (m) of a contour point across its target line."""
+    along_weight: float = 0.0
+    """Weight of the along-line component relative to the across-line one (0 = point to
+    line: the position along a lane carries no information)."""
+    huber_k: float = 2.0
+    """Huber threshold (in sigma_line) of the per-point robust weights; 0 = none."""
+    offset_sigma: float = 0.3
+    """Initial prior standard deviation (m) of each track's lateral offset from its target
+    lines (shared by all of its points: models their correlation); 0 = no offsets."""
+    estimate_noise: bool = True
+    """When the pose settles, re-estimate sigma_line (robust scatter of the across-line
+    residuals about each track's mean) and offset_sigma (RMS of the tracks' mean residuals)
+    from the filter's states, and continue until they settle too."""
+    min_sigma: float = 0.1
+    """Floor (m) of the re-estimated sigma_line and offset_sigma."""
+    refine_tracks: bool = True
+    """Optimize the track states with the pose (False: states held at the filter's)."""
+    pose_prior_sigma: float = 2.0
+    """Standard deviation (m) of the prior on the pose translation at the coarse pose
+    (keeps directions no factor observes, e.g. along a straight road, finite and flagged)."""
+    pose_prior_sigma_yaw_deg: float = 2.0
+    """Standard deviation (deg) of that prior's yaw."""
+    max_rounds: int = 8
+    """At most this many re-association + optimization rounds."""
+    lm_iterations: int = 6
+    """Levenberg-Marquardt iterations per round."""
+    tol_position: float = 0.002
+    """Stop when a round moves the pose by less than this (m) ..."""
+    tol_yaw_deg: float = 0.002
+    """... and turns it by less than this (deg)."""
+    weak_sigma: float = 0.3
+    """A direction of the pose (metric coordinates: translation of the matched points'
+    centroid, rotation as arc length at their RMS radius) whose standard deviation exceeds
+    this (m) is reported as weakly observed."""
+    map_heading: bool = False
+    """Map-aided factor: each vehicle's heading against its lanelet's direction."""
+    map_centre: bool = False
+    """Map-aided factor: each vehicle's centre against its lane centre line."""
+    sigma_heading_deg: float = 3.0
+    """Standard deviation (deg) of a vehicle heading about its lanelet's direction."""
+    sigma_centre: float = 0.3
+    """Standard deviation (m) of a vehicle centre across its lane centre line."""
+
+
+def check_joint_config(cfg: JointConfig) -> None:
+    """Raise ValueError naming the first invalid JointConfig field."""
+    problems = {
+        "start": cfg.start not in STARTS,
+        "lateral_model": cfg.lateral_model not in LATERAL_MODELS,
+        "step_stride": cfg.step_stride < 1,
+        "min_track_steps": cfg.min_track_steps < 2,
+        "max_points_per_frame": cfg.max_points_per_frame < 1,
+        "max_correspondence": not cfg.max_correspondence > 0.0,
+        "heading_weight": cfg.heading_weight < 0.0,
+        "label_weight_other": not 0.0 <= cfg.label_weight_other <= 1.0,
+        "sigma_line": not cfg.sigma_line > 0.0,
+        "along_weight": not 0.0 <= cfg.along_weight <= 1.0,
+        "huber_k": cfg.huber_k < 0.0,
+        "offset_sigma": cfg.offset_sigma < 0.0,
+        "min_sigma": not cfg.min_sigma > 0.0,
+        "pose_prior_sigma": not cfg.pose_prior_sigma > 0.0,
+        "pose_prior_sigma_yaw_deg": not cfg.pose_prior_sigma_yaw_deg > 0.0,
+        "max_rounds": cfg.max_rounds < 1,
+        "lm_iterations": cfg.lm_iterations < 1,
+        "tol_position": cfg.tol_position < 0.0,
+        "tol_yaw_deg": cfg.tol_yaw_deg < 0.0,
+        "weak_sigma": not cfg.weak_sigma > 0.0,
+        "sigma_heading_deg": not cfg.sigma_heading_deg > 0.0,
+        "sigma_centre": not cfg.sigma_centre > 0.0,
+    }
+    bad = [k for k, v in problems.items() if v]
+    if bad:
+        raise ValueError(f"invalid joint config field {bad[0]}: {getattr(cfg, bad[0])!r}")
