@@ -101,7 +101,8 @@ def make_truth() -> GroundTruth:
     return GroundTruth(
         crs=CRS_,
         sensor_pose=se3_from_pose(1.5, -12.0, 6.2, 0.7, math.radians(3.0), math.radians(0.5)),
-        tracks=[TrackTruth(7, 4.5, 1.8, states), TrackTruth(8, 12.0, 2.5, np.zeros((0, 6)))],
+        tracks=[TrackTruth(7, 4.5, 1.8, states),
+                TrackTruth(8, 12.0, 2.5, states[:1] + [0.0, 0.0, 3.0, 1.0, 8.0, 0.0])],
     )
 
 
@@ -461,8 +462,8 @@ def test_ground_truth_round_trip(tmp_path: Path) -> None:
     back = read_ground_truth(p, FRAME)
     np.testing.assert_allclose(back.sensor_pose, gt.sensor_pose, atol=1e-9)
     assert [(t.id, t.length, t.width) for t in back.tracks] == [(7, 4.5, 1.8), (8, 12.0, 2.5)]
-    np.testing.assert_allclose(back.tracks[0].states, gt.tracks[0].states, atol=1e-9)
-    assert back.tracks[1].states.shape == (0, 6)
+    for b, g in zip(back.tracks, gt.tracks):
+        np.testing.assert_allclose(b.states, g.states, atol=1e-9)
     # pitch > 0 tilts the boresight (sensor x) down in the world
     assert (back.sensor_pose[:3, :3] @ [1.0, 0.0, 0.0])[2] < 0
 
@@ -475,7 +476,7 @@ def _gt(**changes: object) -> str:
         if k == "states":
             data["tracks"][0]["states"] = v
         elif v is None:
-            del data["sensor"][k]
+            del (data if k == "tracks" else data["sensor"])[k]
         else:
             data[k] = v
     return json.dumps(data, indent=1)
@@ -492,9 +493,11 @@ def _gt(**changes: object) -> str:
          "tracks[0].states[1]", "non-finite"),
         (_gt(crs="EPSG:25833"), None, "crs", "differs"),
         (_gt(tracks={"id": 1}), None, "tracks", "list"),
+        (_gt(tracks=None), None, "tracks", "missing key"),
+        (_gt(states=[]), None, "tracks[0].states", "non-empty"),
     ],
     ids=["syntax", "missing-key", "states-shape", "states-type", "nan", "crs-mismatch",
-         "tracks-not-list"],
+         "tracks-not-list", "tracks-missing", "track-without-states"],
 )
 def test_ground_truth_errors(tmp_path: Path, text: str, row: int | None, field: str | None,
                              words: str) -> None:

@@ -210,6 +210,11 @@ CASES: list[Case] = [
     # ground_truth.json
     Case("truth track without states", lambda d: _gt(d, lambda g: g["tracks"][0].pop("states")),
          "ground_truth.json", ("tracks[0].states", "missing")),
+    Case("truth without tracks", lambda d: _gt(d, lambda g: g.pop("tracks")),
+         "ground_truth.json", ("field 'tracks'", "missing")),
+    Case("truth track with empty states", lambda d: _gt(
+        d, lambda g: g["tracks"][0].update(states=[])), "ground_truth.json",
+         ("tracks[0].states", "non-empty")),
     Case("truth track with zero width", lambda d: _gt(
         d, lambda g: g["tracks"][1].update(width=0)), "ground_truth.json",
          ("tracks[1].width", "> 0")),

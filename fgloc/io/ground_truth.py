@@ -9,7 +9,8 @@ File layout::
 
 x/y/z in m in the world CRS; yaw_deg CCW from grid east, pitch_deg > 0 = boresight down,
 ``R = Rz(yaw) Ry(pitch) Rx(roll)``; track yaw in rad CCW from grid east, v in m/s, yawrate
-in rad/s, t in s. ``tracks`` may be absent or empty.
+in rad/s, t in s. ``tracks`` is required (the true vehicles; an empty list when there were
+none) and every track needs at least one state.
 """
 
 from __future__ import annotations
@@ -43,7 +44,7 @@ def read_ground_truth(path: str | Path, frame: LocalFrame) -> GroundTruth:
     """
     p = Path(path)
     data = read_json(p)
-    _require_keys(p, data, ("crs", "sensor"), "")
+    _require_keys(p, data, ("crs", "sensor", "tracks"), "")
     crs = data["crs"]
     if not isinstance(crs, str):
         raise InputError(p, f"expected a string, got {crs!r}", field="crs")
@@ -62,7 +63,7 @@ def read_ground_truth(path: str | Path, frame: LocalFrame) -> GroundTruth:
     for key, value, origin in (("x", x, frame.origin[0]), ("y", y, frame.origin[1])):
         _check_near(p, np.array([value]), origin, f"sensor.{key}")
     pose_w = se3_from_pose(x, y, z, math.radians(yaw), math.radians(pitch), math.radians(roll))
-    tracks_raw = data.get("tracks") or []
+    tracks_raw = data["tracks"]
     if not isinstance(tracks_raw, list):
         raise InputError(p, "expected a list of tracks", field="tracks")
     tracks = [_read_track(p, tr, frame, f"tracks[{k}].") for k, tr in enumerate(tracks_raw)]
@@ -92,9 +93,9 @@ def _read_track(path: Path, tr: Any, frame: LocalFrame, prefix: str) -> TrackTru
         and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in r)
         for r in rows
     )
-    if not ok:
+    if not ok or not rows:
         raise InputError(
-            path, "expected a list of [t, x, y, yaw, v, yawrate] number rows (n, 6)",
+            path, "expected a non-empty list of [t, x, y, yaw, v, yawrate] number rows (n, 6)",
             field=f"{prefix}states",
         )
     states = np.array(rows, dtype=np.float64).reshape(-1, 6)
