@@ -21,7 +21,8 @@ from fgloc.scenario import (
     TrackTruth,
 )
 from fgloc.tracking import TrackingConfig, kappa_labels, track_scenario
-from fgloc.tracking.birth import BirthZones, FieldOfView
+from fgloc.tracking.birth import BirthZones, FieldOfView, LaneHeadings
+from fgloc.tracking.tracker import Tracker, _Frame, _Record
 from fgloc.tracks import N_STATE
 
 Path = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -180,6 +181,51 @@ def test_two_cars_side_by_side_keep_identities() -> None:
         assert np.median(centre) < 0.7
     owners = {int(np.argmax(np.bincount(src[tr.det_index], minlength=2))) for tr in ts.tracks}
     assert owners == {0, 1}
+
+
+@pytest.mark.parametrize("gate_doppler", [2.0, 0.0])
+def test_doppler_gate_keeps_an_oncoming_vehicle_apart(gate_doppler: float) -> None:
+    """A track receding at 10 m/s 100 m out; detections on its contour with its range rate
+    join it, detections at the same places moving towards the sensor (an oncoming vehicle
+    passing it) do not -- unless the Doppler gate is off."""
+    cfg = TrackingConfig(gate_doppler=gate_doppler)
+    fov = FieldOfView.of(np.eye(4), 120.0, 200.0)
+    none = BirthZones(np.zeros((0, 2)), np.zeros(0), np.zeros(0))
+    tracker = Tracker(cfg, fov, none, LaneHeadings.of([]))
+    x = np.zeros(N_STATE)
+    x[[0, 1, 2]] = 100.0, -5.0, 10.0                               # x, y, v; yaw 0
+    x[6:] = tracker.gp.mu
+    tracker.x, tracker.P = x[None], 0.01 * np.eye(N_STATE)[None]
+    tracker.recs = [_Record(0, 0, True, 0.0)]
+    z = np.array([[97.7, -5.0], [98.5, -4.1], [99.5, -5.9], [100.0, -4.1]])
+    rng = np.hypot(z[:, 0], z[:, 1])
+    receding = 10.0 * z[:, 0] / rng                                # range rate of the track
+    for dop, joins in ((receding, True), (-receding, gate_doppler == 0.0)):
+        owner, _ = tracker._associate(_Frame(z, rng, dop, np.arange(4)))
+        assert np.all(owner == (0 if joins else -1))
+
+
+@pytest.mark.parametrize(("size", "long"), [((11.0, 2.55), True), ((4.5, 1.8), False)])
+def test_head_on_long_vehicle_gets_a_long_contour(size: tuple[float, float],
+                                                  long: bool) -> None:
+    """A truck (a car) approaching head-on from 150 m on a lane 3 m beside the sensor: only
+    its front is seen, so its length is unobservable; once its width (2.55 m) is measured
+    (here within ~6 s) it is a long vehicle and its centre lies behind the front by about
+    half a truck's length, while a car keeps the car-sized contour."""
+    scn, src = constructed([straight((150.0, -3.0), np.pi, 10.0)], [size], 10.0,
+                           [lane((230.0, -3.0), (-60.0, -3.0))], k=25)
+    ts = track_scenario(scn, scn.truth.sensor_pose, TrackingConfig())
+    tr = max(ts.tracks, key=lambda t: len(t.det_index))
+    assert len(tr.det_index) > 0.9 * len(src)
+    late = tr.t > tr.t[0] + 7.0
+    est = np.median(tr.states[late, 6] + tr.states[late, 16])             # r(0) + r(pi)
+    centre, _, _ = _errors(scn, tr.states[late], tr.t[late], 0)
+    if long:
+        assert est > 8.5
+        assert np.sqrt(np.mean(centre**2)) < 1.2          # car-sized contour: ~3 m
+    else:
+        assert est < 5.5
+        assert np.sqrt(np.mean(centre**2)) < 0.4
 
 
 def test_tracking_in_coarse_frame_follows_t_coarse() -> None:

@@ -165,15 +165,19 @@ class BirthZones:
 
 def initial_kinematics(z: np.ndarray, doppler: np.ndarray, rng: np.ndarray, yaw: float,
                        sensor: np.ndarray, length: float, width: float,
-                       default_speed: float) -> tuple[np.ndarray, float, float, np.ndarray]:
+                       default_speed: float,
+                       noise: float = 0.0) -> tuple[np.ndarray, float, float, np.ndarray]:
     """Centre (2,), yaw (rad), speed (m/s) and box size (2,) (length, width; m) of a new track
     from its first cluster.
 
     z (k, 2) detections in C, doppler (k,) m/s, rng (k,) 3D ranges, yaw the heading prior.
     Speed: median of doppler / (u(yaw) . line of sight) over detections where the heading is
     not across the line of sight, else ``default_speed``; a negative speed flips the heading.
-    Centre: the box of size max(prior, cluster extent) per axis of the heading frame whose
-    sensor-side edges coincide with the cluster's (a radar sees the near sides only).
+    Centre: the box of size max(prior, cluster extent - 2 noise) per axis of the heading frame
+    whose sensor-side edges coincide with the cluster's (a radar sees the near sides only);
+    noise (m) is the detections' position std. dev., by which the extent of a few noisy
+    detections exceeds the vehicle's on each side (far out, azimuth noise alone spreads a
+    car's detections wider than a truck).
     """
     h = np.array([np.cos(yaw), np.sin(yaw)])
     los = z - sensor
@@ -185,7 +189,7 @@ def initial_kinematics(z: np.ndarray, doppler: np.ndarray, rng: np.ndarray, yaw:
     axes = np.stack([h, [-h[1], h[0]]])                         # (2, 2): long, lateral
     q = z @ axes.T
     lo, hi = q.min(axis=0), q.max(axis=0)
-    size = np.maximum([length, width], hi - lo)
+    size = np.maximum([length, width], hi - lo - 2.0 * noise)
     s = axes @ sensor
     near_lo = s < 0.5 * (lo + hi)
     mid = np.where(near_lo, lo + size / 2, hi - size / 2)

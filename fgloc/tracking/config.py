@@ -85,6 +85,20 @@ class TrackingConfig:
     """Length (m) of the rectangle that is the prior mean contour (and the decay target)."""
     mean_width: float = 1.9
     """Width (m) of that rectangle."""
+    long_trigger_width: float = 2.3
+    """Long-vehicle hypothesis: a track whose contour is at least this wide (m) less half the std.
+    dev. of its width (cars and vans are narrower, trucks and buses about 2.5 m) ..."""
+    long_wide_updates: int = 10
+    """... in this many updates in a row ..."""
+    long_side_updates: int = 5
+    """... whose long side was seen in fewer than this many updates (its length is not
+    measured: seen head-on or from behind) ..."""
+    long_length: float = 10.0
+    """... gets a contour this long (m), its centre moved away from the seen face (0 = off)."""
+    long_width: float = 2.5
+    """Width (m) of the long-vehicle rectangle its contour decays towards (with long_length)."""
+    long_sigma_length: float = 1.0
+    """Std. dev. (m) of the long vehicle's length added along the unobservable direction."""
     tau: float = 0.05
     """Contour forgetting rate (1/s): f' = mu + exp(-tau dt) (f - mu), Q = (1-exp(-2 tau dt)) K."""
 
@@ -133,9 +147,19 @@ class TrackingConfig:
     to twice the track's centre std. dev. (capped at gate_max)."""
     gate_max: float = 4.0
     """Cap (m) of the whole association gate."""
+    gate_doppler: float = 2.0
+    """A detection whose Doppler differs by more than this (m/s) plus three times the track's
+    speed std. dev. from the track's predicted range rate at that point is not associated to
+    it (0 = no Doppler gate)."""
     gate_long_extra: float = 1.5
     """Extra gate (m) along the heading of a large track (a truck's contour grows into its
     length); a car-sized track keeps the tight gate (no detections from the car behind)."""
+    chain_gap: float = 1.0
+    """Free detections beside a track's contour (within its sideways gate, Doppler-consistent)
+    beyond its ends join it when they continue its detections lengthwise with no gap wider
+    than this (m): the rest of a vehicle longer than its contour (0 = off)."""
+    chain_reach: float = 8.0
+    """... up to this far (m) beyond the contour's end."""
     large_length: float = 6.5
     """A track whose contour is at least this long (m) ..."""
     large_width: float = 2.25

@@ -31,7 +31,13 @@ import numpy as np
 
 from factors.ctra import ctra_predict, ctra_process_noise
 from factors.gp import ContourGP, rectangle_radius, rectangle_radius_gradient
-from factors.measurement import closest_on_chain, contour_candidates, contour_point, unit
+from factors.measurement import (
+    closest_on_chain,
+    contour_candidates,
+    contour_point,
+    range_rate,
+    unit,
+)
 from fgloc.labels import LEFT, RIGHT, STRAIGHT
 from fgloc.scenario import Scenario
 from fgloc.tracking import ukf
@@ -88,6 +94,12 @@ class _Record:
     confirmed: bool = False
     last_update_step: int = -1
     misfit: float = 0.0
+    #: updates in a row with a contour at least ``long_trigger_width`` wide
+    wide_run: int = 0
+    #: updates that saw a long side of the vehicle (its length is measured)
+    side_hits: int = 0
+    #: promoted to the long-vehicle prior (see :meth:`Tracker._long_vehicles`)
+    long: bool = False
     t: list[float] = field(default_factory=list)
     states: list[np.ndarray] = field(default_factory=list)
     covs: list[np.ndarray] = field(default_factory=list)
@@ -128,6 +140,9 @@ class Tracker:
         self.Q_size = (cfg.sigma_length_rw**2 * np.outer(gl, gl)
                        + cfg.sigma_width_rw**2 * np.outer(gw, gw))
         self.g_size = (gl, gw)
+        #: long-vehicle prior mean contour minus the car's (decay target offset)
+        self.long_shift = (rectangle_radius(self.gp.angles, cfg.long_length, cfg.long_width)
+                           - self.gp.mu)
         self.w = ukf.UnscentedWeights.of(N_STATE, cfg.ukf_alpha, cfg.ukf_beta, cfg.ukf_kappa)
         self.cand_theta = 2.0 * np.pi * np.arange(cfg.n_candidates) / cfg.n_candidates
         self.cand_H, self.cand_mean, _ = self.table.interp(self.cand_theta)
@@ -151,7 +166,7 @@ class Tracker:
         if len(self.recs):
             self._predict(dt)
             self._end(self.fov.outside_distance(self.x[:, [X, Y]]) > self.cfg.fov_margin)
-        owner, excess = self._associate(det.z)
+        owner, excess = self._associate(det)
         if self.cfg.blind_no_update and len(self.recs):
             # under the mast only vehicle tops are seen: their detections are kept from the
             # tracks (which coast) and from births
@@ -159,6 +174,7 @@ class Tracker:
             owner = np.where((owner >= 0) & blind[np.maximum(owner, 0)], -2, owner)
         self._misfit(owner, excess, dt)
         updated = self._update(det, owner)
+        self._long_vehicles(updated)
         self._record(t, det, owner, updated)
         self._births(det, owner == -1)
         self._manage(t)
@@ -174,6 +190,10 @@ class Tracker:
         Xs = ukf.sigma_points(self.x, self.P, self.w)
         Xs = ctra_predict(Xs, dt)
         f_new, Qc = self.gp.decay(Xs[..., N_KIN:], cfg.tau, dt)
+        long = np.array([r.long for r in self.recs], dtype=bool)
+        if long.any():
+            # a long vehicle's contour decays towards the long rectangle, not the car's
+            f_new[long] += (1.0 - np.exp(-cfg.tau * max(dt, 0.0))) * self.long_shift
         Xs[..., N_KIN:] = f_new
         Q = np.zeros_like(self.P)
         Q[:, :N_KIN, :N_KIN] = ctra_process_noise(self.x, dt, cfg.sigma_jerk, cfg.sigma_yaw_acc,
@@ -201,15 +221,16 @@ class Tracker:
             excess[ti, di] = dist[ti, di] - r
         return lo, la, excess
 
-    def _outside(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _outside(self, p: np.ndarray) -> tuple[np.ndarray, ...]:
         """For points p (D, 2) and every track: the distance (m) outside the contour's
         axis-aligned extent in the vehicle frame along (T, D) and across (T, D) the heading,
-        and the radial excess (T, D) (m) outside the contour (< 0 inside)."""
+        the radial excess (T, D) (m) outside the contour (< 0 inside) and the longitudinal
+        offset (T, D) (m) from the centre."""
         lo, la, ex = self._local(p)
         axes = self.table.radius(self.x[:, N_KIN:], np.arange(4) * (np.pi / 2))
         out_long = np.maximum(np.maximum(lo - axes[:, :1], -axes[:, 2:3] - lo), 0.0)
         out_lat = np.maximum(np.maximum(la - axes[:, 1:2], -axes[:, 3:4] - la), 0.0)
-        return out_long, out_lat, ex
+        return out_long, out_lat, ex, lo
 
     def _large(self) -> np.ndarray:
         """(T,) tracks whose contour is large (truck-like): length >= large_length or
@@ -219,24 +240,70 @@ class Tracker:
         return ((f[:, 0] + f[:, half] >= self.cfg.large_length)
                 | (f[:, half // 2] + f[:, half + half // 2] >= self.cfg.large_width))
 
-    def _associate(self, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _associate(self, det: _Frame) -> tuple[np.ndarray, np.ndarray]:
         """Owner track index per detection (-1: none) and its radial excess (m) about that
         track's contour: least radial excess among the tracks
         whose gate holds it. The gate is the contour's axis-aligned extent in the vehicle frame
         grown by gate + 2 sigma_centre (<= gate_max) sideways and, for a large contour (length
         >= large_length or width >= large_width), by gate_long_extra more lengthwise (a
-        vehicle longer than its contour so far, e.g. a truck, grows into it)."""
+        vehicle longer than its contour so far, e.g. a truck, grows into it). With
+        ``gate_doppler`` > 0 a detection whose Doppler differs from the track's predicted
+        range rate at that point by more than gate_doppler + 3 sigma_v (m/s) is outside the
+        gate too: vehicles passing each other in opposite directions stay apart."""
+        z = det.z
         if not len(self.recs) or not len(z):
             return np.full(len(z), -1, dtype=np.int64), np.zeros(len(z))
         cfg = self.cfg
-        out_long, out_lat, ex = self._outside(z)
+        out_long, out_lat, ex, lo = self._outside(z)
         sig = np.sqrt(np.trace(self.P[:, :2, :2], axis1=1, axis2=2))
         gate = np.minimum(cfg.gate + 2.0 * sig, cfg.gate_max)[:, None]
         long_gate = gate + np.where(self._large(), cfg.gate_long_extra, 0.0)[:, None]
-        ex[(out_lat > gate) | (out_long > long_gate)] = np.inf
+        side = out_lat <= gate
+        far = ~side | (out_long > long_gate)
+        # lengthwise beyond the gate but within reach of a chain along the vehicle's axis
+        reach = side & far & (out_long <= cfg.chain_reach)
+        if cfg.gate_doppler > 0.0:
+            ti, di = np.nonzero(~far | reach)
+            x = self.x[ti]
+            pred = range_rate(z[di, None], det.rng[di, None], x[:, [X, Y]], x[:, V], x[:, YAW],
+                              x[:, YAWRATE], self.fov.sensor)[:, 0]
+            dgate = cfg.gate_doppler + 3.0 * np.sqrt(np.maximum(self.P[ti, V, V], 0.0))
+            bad = np.abs(det.doppler[di] - pred) > dgate
+            far[ti, di] |= bad
+            reach[ti[bad], di[bad]] = False
+        ex[far] = np.inf
         owner = np.argmin(ex, axis=0)
         best = ex[owner, np.arange(len(z))]
-        return np.where(np.isfinite(best), owner, -1), best
+        owner = np.where(np.isfinite(best), owner, -1)
+        if cfg.chain_gap > 0.0:
+            self._chain(owner, best, reach, lo)
+        return owner, best
+
+    def _chain(self, owner: np.ndarray, excess: np.ndarray, reach: np.ndarray,
+               lo: np.ndarray) -> None:
+        """Grow associations along each track's axis (in place): free detections beside the
+        contour (within the sideways gate, Doppler-consistent, up to ``chain_reach`` beyond
+        its ends: ``reach`` (T, D)) join a track when they continue its associated detections
+        lengthwise without a gap wider than ``chain_gap`` (m) -- the rest of a vehicle longer
+        than its contour (a truck coming into view), never a vehicle behind it with a gap.
+        lo (T, D): longitudinal offsets (m). A joined detection's excess is set to 0 (it is
+        explained by the growth, not a misfit)."""
+        gap = self.cfg.chain_gap
+        for i in np.flatnonzero(reach.any(axis=1)):
+            mine = owner == i
+            if not mine.any():
+                continue
+            cand = np.flatnonzero(reach[i] & (owner < 0))
+            if not len(cand):
+                continue
+            for sign in (1.0, -1.0):
+                end = float(np.max(sign * lo[i, mine]))
+                c = cand[sign * lo[i, cand] > end]
+                c = c[np.argsort(sign * lo[i, c])]
+                steps = np.diff(np.concatenate([[end], sign * lo[i, c]]))
+                n = int(np.argmax(steps > gap)) if (steps > gap).any() else len(c)
+                owner[c[:n]] = i
+                excess[c[:n]] = 0.0
 
     def _misfit(self, owner: np.ndarray, excess: np.ndarray, dt: float) -> None:
         """Smoothed median |radial excess| (m) of each track's associated detections about its
@@ -244,10 +311,18 @@ class Tracker:
         if not len(self.recs):
             return
         g = 1.0 - np.exp(-max(dt, 0.0) / max(self.cfg.diverge_time, 1e-6))
-        for i in np.unique(owner[owner >= 0]):
-            m = float(np.median(np.abs(excess[owner == i])))
+        mine = np.flatnonzero(owner >= 0)
+        if not len(mine):
+            return
+        # per-track median of |excess|: sort by (track, |excess|), take the middle element(s)
+        a = np.abs(excess[mine])
+        order = np.lexsort((a, owner[mine]))
+        o, a = owner[mine][order], a[order]
+        tracks, start, count = np.unique(o, return_index=True, return_counts=True)
+        med = 0.5 * (a[start + (count - 1) // 2] + a[start + count // 2])
+        for i, m in zip(tracks, med):
             rec = self.recs[i]
-            rec.misfit += g * (m - rec.misfit)
+            rec.misfit += g * (float(m) - rec.misfit)
 
     def _aware_batch(self, tracks: np.ndarray, z: np.ndarray, valid: np.ndarray,
                      zall: np.ndarray, vall: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -384,6 +459,80 @@ class Tracker:
         self.x[tracks] = self._plausible(x)
         return tracks
 
+    def _long_vehicles(self, updated: np.ndarray) -> None:
+        """Long-vehicle hypothesis of the updated tracks (T,).
+
+        Seen head-on or from behind, a vehicle's length is unobservable: its contour keeps
+        the car-sized prior length and its centre sits half that length behind the seen
+        face -- metres off for a truck. Its width is observed, and road vehicles wider than
+        ``long_trigger_width`` are trucks and buses. A track is promoted once when its
+        contour's width less half its std. dev. is at least that in ``long_wide_updates`` updates
+        in a row, its long side was seen (sensor beyond it, sin(incidence) >=
+        ``extent_min_incidence``) in fewer than ``long_side_updates`` updates and its contour
+        is shorter than ``long_length``: the contour becomes ``long_length`` long, the centre
+        moves away from the seen face by half the added length, and the covariance gains
+        ``long_sigma_length``^2 along that joint (unobservable) direction. From then on its
+        contour decays towards the long rectangle, and while its side stays unseen each
+        update is followed by the length pseudo-measurement of :meth:`_length_prior`."""
+        cfg = self.cfg
+        if not len(updated) or cfg.long_length <= 0.0:
+            return
+        x = self.x[updated]
+        f = x[:, N_KIN:]
+        n = self.gp.n
+        q = n // 4
+        length, width = f[:, 0] + f[:, 2 * q], f[:, q] + f[:, 3 * q]
+        iw = N_KIN + np.array([q, 3 * q])
+        sd_w = np.sqrt(np.maximum(self.P[updated][:, iw][:, :, iw].sum(axis=(1, 2)), 0.0))
+        h = unit(x[:, YAW])
+        lat = np.stack([-h[:, 1], h[:, 0]], axis=1)
+        rel = self.fov.sensor - x[:, [X, Y]]
+        s_lo, s_la = np.sum(rel * h, axis=1), np.sum(rel * lat, axis=1)
+        # a long side is seen when the sensor is beyond it at a useful incidence
+        side_pt = x[:, [X, Y]] + lat * (np.sign(s_la) * 0.5 * width)[:, None]
+        los = side_pt - self.fov.sensor
+        inc = np.abs(np.sum(los * lat, axis=1)) / np.maximum(np.linalg.norm(los, axis=1), 1e-6)
+        side = (np.abs(s_la) > 0.5 * width) & (inc >= cfg.extent_min_incidence)
+        hold = []
+        for k, i in enumerate(updated):
+            rec = self.recs[i]
+            rec.side_hits += int(side[k])
+            unseen = rec.side_hits < cfg.long_side_updates
+            if rec.long and unseen:
+                hold.append(i)
+            wide = width[k] - 0.5 * sd_w[k] >= cfg.long_trigger_width
+            rec.wide_run = rec.wide_run + 1 if wide else 0
+            if (rec.long or rec.wide_run < cfg.long_wide_updates or not unseen
+                    or length[k] >= cfg.long_length):
+                continue
+            rec.long = True
+            grow = cfg.long_length - length[k]
+            back = -np.sign(s_lo[k]) * h[k]            # away from the seen face
+            f_new = rectangle_radius(self.gp.angles, cfg.long_length, width[k])
+            f_old = rectangle_radius(self.gp.angles, length[k], width[k])
+            d = np.zeros(N_STATE)
+            d[[X, Y]] = 0.5 * back
+            d[N_KIN:] = (f_new - f_old) / grow
+            self.x[i] += grow * d
+            self.P[i] += cfg.long_sigma_length**2 * np.outer(d, d)
+        if hold:
+            self._length_prior(np.asarray(hold))
+
+    def _length_prior(self, tracks: np.ndarray) -> None:
+        """Linear Kalman update of the tracks (T,) with the pseudo-measurement length
+        (front + rear radius) = long_length +- long_sigma_length (m): while a long vehicle's
+        side is unseen, the 20 smooth radii fit its seen face's corners best with a car-sized
+        length, so without it the length would shrink back."""
+        cfg = self.cfg
+        a = np.zeros(N_STATE)
+        a[[N_KIN, N_KIN + self.gp.n // 2]] = 1.0
+        P = self.P[tracks]
+        Pa = P @ a                                                      # (T, n)
+        s = Pa @ a + cfg.long_sigma_length**2                           # (T,)
+        K = Pa / s[:, None]
+        self.x[tracks] += K * (cfg.long_length - self.x[tracks] @ a)[:, None]
+        self.P[tracks] = P - K[:, :, None] * Pa[:, None, :]
+
     def _plausible(self, x: np.ndarray) -> np.ndarray:
         """States (T, n) clipped to road-vehicle limits: 0 <= v <= max_speed, |a| <= max_accel,
         |yawrate| <= max_yawrate, radii >= min_radius (a UKF update can overshoot them)."""
@@ -415,7 +564,7 @@ class Tracker:
     def _births(self, det: _Frame, free: np.ndarray) -> None:
         cfg = self.cfg
         idx = np.flatnonzero(free)
-        if not len(idx):
+        if len(idx) < cfg.cluster_min_points:
             return
         lab = cluster_labels(det.z[idx], cfg.cluster_eps, cfg.cluster_min_points)
         sensor = self.fov.sensor
@@ -437,8 +586,9 @@ class Tracker:
             if yaw is None:
                 yaw = float(np.arctan2(los[1], los[0]) + (0.0 if md > 0 else np.pi))
                 yaw_sigma = LOS_YAW_SIGMA
+            noise = max(cfg.sigma_range, np.deg2rad(cfg.sigma_azimuth_deg) * float(rng.mean()))
             centre, yaw, v, size = initial_kinematics(z, dop, rng, yaw, sensor, cfg.mean_length,
-                                                      cfg.mean_width, cfg.default_speed)
+                                                      cfg.mean_width, cfg.default_speed, noise)
             x0 = np.zeros(N_STATE)
             x0[[X, Y]] = centre
             x0[V], x0[YAW] = v, yaw
@@ -469,7 +619,7 @@ class Tracker:
         end = np.zeros(n, dtype=bool)
         # duplicates: a centre within gate sideways / duplicate_long lengthwise of a stronger
         # track's contour extent -> the weaker one dies
-        out_long, out_lat, _ = self._outside(self.x[:, [X, Y]])
+        out_long, out_lat, _, _ = self._outside(self.x[:, [X, Y]])
         dup = (out_lat <= cfg.gate) & (out_long <= cfg.duplicate_long)
         np.fill_diagonal(dup, False)
         rank = np.array([(r.confirmed, r.hits, -r.id) for r in self.recs],
