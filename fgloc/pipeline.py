@@ -90,8 +90,16 @@ def _run_icp(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
     )
 
 
+def _run_joint(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
+    """``--method joint`` (:mod:`fgloc.registration.joint`; gtsam is imported on use)."""
+    from fgloc.registration.joint import run_joint
+
+    return run_joint(scn, cfg, timer)
+
+
 #: method name -> implementation; ``fgloc localize --method`` offers exactly these keys.
-METHODS: dict[str, MethodFn] = {"icp": _run_icp, "filter-sicp": run_filter_sicp}
+METHODS: dict[str, MethodFn] = {"icp": _run_icp, "filter-sicp": run_filter_sicp,
+                                "joint": _run_joint}
 
 
 def localize(
