@@ -89,7 +89,10 @@ class TrackingConfig:
     """Long-vehicle hypothesis: a track whose contour is at least this wide (m) less half the std.
     dev. of its width (cars and vans are narrower, trucks and buses about 2.5 m) ..."""
     long_wide_updates: int = 10
-    """... in this many updates in a row ..."""
+    """... in this many updates in a row with a misfit (median |radial excess|, see
+    diverge_excess) of at most ..."""
+    long_max_misfit: float = 0.2
+    """... this (m): noisy detections (azimuth noise far out) widen a face's extremes ..."""
     long_side_updates: int = 5
     """... whose long side was seen in fewer than this many updates (its length is not
     measured: seen head-on or from behind) ..."""

@@ -467,9 +467,11 @@ class Tracker:
         face -- metres off for a truck. Its width is observed, and road vehicles wider than
         ``long_trigger_width`` are trucks and buses. A track is promoted once when its
         contour's width less half its std. dev. is at least that in ``long_wide_updates`` updates
-        in a row, its long side was seen (sensor beyond it, sin(incidence) >=
-        ``extent_min_incidence``) in fewer than ``long_side_updates`` updates and its contour
-        is shorter than ``long_length``: the contour becomes ``long_length`` long, the centre
+        in a row while its misfit is at most ``long_max_misfit`` (noisy detections widen a
+        face's extremes: far out, azimuth noise makes cars look wide), its long side was seen
+        (sensor beyond it, sin(incidence) >= ``extent_min_incidence``) in fewer than
+        ``long_side_updates`` updates and its contour is shorter than ``long_length``: the
+        contour becomes ``long_length`` long, the centre
         moves away from the seen face by half the added length, and the covariance gains
         ``long_sigma_length``^2 along that joint (unobservable) direction. From then on its
         contour decays towards the long rectangle, and while its side stays unseen each
@@ -500,7 +502,8 @@ class Tracker:
             unseen = rec.side_hits < cfg.long_side_updates
             if rec.long and unseen:
                 hold.append(i)
-            wide = width[k] - 0.5 * sd_w[k] >= cfg.long_trigger_width
+            wide = ((width[k] - 0.5 * sd_w[k] >= cfg.long_trigger_width)
+                    and rec.misfit <= cfg.long_max_misfit)
             rec.wide_run = rec.wide_run + 1 if wide else 0
             if (rec.long or rec.wide_run < cfg.long_wide_updates or not unseen
                     or length[k] >= cfg.long_length):
