@@ -60,14 +60,17 @@ def pose_matrix(pose: np.ndarray) -> np.ndarray:
     return np.array([[c, -s, pose[0]], [s, c, pose[1]], [0.0, 0.0, 1.0]])
 
 
-def line_sqrt_info(normal: np.ndarray, sigma_n: float, sigma_t: float = np.inf) -> np.ndarray:
+def line_sqrt_info(normal: np.ndarray, sigma_n: float | np.ndarray,
+                   sigma_t: float | np.ndarray = np.inf) -> np.ndarray:
     """(m, 2, 2) square-root informations ``n n^T / sigma_n + t t^T / sigma_t`` (1/m) of
-    points on lines with unit normals (m, 2); ``sigma_t = inf`` gives point-to-line."""
+    points on lines with unit normals (m, 2); sigmas scalar or per point (m,) (m);
+    ``sigma_t = inf`` gives point-to-line."""
     n = np.asarray(normal, dtype=float)
     t = np.stack([-n[:, 1], n[:, 0]], axis=1)
-    a = np.einsum("mi,mj->mij", n, n) / sigma_n
-    if np.isfinite(sigma_t):
-        a = a + np.einsum("mi,mj->mij", t, t) / sigma_t
+    a = np.einsum("mi,mj->mij", n, n) / np.broadcast_to(sigma_n, n.shape[:1])[:, None, None]
+    st = np.broadcast_to(sigma_t, n.shape[:1])
+    if np.any(np.isfinite(st)):
+        a = a + np.einsum("mi,mj->mij", t, t) / st[:, None, None]
     return a
 
 
@@ -80,7 +83,10 @@ class PointRows:
     (m, 2, 2) A_i (1/m). compat: (m,) label compatibilities in [0, 1]. huber_k: Huber
     threshold on ``|r_i|`` (whitened units; inf = none). gp: the contour model. H, mean:
     the GP conditional ``(m, n)`` and prior mean radius ``(m,)`` at theta, computed here
-    unless given (they depend on theta only, so a caller may compute them once).
+    unless given (they depend on theta only, so a caller may compute them once). weights:
+    (m,) fixed per-point weights used instead of the per-evaluation Huber x compatibility
+    (a caller doing IRLS rounds computes them once per round with :meth:`rows`, so the
+    optimizer sees a smooth objective).
     """
 
     theta: np.ndarray
@@ -92,6 +98,7 @@ class PointRows:
     gp: ContourGP
     H: np.ndarray | None = None
     mean: np.ndarray | None = None
+    weights: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         _check_gp(self.gp)
@@ -114,6 +121,9 @@ class PointRows:
         if self.H is None or self.mean is None:
             self.H, _ = self.gp.conditional(self.theta)      # (m, n), fixed angles
             self.mean = self.gp.mean(self.theta)
+        if self.weights is not None and (np.shape(self.weights) != (m,)
+                                         or np.any(np.asarray(self.weights) < 0.0)):
+            raise ValueError(f"PointRows.weights must be ({m},) and non-negative")
         if self.H.shape != (m, self.gp.n) or self.mean.shape != (m,):
             raise ValueError(f"PointRows.H / mean shapes {self.H.shape} / {self.mean.shape}, "
                              f"expected ({m}, {self.gp.n}) / ({m},)")
@@ -146,6 +156,8 @@ class PointRows:
         rs = s @ R.T                                                      # (m, 2)
         d = rs + pose[:2] - self.target - b * self.normal
         r = np.einsum("mij,mj->mi", self.sqrt_info, d)                    # (m, 2)
+        if weights is None:
+            weights = self.weights
         if weights is None:
             weights = huber_weights(np.linalg.norm(r, axis=1), self.huber_k) * self.compat
         sw = np.sqrt(weights)[:, None]

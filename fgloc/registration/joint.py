@@ -67,6 +67,7 @@ from factors.gtsam_factors import (
     TRACK_CHAR,
     ContourMeasurement,
     decode_track_key,
+    huber_weights,
     prior_factor,
     sensor_key,
     track_key,
@@ -89,6 +90,7 @@ from fgloc.scenario import Scenario
 from fgloc.tracks import N_KIN, N_STATE, YAW, Track, TrackSet, X, Y
 
 if TYPE_CHECKING:
+    from fgloc.coarse import CoarseResult
     from fgloc.map import TargetCloud
 
 
@@ -257,8 +259,8 @@ class JointResult:
 
     T: 3x3 SE(2) C -> L. covariance: 3x3 of (tx, ty, phi) of T (m^2, m rad, rad^2) or None.
     tracks: the refined tracks (decimated, frame C, ``T_frame_to_L = T``). rounds: rounds run;
-    converged: the pose (and the noise levels) settled before ``max_rounds``. sigma_line /
-    offset_sigma: the final noise levels (m). offsets: track id -> lateral offset (m).
+    converged: the pose (and the noise levels) settled before ``max_rounds``. noise: the final
+    :class:`NoiseLevels` (summary). offsets: track id -> lateral offset (m).
     matched: (P, 2) matched contour points in L, matched_label (P,) their labels. history:
     per round pose, noise and error. timing: seconds of building, association, graph
     assembly, track-factor linearization, optimization, marginals, and the optimization's
@@ -271,8 +273,7 @@ class JointResult:
     tracks: TrackSet
     rounds: int
     converged: bool
-    sigma_line: float
-    offset_sigma: float
+    noise: dict[str, float]
     offsets: dict[int, float]
     matched: np.ndarray
     matched_label: np.ndarray
@@ -330,11 +331,24 @@ def linearized(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     return out
 
 
+def elimination_order(keys: list[np.ndarray], okeys: np.ndarray | None) -> gtsam.Ordering:
+    """Every track's states in time order, then the offsets, then the pose: eliminating a
+    track's chain first keeps every clique at two states plus its offset and the pose (COLAMD
+    may eliminate an offset early, which joins all of its track's states in one dense
+    clique)."""
+    order = gtsam.Ordering()
+    for k in [*np.concatenate(keys), *([] if okeys is None else okeys), sensor_key()]:
+        order.push_back(int(k))
+    return order
+
+
 def _optimize(graph: gtsam.NonlinearFactorGraph, python: gtsam.NonlinearFactorGraph,
-              values: gtsam.Values, iterations: int, timing: dict[str, float]) -> gtsam.Values:
-    """A few LM iterations on ``graph``. ``python`` (the Python factors in it) is linearized
-    and evaluated once, timed, to estimate the callback share of the optimization (LM
-    linearizes once per iteration and evaluates the error about twice)."""
+              values: gtsam.Values, order: gtsam.Ordering, iterations: int,
+              timing: dict[str, float]) -> gtsam.Values:
+    """A few LM iterations on ``graph`` in elimination order ``order``. ``python`` (the Python
+    factors in it) is linearized and evaluated once, timed, to estimate the callback share of
+    the optimization (LM linearizes once per iteration and evaluates the error about
+    twice)."""
     t0 = time.perf_counter()
     python.linearize(values)
     t1 = time.perf_counter()
@@ -343,6 +357,7 @@ def _optimize(graph: gtsam.NonlinearFactorGraph, python: gtsam.NonlinearFactorGr
     params = gtsam.LevenbergMarquardtParams()
     params.setMaxIterations(iterations)
     params.setRelativeErrorTol(1e-6)
+    params.setOrdering(order)
     opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
     out = opt.optimize()
     n = int(opt.iterations())
@@ -355,24 +370,34 @@ def _optimize(graph: gtsam.NonlinearFactorGraph, python: gtsam.NonlinearFactorGr
 
 def _point_factors(fp: FramePoints, index: np.ndarray, compat: np.ndarray,
                    target: np.ndarray, normal: np.ndarray, okeys: np.ndarray | None,
-                   sigma_line: float, gp: ContourGP, jc: JointConfig
-                   ) -> gtsam.NonlinearFactorGraph:
-    """One point-to-point factor per frame with matched points (module docstring)."""
+                   sigma: np.ndarray, values: gtsam.Values, huber_scale: float,
+                   gp: ContourGP, jc: JointConfig) -> gtsam.NonlinearFactorGraph:
+    """One point-to-point factor per frame with matched points (module docstring); sigma:
+    (P,) std. dev. (m) of each point across its line. The per-point weights (label
+    compatibility x Huber of the across-line residual at ``values`` in units of
+    ``huber_scale`` m) are fixed for the round (IRLS), so the optimizer sees a smooth
+    objective."""
     graph = gtsam.NonlinearFactorGraph()
-    huber = jc.huber_k if jc.huber_k > 0 else np.inf
-    sigma_t = sigma_line / np.sqrt(jc.along_weight) if jc.along_weight > 0 else np.inf
+    pose = _pose_vec(values)
     for f in range(len(fp.frame_key)):
         sl = slice(fp.start[f], fp.start[f + 1])
         ok = index[sl] >= 0
         if not np.any(ok):
             continue
         n = normal[sl][ok]
-        rows = PointRows(fp.theta[sl][ok], target[sl][ok], n,
-                         line_sqrt_info(n, sigma_line, sigma_t), compat[sl][ok], huber, gp,
-                         fp.H[sl][ok], fp.mean[sl][ok])
-        graph.add(point_to_point_factor(sensor_key(), int(fp.frame_key[f]), rows,
-                                        None if okeys is None
-                                        else int(okeys[fp.frame_track[f]])))
+        sig = sigma[sl][ok]
+        sig_t = sig / np.sqrt(jc.along_weight) if jc.along_weight > 0 else np.inf
+        okey = None if okeys is None else int(okeys[fp.frame_track[f]])
+        rows = PointRows(fp.theta[sl][ok], target[sl][ok], n, line_sqrt_info(n, sig, sig_t),
+                         compat[sl][ok], np.inf, gp, fp.H[sl][ok], fp.mean[sl][ok])
+        b = 0.0 if okey is None else float(values.atVector(okey)[0])
+        x = np.asarray(values.atVector(int(fp.frame_key[f])), dtype=float)
+        e = rows.rows(pose, x, b, np.ones(len(sig)))[0].reshape(-1, 2)
+        across = np.linalg.norm(e, axis=1) * sig          # m (the along row is 0 or small)
+        w = rows.compat * (huber_weights(across / huber_scale, jc.huber_k)
+                           if jc.huber_k > 0 else 1.0)
+        rows.weights = w
+        graph.add(point_to_point_factor(sensor_key(), int(fp.frame_key[f]), rows, okey))
     return graph
 
 
@@ -473,25 +498,76 @@ def pose_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
     return 0.5 * (info + info.T), shares
 
 
+@dataclass
+class NoiseLevels:
+    """Noise of the point factors, estimated from the data (:func:`noise_levels`).
+
+    within: scatter (m) of a point about its frame's mean (sets the Huber scale). frame: scatter
+    (m) of a frame's mean about its track's offset line. rho: correlation of consecutive frame
+    means of one track (a vehicle's deviation from its line wanders slowly). offset: scatter (m)
+    of the tracks' offsets (the prior of ``b``).
+    """
+
+    within: float
+    frame: float
+    rho: float
+    offset: float
+
+    @property
+    def inflation(self) -> float:
+        """``(1 + rho) / (1 - rho)``: a run of n correlated frames weighs like n / inflation
+        independent ones (AR(1))."""
+        return (1.0 + self.rho) / (1.0 - self.rho)
+
+    def point_sigma(self, per_frame: np.ndarray) -> np.ndarray:
+        """Std. dev. (m) of each point of frames with ``per_frame`` matched points, such that
+        a frame weighs like one measurement of its mean, deflated by the frame correlation."""
+        return self.frame * np.sqrt(self.inflation * np.maximum(per_frame, 1))
+
+    def settled(self, other: NoiseLevels, tol: float = 0.1) -> bool:
+        """Every level within ``tol`` (relative; rho: absolute) of ``other``'s."""
+        rel = [abs(a / b - 1.0) for a, b in ((self.frame, other.frame),
+                                                (self.offset, other.offset)) if b > 0]
+        return max(rel, default=0.0) < tol and abs(self.rho - other.rho) < tol
+
+    def summary(self) -> dict[str, float]:
+        return {"within_m": self.within, "frame_m": self.frame, "rho": self.rho,
+                "offset_m": self.offset, "inflation": self.inflation}
+
+
 def noise_levels(fp: FramePoints, states0: np.ndarray, T: np.ndarray, index: np.ndarray,
-                 target: np.ndarray, normal: np.ndarray, gp: ContourGP, n_tracks: int
-                 ) -> tuple[float, float]:
-    """Moment estimates (m) of ``sigma_line`` and ``offset_sigma`` at the pose T from the
-    filter's states ``states0`` (F, 26), not the refined ones (which the point factors pull
-    towards the lines): each track's mean across-line residual is its raw offset; sigma_line
-    is the MAD scatter of the residuals about their track's raw offset, offset_sigma the RMS
-    of the raw offsets with ``n_tracks - 3`` degrees of freedom (the pose takes up three)."""
+                 target: np.ndarray, normal: np.ndarray, gp: ContourGP, n_tracks: int,
+                 floor: float) -> NoiseLevels:
+    """Moment estimates of the :class:`NoiseLevels` at the pose T from the filter's states
+    ``states0`` (F, 26), not the refined ones (which the point factors pull towards the
+    lines). Each track's mean across-line residual is its raw offset (their RMS with
+    ``n_tracks - 3`` degrees of freedom, the pose takes up three, is the offset level);
+    about it, the per-frame means give the frame level (MAD) and the lag-1 correlation of
+    consecutive frames of one track (clipped to [0, 0.95]); the points about their frame
+    mean the within level (MAD). Levels are at least ``floor`` m."""
     ok = index >= 0
     q = transform_points(T, fp.points(states0, gp.mu)[0])[ok]
     res = np.einsum("pi,pi->p", q - target[ok], normal[ok])
-    track = fp.frame_track[fp.point_frame[ok]]
+    frame = fp.point_frame[ok]
+    track = fp.frame_track[frame]
     count = np.bincount(track, minlength=n_tracks)
     raw = np.bincount(track, res, minlength=n_tracks) / np.maximum(count, 1)
     dev = res - raw[track]
-    sigma_line = 1.4826 * float(np.median(np.abs(dev - np.median(dev))))
+    nf = len(fp.frame_key)
+    fcount = np.bincount(frame, minlength=nf)
+    fmean = np.bincount(frame, dev, minlength=nf) / np.maximum(fcount, 1)
+    within = 1.4826 * float(np.median(np.abs(dev - fmean[frame])))
+    has = fcount > 0
+    level = 1.4826 * float(np.median(np.abs(fmean[has])))
+    pair = has[:-1] & has[1:] & (fp.frame_track[:-1] == fp.frame_track[1:])
+    rho = 0.0
+    if np.count_nonzero(pair) > 10 and level > 0:
+        a = np.clip(fmean[:-1][pair], -3 * level, 3 * level)
+        b = np.clip(fmean[1:][pair], -3 * level, 3 * level)
+        rho = float(np.clip(np.sum(a * b) / np.sqrt(np.sum(a * a) * np.sum(b * b)), 0.0, 0.95))
     seen = count > 0
-    dof = max(1, int(seen.sum()) - 3)
-    return sigma_line, float(np.sqrt(np.sum(raw[seen] ** 2) / dof))
+    offset = float(np.sqrt(np.sum(raw[seen] ** 2) / max(1, int(seen.sum()) - 3)))
+    return NoiseLevels(max(floor, within), max(floor, level), rho, max(floor, offset))
 
 
 def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
@@ -526,9 +602,11 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
         values.insert(int(k), np.zeros(1))
     _add_time(timing, "build", t0)
 
-    sigma_line, offset_sd = jc.sigma_line, jc.offset_sigma
-    history: list[dict[str, float]] = []
+    fixed = NoiseLevels(jc.sigma_line, jc.sigma_line, 0.0, jc.offset_sigma)
+    noise: NoiseLevels | None = None if jc.estimate_noise else fixed
+    history: list[dict[str, object]] = []
     converged, rounds, lin_tracks = False, 0, None
+    order = elimination_order(keys, okeys)
     for rounds in range(1, jc.max_rounds + 1):
         t0 = time.perf_counter()
         if lin_tracks is None or jc.relinearize_tracks:
@@ -537,37 +615,40 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
         t0 = time.perf_counter()
         pose = _pose_vec(values)
         index, compat, target, normal = _correspondences(fp, values, lines, gp, jc)
+        ok = index >= 0
+        if noise is None:        # first round: the noise levels at the start pose
+            noise = noise_levels(fp, states0, se2(*pose), index, target, normal, gp,
+                                 len(dec.tracks), jc.min_sigma)
         _add_time(timing, "associate", t0)
         t0 = time.perf_counter()
-        points = _point_factors(fp, index, compat, target, normal, okeys, sigma_line, gp, jc)
+        per_frame = np.bincount(fp.point_frame[ok], minlength=len(fp.frame_key))
+        sigma = noise.point_sigma(per_frame[fp.point_frame])
+        points = _point_factors(fp, index, compat, target, normal, okeys, sigma, values,
+                                noise.within, gp, jc)
         graph = gtsam.NonlinearFactorGraph(lin_tracks)
         graph.push_back(points)
         graph.add(pose_prior)
         for k in [] if okeys is None else okeys:
             graph.add(gtsam.PriorFactorVector(int(k), np.zeros(1),
-                                              gtsam.noiseModel.Isotropic.Sigma(1, offset_sd)))
+                                              gtsam.noiseModel.Isotropic.Sigma(1, noise.offset)))
         _add_time(timing, "graph", t0)
-        values = _optimize(graph, points, values, jc.lm_iterations, timing)
+        values = _optimize(graph, points, values, order, jc.lm_iterations, timing)
         new = _pose_vec(values)
         step_xy = float(np.hypot(*(new[:2] - pose[:2])))
         step_yaw = float(abs(wrap_angle(new[2] - pose[2])))
         history.append({"round": rounds, "tx": float(new[0]), "ty": float(new[1]),
                         "yaw_deg": float(np.rad2deg(new[2])), "step_m": step_xy,
-                        "step_yaw_deg": float(np.rad2deg(step_yaw)), "sigma_line": sigma_line,
-                        "offset_sigma": offset_sd, "matched": int(np.sum(index >= 0)),
-                        "error": float(graph.error(values))})
+                        "step_yaw_deg": float(np.rad2deg(step_yaw)), "noise": noise.summary(),
+                        "matched": int(ok.sum()), "error": float(graph.error(values))})
         if step_xy >= jc.tol_position or step_yaw >= np.deg2rad(jc.tol_yaw_deg):
             continue
-        if not jc.estimate_noise or np.count_nonzero(index >= 0) < 10:
+        if not jc.estimate_noise or np.count_nonzero(ok) < 10:
             converged = True
             break
         # the pose settled: re-estimate the noise levels; done when they settled too
-        line, off = noise_levels(fp, states0, se2(*new), index, target, normal, gp,
-                                 len(dec.tracks))
-        line, off = max(jc.min_sigma, line), max(jc.min_sigma, off) if okeys is not None else 0
-        settled = (abs(line / sigma_line - 1.0) < 0.1
-                   and (okeys is None or abs(off / offset_sd - 1.0) < 0.1))
-        sigma_line, offset_sd = line, off
+        again = noise_levels(fp, states0, se2(*new), index, target, normal, gp,
+                             len(dec.tracks), jc.min_sigma)
+        settled, noise = again.settled(noise), again
         if settled:
             converged = True
             break
@@ -588,7 +669,7 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     matched = transform_points(T, fp.points(states, gp.mu)[0])[ok]
     offsets = ({} if okeys is None else
                {int(tr.id): float(values.atVector(int(k))[0]) for tr, k in zip(dec.tracks, okeys)})
-    return JointResult(T, cov, refined, rounds, converged, sigma_line, offset_sd, offsets,
+    return JointResult(T, cov, refined, rounds, converged, noise.summary(), offsets,
                        matched, fp.label[ok], int(ok.sum()), len(dec.tracks),
                        int(sum(len(tr) for tr in dec.tracks)), history, timing)
 
@@ -632,16 +713,29 @@ def run_joint(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
     Raises :class:`fgloc.errors.LocalizationError` when the coarse stage cannot find a pose.
     """
     from fgloc.coarse import target_and_coarse
-    from fgloc.fine import register_tracks, sensor_covariance
-    from fgloc.smoothing.graph import placed_detections
-    from fgloc.source import choose_tracks
     from fgloc.tracking import track_scenario
 
     check_joint_config(cfg.joint)
     target, coarse = target_and_coarse(scn, cfg, timer)
     with timer.stage("tracking"):
         tracks = track_scenario(scn, coarse.T_coarse, cfg.tracking)
-    start = register_tracks(scn, cfg, target, coarse, tracks, timer, method="joint")
+    return joint_from_tracks(scn, cfg, target, coarse, tracks, timer)
+
+
+def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: CoarseResult,
+                      tracks: TrackSet, timer: Timer,
+                      start: LocalizationResult | None = None) -> LocalizationResult:
+    """The joint stage on the filter's ``tracks`` (frame C of ``coarse.T_coarse``): filter-sicp's
+    registration as the start (``start``, computed here when None), then
+    :func:`joint_refine` on the same trajectory subset, the covariance mapped to the sensor's
+    (x, y, yaw) in L and the degeneracy report."""
+    from fgloc.fine import register_tracks, sensor_covariance
+    from fgloc.smoothing.graph import placed_detections
+    from fgloc.source import choose_tracks
+
+    check_joint_config(cfg.joint)
+    if start is None:
+        start = register_tracks(scn, cfg, target, coarse, tracks, timer, method="filter-sicp")
     with timer.stage("joint"):
         det_xy, sensor_c = placed_detections(scn, coarse.T_coarse)
         offset = (cfg.coarse.visible_side_offset if cfg.joint.lateral_model == "visible-side"
@@ -655,7 +749,8 @@ def run_joint(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
     degen = degeneracy_report(jr.covariance, jr.T, jr.matched, cfg.joint.weak_sigma)
     warnings = list(start.warnings)
     if not jr.converged:
-        warnings.append(f"joint: the pose still moved after {jr.rounds} rounds (max_rounds)")
+        warnings.append(f"joint: the pose or the noise levels still moved after {jr.rounds} "
+                        "rounds (max_rounds)")
     if degen["weakly_observed"]:
         dirs = ", ".join(f"{d['std_m']:.2f} m at {d['translation_heading_deg']:.0f} deg"
                          for d in degen["weak_directions"])
@@ -670,8 +765,7 @@ def run_joint(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
         "n_tracks": jr.n_tracks,
         "n_states": jr.n_states,
         "n_points": jr.n_points,
-        "sigma_line": jr.sigma_line,
-        "offset_sigma": jr.offset_sigma,
+        "noise": jr.noise,
         "sensor_std": None if cov is None else {
             "x_m": float(np.sqrt(cov[0, 0])), "y_m": float(np.sqrt(cov[1, 1])),
             "yaw_deg": float(np.rad2deg(np.sqrt(cov[2, 2])))},
@@ -685,6 +779,7 @@ def run_joint(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
     src[:, :2] = transform_points(delta, src[:, :2])
     return dataclasses.replace(
         start,
+        method="joint",
         T_local=se2_to_se3(jr.T) @ coarse.T_coarse,
         converged=start.converged and jr.converged and cov is not None,
         covariance=cov,

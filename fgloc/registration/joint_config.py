@@ -50,21 +50,25 @@ class JointConfig:
     """Compatibility of a point with a target of another label (same label: 1); the match is
     the least d^2 / compatibility and the point is weighted by it. 0 = labels must agree."""
     sigma_line: float = 0.3
-    """Initial standard deviation (m) of a contour point across its target line."""
+    """Without ``estimate_noise``: standard deviation (m) of one frame's mean across its target
+    line (a frame's points share it) and of the point scatter (Huber scale); frames are then
+    treated as independent."""
     along_weight: float = 0.0
     """Weight of the along-line component relative to the across-line one (0 = point to
     line: the position along a lane carries no information)."""
     huber_k: float = 2.0
     """Huber threshold (in sigma_line) of the per-point robust weights; 0 = none."""
     offset_sigma: float = 0.3
-    """Initial prior standard deviation (m) of each track's lateral offset from its target
-    lines (shared by all of its points: models their correlation); 0 = no offsets."""
+    """Prior standard deviation (m) of each track's lateral offset from its target lines
+    (shared by all of its points: models their correlation) without ``estimate_noise``;
+    0 = no offset variables."""
     estimate_noise: bool = True
-    """When the pose settles, re-estimate sigma_line (robust scatter of the across-line
-    residuals about each track's mean) and offset_sigma (RMS of the tracks' mean residuals)
-    from the filter's states, and continue until they settle too."""
+    """Estimate the noise levels from the data (``fgloc.registration.joint.NoiseLevels``:
+    point scatter, frame scatter, the correlation of consecutive frames, the tracks' offset
+    scatter) at the start pose and again whenever the pose settles, until they settle too;
+    False = ``sigma_line`` and ``offset_sigma`` as given."""
     min_sigma: float = 0.1
-    """Floor (m) of the re-estimated sigma_line and offset_sigma."""
+    """Floor (m) of the estimated noise levels."""
     refine_tracks: bool = True
     """Optimize the track states with the pose (False: states held at the filter's)."""
     pose_prior_sigma: float = 2.0

@@ -1,0 +1,205 @@
+"""``--method joint`` against ``--method filter-sicp`` on the same runs (issue 7 figures).
+
+Per case and seed the scenario is simulated, the coarse pose and the filter's tracks are
+computed once, and both fine stages run on them: filter-sicp (``register_tracks``) and joint
+(``joint_from_tracks``, started from that filter-sicp result). Printed per run: 2D and yaw
+error of both, joint's NEES of (x, y, yaw) against its 3x3 covariance, its standard
+deviations, weak-direction flag and time; then the means.
+
+    OMP_NUM_THREADS=1 python bench/joint.py accuracy --seeds 1 2 3 4 5
+    OMP_NUM_THREADS=1 python bench/joint.py efficiency --seeds 1 2 3 4 5 --counts 5 10 20 50 \
+        --plot docs/figures/joint_efficiency.png
+    OMP_NUM_THREADS=1 python bench/joint.py straight --seeds 1 2 3
+    OMP_NUM_THREADS=1 python bench/joint.py timing --duration 120
+
+"accuracy" and "straight" use the sensor.toml yaw guess; "efficiency" repeats the fine
+stages with ``fine.n_trajectories`` = each count (the same seeded subset for both methods);
+"timing" reports the joint stage's split into Python callbacks and the rest.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from fgloc.coarse import target_and_coarse
+from fgloc.config import Config, load_config
+from fgloc.fine import register_tracks
+from fgloc.geo import pose_from_se3, wrap_angle
+from fgloc.progress import Timer
+from fgloc.registration.joint import joint_from_tracks
+from fgloc.result import LocalizationResult
+from fgloc.sim import simulate
+from fgloc.tracking import track_scenario
+
+
+def error_vector(res: LocalizationResult, truth: np.ndarray) -> np.ndarray:
+    """(dx m, dy m, dyaw rad) of the sensor in L, estimate minus truth (yaw wrapped)."""
+    e, g = pose_from_se3(res.T_local), pose_from_se3(truth)
+    return np.array([e[0] - g[0], e[1] - g[1], float(wrap_angle(e[3] - g[3]))])
+
+
+def score(res: LocalizationResult, truth: np.ndarray, seconds: float) -> dict:
+    e = error_vector(res, truth)
+    row = {"d2d": float(np.hypot(e[0], e[1])), "dyaw_deg": float(np.rad2deg(abs(e[2]))),
+           "time_s": seconds, "converged": bool(res.converged), "nees": None}
+    if res.covariance is not None:
+        cov = np.asarray(res.covariance)
+        row["nees"] = float(e @ np.linalg.solve(cov, e))
+        row["sd_x"], row["sd_y"] = float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1]))
+        row["sd_yaw_deg"] = float(np.rad2deg(np.sqrt(cov[2, 2])))
+        deg = res.diagnostics["joint"]["degeneracy"]
+        row["weak"] = bool(deg["weakly_observed"])
+        row["weak_std_m"] = max([d["std_m"] for d in deg["weak_directions"]], default=0.0)
+        row["joint_timing"] = res.diagnostics["joint"]["timing_s"]
+    return row
+
+
+def prepared(case: str, seed: int, duration: float, cfg: Config):
+    scn = simulate(case, seed, duration=duration)
+    timer = Timer()
+    target, coarse = target_and_coarse(scn, cfg, timer)
+    tracks = track_scenario(scn, coarse.T_coarse, cfg.tracking)
+    return scn, target, coarse, tracks
+
+
+def both(scn, target, coarse, tracks, cfg: Config) -> tuple[dict, dict]:
+    truth = scn.truth.sensor_pose
+    t0 = time.perf_counter()
+    fs = register_tracks(scn, cfg, target, coarse, tracks, Timer(), method="filter-sicp")
+    t1 = time.perf_counter()
+    jt = joint_from_tracks(scn, cfg, target, coarse, tracks, Timer(), start=fs)
+    t2 = time.perf_counter()
+    return score(fs, truth, t1 - t0), score(jt, truth, t2 - t1)
+
+
+def with_count(cfg: Config, n: int | None) -> Config:
+    return dataclasses.replace(cfg, fine=dataclasses.replace(cfg.fine, n_trajectories=n))
+
+
+def accuracy(args, cfg: Config) -> list[dict]:
+    rows = []
+    print(f"{'case':<13}{'seed':>4}{'tracks':>7} | {'f-sicp 2D':>9}{'yaw':>7} | {'joint 2D':>9}"
+          f"{'yaw':>7}{'sd x':>7}{'sd y':>7}{'sd yaw':>7}{'NEES':>7}{'weak':>5}{'t s':>6}")
+    for case in args.cases:
+        for seed in args.seeds:
+            scn, target, coarse, tracks = prepared(case, seed, args.duration, cfg)
+            f, j = both(scn, target, coarse, tracks, cfg)
+            rows.append({"case": case, "seed": seed, "tracks": len(tracks), "filter_sicp": f,
+                         "joint": j})
+            print(f"{case:<13}{seed:>4}{len(tracks):>7} | {f['d2d']:9.3f}{f['dyaw_deg']:7.3f} | "
+                  f"{j['d2d']:9.3f}{j['dyaw_deg']:7.3f}{j.get('sd_x', np.nan):7.3f}"
+                  f"{j.get('sd_y', np.nan):7.3f}{j.get('sd_yaw_deg', np.nan):7.3f}"
+                  f"{j['nees'] if j['nees'] is not None else np.nan:7.2f}"
+                  f"{'yes' if j.get('weak') else 'no':>5}{j['time_s']:6.1f}", flush=True)
+    for key in ("filter_sicp", "joint"):
+        d2d = np.mean([r[key]["d2d"] for r in rows])
+        yaw = np.mean([r[key]["dyaw_deg"] for r in rows])
+        print(f"mean {key:<12} 2D {d2d:.3f} m  |dyaw| {yaw:.3f} deg")
+    nees = [r["joint"]["nees"] for r in rows if r["joint"]["nees"] is not None]
+    print(f"joint NEES mean {np.mean(nees):.2f} (median {np.median(nees):.2f}, n={len(nees)})")
+    return rows
+
+
+def efficiency(args, cfg: Config) -> list[dict]:
+    rows = []
+    for case in args.cases:
+        for seed in args.seeds:
+            scn, target, coarse, tracks = prepared(case, seed, args.duration, cfg)
+            for n in args.counts:
+                f, j = both(scn, target, coarse, tracks, with_count(cfg, n))
+                rows.append({"case": case, "seed": seed, "n": n, "available": len(tracks),
+                             "filter_sicp": f, "joint": j})
+                nees = j["nees"] if j["nees"] is not None else np.nan
+                print(f"{case:<13}{seed:>4} n={n:<3} of {len(tracks):<3} f-sicp "
+                      f"{f['d2d']:.3f} m {f['dyaw_deg']:.3f} deg | joint {j['d2d']:.3f} m "
+                      f"{j['dyaw_deg']:.3f} deg NEES {nees:.2f}", flush=True)
+    print("\n| trajectories | filter-sicp 2D m | joint 2D m | filter-sicp yaw deg | "
+          "joint yaw deg | joint NEES |\n|---:|---:|---:|---:|---:|---:|")
+    for n in args.counts:
+        sel = [r for r in rows if r["n"] == n]
+        m = {k: (np.mean([r[k]["d2d"] for r in sel]), np.mean([r[k]["dyaw_deg"] for r in sel]))
+             for k in ("filter_sicp", "joint")}
+        nees = np.mean([r["joint"]["nees"] for r in sel if r["joint"]["nees"] is not None])
+        print(f"| {n} | {m['filter_sicp'][0]:.3f} | {m['joint'][0]:.3f} | "
+              f"{m['filter_sicp'][1]:.3f} | {m['joint'][1]:.3f} | {nees:.2f} |")
+    if args.plot:
+        plot_efficiency(rows, args.counts, args.plot)
+    return rows
+
+
+def plot_efficiency(rows: list[dict], counts: list[int], path: str) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4), dpi=110)
+    for key, label, style in (("filter_sicp", "filter-sicp", "o-"), ("joint", "joint", "s-")):
+        for ax, metric in zip(axes, ("d2d", "dyaw_deg")):
+            mean = [np.mean([r[key][metric] for r in rows if r["n"] == n]) for n in counts]
+            ax.plot(counts, mean, style, label=label)
+    axes[0].set_ylabel("mean 2D error [m]")
+    axes[1].set_ylabel("mean |yaw error| [deg]")
+    for ax in axes:
+        ax.set_xlabel("trajectories used")
+        ax.set_xscale("log")
+        ax.set_xticks(counts, [str(c) for c in counts])
+        ax.grid(alpha=0.3)
+        ax.legend()
+    fig.tight_layout()
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path)
+
+
+def straight(args, cfg: Config) -> list[dict]:
+    rows = []
+    for seed in args.seeds:
+        scn, target, coarse, tracks = prepared("straight", seed, args.duration, cfg)
+        f, j = both(scn, target, coarse, tracks, cfg)
+        rows.append({"case": "straight", "seed": seed, "filter_sicp": f, "joint": j})
+        print(f"straight {seed}: f-sicp 2D {f['d2d']:.3f} | joint 2D {j['d2d']:.3f} yaw "
+              f"{j['dyaw_deg']:.3f} weak {j.get('weak')} weakest std {j.get('weak_std_m', 0):.2f} m"
+              f" sd x/y {j.get('sd_x', np.nan):.2f}/{j.get('sd_y', np.nan):.2f} NEES "
+              f"{j['nees'] if j['nees'] is not None else np.nan:.2f}", flush=True)
+    return rows
+
+
+def timing(args, cfg: Config) -> list[dict]:
+    scn, target, coarse, tracks = prepared("intersection", args.seeds[0], args.duration, cfg)
+    f, j = both(scn, target, coarse, tracks, cfg)
+    print(f"intersection seed {args.seeds[0]}, {args.duration:.0f} s, {len(tracks)} tracks: "
+          f"joint stage {j['time_s']:.1f} s (incl. LaneLines and the result), 2D {j['d2d']:.3f} m")
+    print(json.dumps(j.get("joint_timing"), indent=1))
+    return [{"tracks": len(tracks), "filter_sicp": f, "joint": j}]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("part", choices=["accuracy", "efficiency", "straight", "timing"])
+    ap.add_argument("--cases", nargs="+", default=["intersection", "tjunction"])
+    ap.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3, 4, 5])
+    ap.add_argument("--counts", nargs="+", type=int, default=[5, 10, 20, 50])
+    ap.add_argument("--duration", type=float, default=None,
+                    help="scenario length in s (default 60; timing: 120)")
+    ap.add_argument("--plot", default=None, help="efficiency: write the plot to this PNG")
+    ap.add_argument("--json", default=None, help="also write all rows to this JSON file")
+    ap.add_argument("--config", default=None, help="fgloc config TOML (default: all defaults)")
+    args = ap.parse_args()
+    if args.duration is None:
+        args.duration = 120.0 if args.part == "timing" else 60.0
+    cfg = load_config(args.config)
+    rows = {"accuracy": accuracy, "efficiency": efficiency, "straight": straight,
+            "timing": timing}[args.part](args, cfg)
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
