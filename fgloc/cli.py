@@ -166,12 +166,14 @@ def cmd_track(args: argparse.Namespace) -> int:
 
     cfg = load_config(args.config)
     scn = load_scenario(args.scenario)
-    run = track(scn, cfg, oracle_pose=args.oracle_pose)
+    run = track(scn, cfg, oracle_pose=args.oracle_pose, smoother=args.smoother)
     with staged_dir(args.out) as tmp:
         write_tracks_csv(tmp / "tracks.csv", run.tracks, scn.frame)
     n_states = sum(len(t) for t in run.tracks.tracks)
     placed = "ground-truth pose (oracle)" if args.oracle_pose else "T_coarse"
-    print(f"{len(run.tracks)} tracks, {n_states} states; detections placed with {placed}")
+    smoothed = "" if args.smoother == "none" else f", {args.smoother} smoother"
+    print(f"{len(run.tracks)} tracks, {n_states} states; detections placed with {placed}"
+          f"{smoothed}")
     print("  stage times: " + ", ".join(f"{k} {v:.2f} s" for k, v in run.timings.items()))
     print(f"wrote {Path(args.out) / 'tracks.csv'}")
     return 0
@@ -306,6 +308,7 @@ def _scenario_command(sub, name: str, help_text: str) -> argparse.ArgumentParser
 
 def build_parser() -> argparse.ArgumentParser:
     from fgloc.pipeline import METHODS
+    from fgloc.smoothing import SMOOTHERS
 
     p = argparse.ArgumentParser(prog="fgloc", description=__doc__.split("\n")[0])
     p.add_argument("-q", "--quiet", action="store_true", help="no progress messages")
@@ -345,6 +348,13 @@ def build_parser() -> argparse.ArgumentParser:
         "--oracle-pose",
         action="store_true",
         help="place detections with the ground-truth pose (tracking alone, paper V-A)",
+    )
+    s.add_argument(
+        "--smoother",
+        choices=SMOOTHERS,
+        default="none",
+        help="refine the filter's tracks: fixed-lag (online, [smoothing] lag) or batch "
+        "(offline, whole tracks); default none",
     )
     s.set_defaults(fn=cmd_track)
 

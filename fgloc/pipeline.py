@@ -19,6 +19,7 @@ from fgloc.labels import STRAIGHT
 from fgloc.progress import Timer
 from fgloc.result import LocalizationResult, json_ready
 from fgloc.scenario import Scenario
+from fgloc.smoothing.run import run_smoother_sicp, smooth_tracks
 from fgloc.tracks import TrackSet
 
 if TYPE_CHECKING:
@@ -43,12 +44,15 @@ class TrackingRun:
 
 
 def track(
-    scenario: Scenario, config: Config | None = None, *, oracle_pose: bool = False
+    scenario: Scenario, config: Config | None = None, *, oracle_pose: bool = False,
+    smoother: str = "none",
 ) -> TrackingRun:
     """Track the vehicles of ``scenario`` with the GP-EOT filter.
 
     The detections are placed with T_coarse from the coarse stage, or, with ``oracle_pose``,
     with the ground-truth sensor pose, to measure tracking alone (paper section V-A).
+    ``smoother`` ("none", "fixed-lag" or "batch", :mod:`fgloc.smoothing`) then refines the
+    filter's tracks (same type, same frame).
     """
     from fgloc.coarse import target_and_coarse
     from fgloc.tracking import track_scenario
@@ -65,6 +69,9 @@ def track(
         T = coarse.T_coarse
     with timer.stage("tracking"):
         tracks = track_scenario(scenario, T, cfg.tracking)
+    if smoother != "none":
+        with timer.stage(f"smoothing ({smoother})"):
+            tracks = smooth_tracks(scenario, tracks, T, smoother, cfg)
     return TrackingRun(tracks, T, coarse, dict(timer.seconds))
 
 
@@ -99,7 +106,7 @@ def _run_joint(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
 
 #: method name -> implementation; ``fgloc localize --method`` offers exactly these keys.
 METHODS: dict[str, MethodFn] = {"icp": _run_icp, "filter-sicp": run_filter_sicp,
-                                "joint": _run_joint}
+                                "smoother-sicp": run_smoother_sicp, "joint": _run_joint}
 
 
 def localize(

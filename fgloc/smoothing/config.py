@@ -22,25 +22,36 @@ class SmoothingConfig:
     "fixed-lag" (online)."""
     lag: float = 2.0
     """Fixed-lag smoother: states older than this (s) are marginalized."""
-    max_detections: int = 32
+    max_detections: int = 24
     """At most this many detections (a regular subsample) of one track in one frame enter its
-    measurement factor (all of them when 0)."""
+    measurement factor (all of them when 0; the tracker's update takes 24)."""
     huber_k: float = 2.0
     """Huber threshold (in row std. devs.) of the per-row IRLS weights of a measurement
     factor (0 disables the robust weights)."""
+    size_walk_scale: float = 0.0
+    """Scale of the tracker's length / width random walk (``tracking.sigma_length_rw``,
+    ``sigma_width_rw``) in the smoothers' process noise: the filter needs it to let a
+    contour grow into a vehicle seen more fully later; a smoother sees those later views
+    already, and a rigid vehicle keeps its size (0 = the size changes only through the GP
+    decay, 1 = the filter's process noise)."""
+    extent_rows: bool = True
+    """Add the tracker's visible-extent rows (``tracking.extent_*``: the extreme detections
+    along a seen face mark its ends, from all detections of the frame, ends next to the FOV's
+    edge excluded; selection re-done per linearization) to each measurement factor. Without
+    them the normal-offset rows leave the length free and the smoothed contour shrinks."""
     radar_noise: bool = True
     """Per-row measurement noise as in the tracker: range / azimuth noise along the row's
     normal and the GP interpolation variance on top of ``tracking.sigma_contour``."""
-    max_iterations: int = 30
+    max_iterations: int = 10
     """Batch: Levenberg-Marquardt iteration limit per track."""
-    relative_tolerance: float = 1e-4
+    relative_tolerance: float = 1e-3
     """Batch: stop when the relative decrease of the error is below this."""
     marginals: bool = False
     """Batch: compute each state's marginal covariance (gtsam.Marginals) into the output
     tracks; otherwise the smoothed tracks carry no covariances."""
-    relinearize_threshold: float = 0.1
+    relinearize_threshold: float = 0.3
     """Fixed-lag (ISAM2): relinearize a variable whose update exceeds this."""
-    relinearize_skip: int = 10
+    relinearize_skip: int = 3
     """Fixed-lag (ISAM2): check for relinearization every this many updates."""
 
     def __post_init__(self) -> None:

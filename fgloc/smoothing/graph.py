@@ -18,7 +18,8 @@ track and step, key :func:`factors.gtsam_factors.track_key` ``(track.id, step)``
 Usage::
 
     det_xy, sensor_xy = placed_detections(scn, T_placement)     # all radar rows in C
-    tg = build_track_graph(tracks, det_xy, sensor_xy, smoothing_cfg, tracking_cfg)
+    trusted = extent_trusted(scn, T_placement, det_xy, tracking_cfg)   # optional
+    tg = build_track_graph(tracks, det_xy, sensor_xy, smoothing_cfg, tracking_cfg, trusted)
     result = gtsam.LevenbergMarquardtOptimizer(tg.graph, tg.values, params).optimize()
     smoothed = tracks_from_values(tracks, result, tg.keys, tracking_cfg)
 
@@ -34,8 +35,11 @@ from dataclasses import dataclass
 import gtsam
 import numpy as np
 
+from factors.ctra import ctra_predict
 from factors.gp import ContourGP, rectangle_radius_gradient
 from factors.gtsam_factors import (
+    ConditionalTable,
+    ExtentSettings,
     contour_measurement_factor,
     prior_factor,
     process_factor,
@@ -43,6 +47,7 @@ from factors.gtsam_factors import (
 )
 from fgloc.scenario import Scenario
 from fgloc.smoothing.config import SmoothingConfig
+from fgloc.tracking.birth import FieldOfView
 from fgloc.tracking.config import TrackingConfig
 from fgloc.tracking.tracker import kappa_labels
 from fgloc.tracks import N_KIN, N_STATE, YAWRATE, A, Track, TrackSet, V, contour_angles
@@ -67,6 +72,19 @@ def placed_detections(scn: Scenario, T_placement: np.ndarray) -> tuple[np.ndarra
     return xy, T[:2, 3].copy()
 
 
+def extent_trusted(scn: Scenario, T_placement: np.ndarray, det_xy: np.ndarray,
+                   tracking: TrackingConfig | None = None) -> np.ndarray:
+    """(N,) bool: detections (N, 2) in C that may mark a vehicle's end in an extent row: more
+    than ``tracking.extent_edge_margin`` (m) inside the field of view (``scn.sensor`` hfov,
+    max range, vfov seen from ``T_placement``) and beyond the near blind range by as much
+    (the tracker's rule: at the FOV's edge the view of a face may be cut)."""
+    c = tracking or TrackingConfig()
+    fov = FieldOfView.of(np.asarray(T_placement, dtype=float), scn.sensor.hfov_deg,
+                         scn.sensor.max_range, scn.sensor.vfov_deg, c.reflection_height)
+    far = np.linalg.norm(det_xy - fov.sensor, axis=1) > fov.min_range + c.extent_edge_margin
+    return (fov.outside_distance(det_xy) < -c.extent_edge_margin) & far
+
+
 def regular_subsample(n: int, m: int) -> np.ndarray:
     """Indices of at most ``m`` regularly spaced items of ``n`` (all when ``m`` is 0 or >= n)."""
     if m <= 0 or n <= m:
@@ -82,14 +100,21 @@ class TrackModel:
     smoothing: SmoothingConfig
     gp: ContourGP
     contour_rw: np.ndarray
+    table: ConditionalTable
+    extent: ExtentSettings | None
 
     @staticmethod
     def of(tracking: TrackingConfig | None = None,
            smoothing: SmoothingConfig | None = None) -> TrackModel:
         tcfg = tracking or TrackingConfig()
         gl, gw = rectangle_radius_gradient(contour_angles(), tcfg.mean_length, tcfg.mean_width)
-        rw = tcfg.sigma_length_rw**2 * np.outer(gl, gl) + tcfg.sigma_width_rw**2 * np.outer(gw, gw)
-        return TrackModel(tcfg, smoothing or SmoothingConfig(), contour_gp(tcfg), rw)
+        scfg = smoothing or SmoothingConfig()
+        rw = scfg.size_walk_scale * (tcfg.sigma_length_rw**2 * np.outer(gl, gl)
+                                     + tcfg.sigma_width_rw**2 * np.outer(gw, gw))
+        gp = contour_gp(tcfg)
+        ext = (ExtentSettings(tcfg.sigma_extent, tcfg.extent_min_points, tcfg.extent_min_cover,
+                              tcfg.extent_min_incidence) if scfg.extent_rows else None)
+        return TrackModel(tcfg, scfg, gp, rw, ConditionalTable(gp), ext)
 
     def process(self, key0: int, key1: int, dt: float, x_ref: np.ndarray) -> gtsam.CustomFactor:
         """Process factor between ``key0`` and ``key1``, ``dt`` s apart, noise at ``x_ref``."""
@@ -97,16 +122,26 @@ class TrackModel:
         return process_factor(key0, key1, dt, self.gp, c.tau, c.sigma_jerk, c.sigma_yaw_acc,
                               c.sigma_pos, x_ref=x_ref, contour_rw=self.contour_rw)
 
-    def measurement(self, key: int, z: np.ndarray, sensor_xy: np.ndarray
-                    ) -> gtsam.CustomFactor:
-        """Contour factor of detections ``z`` (m, 2) (subsampled to ``max_detections``)."""
+    def predict(self, x: np.ndarray, dt: float) -> np.ndarray:
+        """State (26,) after ``dt`` s of the process model's mean motion from ``x`` (26,)."""
+        out = ctra_predict(np.asarray(x, dtype=float), dt)
+        out[N_KIN:], _ = self.gp.decay(out[N_KIN:], self.tracking.tau, dt)
+        return out
+
+    def measurement(self, key: int, z: np.ndarray, sensor_xy: np.ndarray,
+                    trusted: np.ndarray | None = None) -> gtsam.CustomFactor:
+        """Contour factor of detections ``z`` (m, 2): normal rows of a regular subsample of
+        ``max_detections``, extent rows (``extent_rows``) from all of them, ends only at the
+        ``trusted`` (m,) ones (all when None; :func:`extent_trusted`)."""
         c, s = self.tracking, self.smoothing
-        z = np.asarray(z, dtype=float)
-        z = z[regular_subsample(len(z), s.max_detections)]
+        z_all = np.asarray(z, dtype=float)
+        z = z_all[regular_subsample(len(z_all), s.max_detections)]
         noise = (c.sigma_range, np.deg2rad(c.sigma_azimuth_deg)) if s.radar_noise else (0, 0)
         return contour_measurement_factor(key, z, sensor_xy, self.gp, c.sigma_contour,
                                           s.huber_k, c.n_candidates, *noise,
-                                          gp_variance=s.radar_noise)
+                                          gp_variance=s.radar_noise, table=self.table,
+                                          extent=self.extent, extent_detections=z_all,
+                                          extent_trusted=trusted)
 
     def initial_covariance(self) -> np.ndarray:
         """(26, 26) P0 of a new track from the ``[tracking]`` init sigmas and the GP kernel."""
@@ -150,14 +185,17 @@ class TrackGraph:
 
 def build_track_graph(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                       smoothing: SmoothingConfig | None = None,
-                      tracking: TrackingConfig | None = None) -> TrackGraph:
+                      tracking: TrackingConfig | None = None,
+                      det_trusted: np.ndarray | None = None) -> TrackGraph:
     """Prior, process and measurement factors of every track step, initialised from the
     filter's states (module docstring).
 
     tracks: in any 2D frame (normally C), each with ``det_index`` into ``det_xy``.
     det_xy (N, 2): all radar rows in the same frame (:func:`placed_detections`).
     sensor_xy (2,): the sensor position in that frame. smoothing / tracking: configs
-    (defaults when None). Raises ``ValueError`` on a wrong shape or a track id beyond
+    (defaults when None). det_trusted (N,) bool: detections that may mark an end in the
+    extent rows (``smoothing.extent_rows``; :func:`extent_trusted`; None = all). Raises
+    ``ValueError`` on a wrong shape or a track id beyond
     ``factors.gtsam_factors.MAX_TRACK_ID``.
     """
     det_xy = np.asarray(det_xy, dtype=float)
@@ -184,7 +222,8 @@ def build_track_graph(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarra
                 graph.add(model.process(int(k[s - 1]), int(k[s]), float(tr.t[s] - tr.t[s - 1]),
                                         tr.states[s - 1]))
             if len(idx):
-                graph.add(model.measurement(int(k[s]), det_xy[idx], sensor_xy))
+                graph.add(model.measurement(int(k[s]), det_xy[idx], sensor_xy,
+                                            None if det_trusted is None else det_trusted[idx]))
     return TrackGraph(graph, values, keys, model)
 
 

@@ -1,0 +1,80 @@
+"""Tests of the smoothers: the fixed-lag smoother's bounded memory over a long sequence and
+its accuracy, and the batch smoother against the filter on a simulated car (known truth)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from test_smoothing_graph import DT, make_track
+
+from fgloc.config import Config
+from fgloc.evaluate_tracking import evaluate_tracks
+from fgloc.pipeline import track
+from fgloc.sim import SimConfig, simulate
+from fgloc.smoothing import SmoothingConfig
+from fgloc.smoothing.fixed_lag import smooth_fixed_lag
+from fgloc.smoothing.run import smooth_tracks
+from fgloc.tracks import YAW, TrackSet
+
+
+def centre_and_yaw_error(states: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
+    rms = float(np.sqrt(np.mean(np.sum((states[:, :2] - truth[:, :2]) ** 2, axis=1))))
+    return rms, float(np.mean(np.abs(states[:, YAW] - truth[:, YAW])))
+
+
+def test_fixed_lag_long_sequence_bounded_factor_slots() -> None:
+    rng = np.random.default_rng(4)
+    n = 500                                                    # 25 s at 20 Hz
+    tr, det, sensor, truth = make_track(rng, n=n)
+    lag = 1.0
+    out = smooth_fixed_lag(TrackSet([tr]), det, sensor, SmoothingConfig(lag=lag))
+    window = int(lag / DT) + 1
+    d = out.diagnostics
+    # one variable per step in the window, two factors per step (+ marginals): without
+    # reused slots the smoother would hold ~2 n = 1000 of them
+    assert d["window_variables_max"] <= window + 2
+    assert d["factor_slots_max"] < 4 * window, d
+    (r0, y0), (r1, y1) = (centre_and_yaw_error(s, truth)
+                          for s in (tr.states, out.tracks[0].states))
+    assert r1 < 0.6 * r0 and y1 < 0.6 * y0, (r0, r1, y0, y1)
+
+
+# one passenger car per scenario (class mix: cars only). Measured on other seeds
+# (docs/benchmarks.md): the batch smoother lowers the yaw error on every one, but its centre
+# RMS is worse on some (a contour too long or short where no side is seen at enough incidence
+# to measure the length), so these are cases where it wins, not a claim that it always does.
+CASES = [("intersection", 6)]
+SLOW_CASES = [("curve", 3)]
+
+
+def one_car(case: str, seed: int) -> None:
+    sim = SimConfig()
+    sim.traffic = dataclasses.replace(sim.traffic, class_mix=(1.0, 0.0, 0.0))
+    scn = simulate(case, seed, duration=15.0, vehicles=1, config=sim)
+    cfg = Config()
+    run = track(scn, cfg, oracle_pose=True)
+    assert len(run.tracks) >= 1
+    smoothed = smooth_tracks(scn, run.tracks, run.T_placement, "batch", cfg)
+    pose = scn.truth.sensor_pose
+    m0, m1 = (evaluate_tracks(ts, scn.truth, sensor_pose=pose, hfov_deg=scn.sensor.hfov_deg,
+                              max_range=scn.sensor.max_range)
+              for ts in (run.tracks, smoothed))
+    print(f"{case} {seed}: RMS {m0.centre_rms:.3f} -> {m1.centre_rms:.3f} m, yaw "
+          f"{m0.yaw_error_deg:.2f} -> {m1.yaw_error_deg:.2f} deg, IoU {m0.iou:.3f} -> "
+          f"{m1.iou:.3f}")
+    assert m1.n_states == m0.n_states > 20
+    assert m1.centre_rms < m0.centre_rms and m1.yaw_error_deg < m0.yaw_error_deg
+    assert m1.iou > m0.iou
+
+
+@pytest.mark.parametrize(("case", "seed"), CASES)
+def test_batch_beats_the_filter_on_a_simulated_car(case: str, seed: int) -> None:
+    one_car(case, seed)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(("case", "seed"), SLOW_CASES)
+def test_batch_beats_the_filter_on_more_cars(case: str, seed: int) -> None:
+    one_car(case, seed)
