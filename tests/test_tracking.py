@@ -296,8 +296,8 @@ def test_simulated_intersection_regression_guard() -> None:
     This guards the current level; the issue-4 acceptance bar (centre RMS <= 0.49 m per-track
     mean, yaw <= 3.8 deg, IoU >= 0.59, >= 60 % tracked on >= 50 vehicles) is checked by
     bench/tracking_speed.py on the full runs. Values at the time of writing: sensor-aware share
-    0.92, per-track RMS 0.41 m (pooled 0.66 m), yaw 1.8 deg, IoU 0.82, no false track; plain
-    per-track RMS 0.73 m, IoU 0.65, 2 false tracks.
+    0.92, per-track RMS 0.30 m (pooled 0.31 m), yaw 0.84 deg, IoU 0.83, no false track; plain
+    per-track RMS 0.70 m (pooled 0.80 m), IoU 0.62, 3 false tracks.
     """
     from fgloc.evaluate_tracking import evaluate_tracks
     from fgloc.sim import simulate
@@ -312,8 +312,9 @@ def test_simulated_intersection_regression_guard() -> None:
                                          max_range=scn.sensor.max_range)
     m = metrics["sensor-aware"]
     assert m.tracked_share >= 0.9
-    assert m.centre_rms_track_mean < 0.5
-    assert m.yaw_error_deg < 2.2
+    assert m.centre_rms_track_mean < 0.4
+    assert m.centre_rms < 0.45
+    assert m.yaw_error_deg < 1.5
     assert m.iou >= 0.78
     assert m.false_tracks <= 1
     assert m.iou > metrics["plain"].iou + 0.1
