@@ -28,14 +28,12 @@ def _moments(w: np.ndarray, dt: float | np.ndarray, kmax: int) -> list[np.ndarra
     small = np.abs(w * T) < SERIES_SWITCH
     # series: I_k = T^{k+1} sum_j (i w T)^j / (j! (j + k + 1))
     z = 1j * np.where(small, w, 0.0) * T
-    series = []
-    for k in range(kmax + 1):
-        term = np.ones_like(z)
-        acc = term / (k + 1)
-        for j in range(1, SERIES_TERMS):
-            term = term * z / j
-            acc = acc + term / (j + k + 1)
-        series.append(acc * T ** (k + 1))
+    term = np.ones_like(z)                      # (i w T)^j / j!, shared by every k
+    acc = [term / (k + 1) for k in range(kmax + 1)]
+    for j in range(1, SERIES_TERMS):
+        term = term * z / j
+        acc = [a + term / (j + k + 1) for k, a in enumerate(acc)]
+    series = [a * T ** (k + 1) for k, a in enumerate(acc)]
     # closed form on the large-|w dt| part
     wl = np.where(small, 1.0, w)
     e = np.exp(1j * wl * T)

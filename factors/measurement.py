@@ -39,7 +39,11 @@ from scipy.optimize import linear_sum_assignment
 
 def unit(a: np.ndarray) -> np.ndarray:
     """``(..., 2)`` unit vectors ``[cos a, sin a]``."""
-    return np.stack([np.cos(a), np.sin(a)], axis=-1)
+    a = np.asarray(a)
+    out = np.empty((*a.shape, 2), dtype=np.result_type(a, float))
+    np.cos(a, out=out[..., 0])
+    np.sin(a, out=out[..., 1])
+    return out
 
 
 def contour_point(centre: np.ndarray, yaw: np.ndarray, radius: np.ndarray,
@@ -171,17 +175,25 @@ def closest_on_chain(z: np.ndarray, points: np.ndarray, theta: np.ndarray,
     vis = np.asarray(visible, dtype=bool)
     chain = vis & np.roll(vis, -1, axis=-1)
     chain = chain | ~chain.any(axis=-1, keepdims=True)
-    e = np.roll(p, -1, axis=-2) - p                                 # (..., m, 2)
-    ee = np.maximum(np.sum(e * e, axis=-1), 1e-12)                  # (..., m)
-    d = z[..., :, None, :] - p[..., None, :, :]                     # (..., k, m, 2)
-    u = np.clip(np.sum(d * e[..., None, :, :], axis=-1) / ee[..., None, :], 0.0, 1.0)
-    r = d - u[..., None] * e[..., None, :, :]
-    dist = np.where(chain[..., None, :], np.sum(r * r, axis=-1), np.inf)
+    # x / y components apart (no reductions over the length-2 axis: same values, faster)
+    px, py = p[..., 0], p[..., 1]
+    ex, ey = np.roll(px, -1, axis=-1) - px, np.roll(py, -1, axis=-1) - py   # (..., m) edges
+    ee = np.maximum(ex * ex + ey * ey, 1e-12)                       # (..., m)
+    ex_, ey_ = ex[..., None, :], ey[..., None, :]
+    dx = z[..., :, None, 0] - px[..., None, :]                      # (..., k, m)
+    dy = z[..., :, None, 1] - py[..., None, :]
+    u = (dx * ex_ + dy * ey_) / ee[..., None, :]
+    np.clip(u, 0.0, 1.0, out=u)
+    dx -= u * ex_
+    dy -= u * ey_
+    dist = dx * dx + dy * dy
+    dist[~np.broadcast_to(chain[..., None, :], dist.shape)] = np.inf
     best = np.argmin(dist, axis=-1)                                 # (..., k)
     out = theta[best] + np.take_along_axis(u, best[..., None], axis=-1)[..., 0] * step
-    eb = np.take_along_axis(e, best[..., None], axis=-2)            # (..., k, 2)
     nb = np.sqrt(np.take_along_axis(ee, best, axis=-1))
-    normal = np.stack([eb[..., 1], -eb[..., 0]], axis=-1) / nb[..., None]
+    normal = np.empty((*best.shape, 2))
+    normal[..., 0] = np.take_along_axis(ey, best, axis=-1) / nb
+    normal[..., 1] = -np.take_along_axis(ex, best, axis=-1) / nb
     return out, normal
 
 

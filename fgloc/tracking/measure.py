@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from factors.gp import ContourGP
-from factors.measurement import contour_point, plain_angles, range_rate, unit
+from factors.measurement import contour_point, plain_angles, range_rate
 from fgloc.tracks import N_KIN, YAW, YAWRATE, V, X, Y
 
 
@@ -97,14 +97,21 @@ def predict_measurements(X_sig: np.ndarray, det: DetectionBatch, table: ContourT
         r = table.radius(f[..., None, :], theta)[..., 0, :]
         parts = [contour_point(centre, yaw, r, theta)]
     else:
+        # n . contour_point, by components (the (..., 2) stack and sum cost more than this)
         r = table.radius(f, det.theta)                                # (T, S, M)
-        p = contour_point(centre, yaw, r, det.theta[:, None, :])      # (T, S, M, 2)
-        parts = [np.sum(det.normal[:, None] * p, axis=-1)[..., None]]
+        a = det.theta[:, None, :] + yaw[..., None]
+        px = X_sig[..., X, None] + np.cos(a) * r
+        py = X_sig[..., Y, None] + np.sin(a) * r
+        parts = [det.normal[:, None, :, 0] * px + det.normal[:, None, :, 1] * py]
     if use_doppler:
         d = range_rate(z, det.rng[:, None, :], centre, X_sig[..., V], yaw, X_sig[..., YAWRATE],
                        sensor)
-        parts.append((d * det.doppler_mask()[:, None, :])[..., None])
-    Z = np.concatenate(parts, axis=-1) * det.valid[:, None, :, None]
+        parts.append(d * det.doppler_mask()[:, None, :])
+    if det.theta is None:
+        Z = np.concatenate(parts[:1] + [p[..., None] for p in parts[1:]], axis=-1)
+    else:
+        Z = np.stack(parts, axis=-1)
+    Z *= det.valid[:, None, :, None]
     return Z.reshape(*Z.shape[:2], -1)
 
 
@@ -119,28 +126,38 @@ def measurement_vector(det: DetectionBatch, use_doppler: bool) -> np.ndarray:
 def measurement_noise(det: DetectionBatch, x: np.ndarray, table: ContourTable,
                       sensor: np.ndarray, sigma_range: float, sigma_azimuth: float,
                       sigma_contour: float, sigma_doppler: float | None) -> np.ndarray:
-    """Block-diagonal noise (T, M k, M k): radar range/azimuth noise at each detection, contour
-    scatter sigma_contour (isotropic), the GP interpolation variance along the contour ray
-    (at the mean state x (T, n)); the sensor-aware rows take the variance of all that along
-    their normal plus extra_var. sigma_doppler^2 when given (Doppler rows). Identity on
-    padding and on unused Doppler rows."""
+    """Diagonal blocks (T, M, k, k) of the block-diagonal noise (T, M k, M k): radar
+    range/azimuth noise at each detection, contour scatter sigma_contour (isotropic), the GP
+    interpolation variance along the contour ray (at the mean state x (T, n)); the
+    sensor-aware rows take the variance of all that along their normal plus extra_var.
+    sigma_doppler^2 when given (Doppler rows). Identity on padding and on unused Doppler
+    rows."""
     T, M = det.valid.shape
-    los = det.z - sensor
-    r2d = np.maximum(np.linalg.norm(los, axis=-1), 1e-6)
-    er = los / r2d[..., None]
-    et = np.stack([-er[..., 1], er[..., 0]], axis=-1)
+    lx, ly = det.z[..., 0] - sensor[0], det.z[..., 1] - sensor[1]
+    r2d = np.maximum(np.sqrt(lx * lx + ly * ly), 1e-6)
+    erx, ery = lx / r2d, ly / r2d                      # line of sight; et = (-ery, erx)
     theta = det.theta if det.theta is not None else plain_angles(det.z, x[:, [X, Y]], x[:, YAW])
     _, _, var_f = table.interp(theta)
-    u = unit(theta + x[:, YAW, None])
-    Rp = (sigma_range**2 * er[..., :, None] * er[..., None, :]
-          + (sigma_azimuth * r2d)[..., None, None] ** 2 * et[..., :, None] * et[..., None, :]
-          + var_f[..., None, None] * u[..., :, None] * u[..., None, :]
-          + sigma_contour**2 * np.eye(2))
+    a = theta + x[:, YAW, None]
+    ux, uy = np.cos(a), np.sin(a)
+    s_az2 = (sigma_azimuth * r2d) ** 2
     if det.normal is not None:
-        n = det.normal
-        Rp = np.einsum("tmi,tmij,tmj->tm", n, Rp, n)[..., None, None]
+        # n^T Rp n of the 2x2 position noise below, by components
+        nx, ny = det.normal[..., 0], det.normal[..., 1]
+        n_er, n_et, n_u = nx * erx + ny * ery, ny * erx - nx * ery, nx * ux + ny * uy
+        Rp = (sigma_range**2 * n_er * n_er + s_az2 * n_et * n_et + var_f * n_u * n_u
+              + sigma_contour**2 * (nx * nx + ny * ny))
         if det.extra_var is not None:
-            Rp = Rp + det.extra_var[..., None, None]
+            Rp = Rp + det.extra_var
+        Rp = Rp[..., None, None]
+    else:
+        er = np.stack([erx, ery], axis=-1)
+        et = np.stack([-ery, erx], axis=-1)
+        u = np.stack([ux, uy], axis=-1)
+        Rp = (sigma_range**2 * er[..., :, None] * er[..., None, :]
+              + s_az2[..., None, None] * et[..., :, None] * et[..., None, :]
+              + var_f[..., None, None] * u[..., :, None] * u[..., None, :]
+              + sigma_contour**2 * np.eye(2))
     kp = Rp.shape[-1]
     k = kp if sigma_doppler is None else kp + 1
     blocks = np.zeros((T, M, k, k))
@@ -148,7 +165,4 @@ def measurement_noise(det: DetectionBatch, x: np.ndarray, table: ContourTable,
     if sigma_doppler is not None:
         blocks[..., kp, kp] = np.where(det.doppler_mask(), sigma_doppler**2, 1.0)
     blocks[~det.valid] = np.eye(k)
-    R = np.zeros((T, M, k, M, k))
-    idx = np.arange(M)
-    R[:, idx, :, idx, :] = np.moveaxis(blocks, 0, 1)
-    return R.reshape(T, M * k, M * k)
+    return blocks

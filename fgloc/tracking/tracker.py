@@ -149,6 +149,8 @@ class Tracker:
         if cfg.n_candidates % 4:
             raise ValueError("n_candidates must be a multiple of 4 (samples on the axes)")
         self.axis_idx = np.arange(4) * (cfg.n_candidates // 4)
+        #: GP conditional at the axis angles 0, pi/2, pi, 3 pi/2 (front, left, rear, right)
+        self.axis_H, self.axis_mean, _ = self.table.interp(np.arange(4) * (np.pi / 2))
         self.x = np.zeros((0, N_STATE))
         self.P = np.zeros((0, N_STATE, N_STATE))
         self.recs: list[_Record] = []
@@ -204,10 +206,11 @@ class Tracker:
     def _local(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Points p (D, 2) in every track's vehicle frame: longitudinal, lateral offsets (T, D)
         (m) and the radial excess (T, D) (m) outside the predicted contour (< 0 inside)."""
-        d = p[None, :, :] - self.x[:, None, [X, Y]]
+        dx = p[None, :, 0] - self.x[:, X, None]
+        dy = p[None, :, 1] - self.x[:, Y, None]
         c, s = np.cos(self.x[:, YAW, None]), np.sin(self.x[:, YAW, None])
-        lo = c * d[..., 0] + s * d[..., 1]
-        la = -s * d[..., 0] + c * d[..., 1]
+        lo = c * dx + s * dy
+        la = -s * dx + c * dy
         dist = np.hypot(lo, la)
         # the contour only where it matters: far from a track (beyond its largest basis
         # radius + the widest gate) the excess is bounded below by dist - max radius
@@ -227,7 +230,7 @@ class Tracker:
         the radial excess (T, D) (m) outside the contour (< 0 inside) and the longitudinal
         offset (T, D) (m) from the centre."""
         lo, la, ex = self._local(p)
-        axes = self.table.radius(self.x[:, N_KIN:], np.arange(4) * (np.pi / 2))
+        axes = self.axis_mean + (self.x[:, N_KIN:] - self.gp.mu) @ self.axis_H.T
         out_long = np.maximum(np.maximum(lo - axes[:, :1], -axes[:, 2:3] - lo), 0.0)
         out_lat = np.maximum(np.maximum(la - axes[:, 1:2], -axes[:, 3:4] - la), 0.0)
         return out_long, out_lat, ex, lo

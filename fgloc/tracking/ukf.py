@@ -86,15 +86,22 @@ def predict(X: np.ndarray, Q: np.ndarray, w: UnscentedWeights) -> tuple[np.ndarr
 def update(x: np.ndarray, P: np.ndarray, X: np.ndarray, Z: np.ndarray, z: np.ndarray,
            R: np.ndarray, w: UnscentedWeights) -> tuple[np.ndarray, np.ndarray]:
     """UKF update of (T, n) means / (T, n, n) covariances with sigma points X (T, S, n) drawn
-    from them, their predicted measurements Z (T, S, m), measurements z (T, m) and noise R
-    (T, m, m). Padded measurement rows must have Z = z = 0 and R = identity there."""
+    from them, their predicted measurements Z (T, S, m), measurements z (T, m) and noise R:
+    (T, m, m), or its diagonal blocks (T, M, k, k) with m = M k (zero elsewhere). Padded
+    measurement rows must have Z = z = 0 and R = identity there."""
     _, dx = state_mean(X, w)
     zhat = w.wm @ Z
     dz = Z - zhat[:, None, :]
-    S = covariance(dz, dz, w) + R
+    S = covariance(dz, dz, w)
+    if R.ndim == 4:
+        T, M, k, _ = R.shape
+        idx = np.arange(M)
+        S.reshape(T, M, k, M, k)[:, idx, :, idx, :] += np.moveaxis(R, 0, 1)
+    else:
+        S += R
     Pxz = covariance(dx, dz, w)
     K = np.swapaxes(np.linalg.solve(S, np.swapaxes(Pxz, -1, -2)), -1, -2)   # Pxz S^-1
     x_new = x + (K @ (z - zhat)[..., None])[..., 0]
     x_new[:, YAW] = wrap_angle(x_new[:, YAW])
-    P_new = P - K @ S @ np.swapaxes(K, -1, -2)
+    P_new = P - K @ np.swapaxes(Pxz, -1, -2)                       # K S K^T = K Pxz^T
     return x_new, 0.5 * (P_new + np.swapaxes(P_new, -1, -2))
