@@ -8,6 +8,8 @@ from dataclasses import dataclass
 STARTS: tuple[str, ...] = ("sicp", "coarse")
 #: Where a contour point should lie beside its target line (:mod:`fgloc.registration.joint`).
 LATERAL_MODELS: tuple[str, ...] = ("contour", "visible-side")
+#: Nonlinear optimizers of one round.
+OPTIMIZERS: tuple[str, ...] = ("gauss-newton", "levenberg-marquardt")
 
 
 @dataclass
@@ -78,8 +80,13 @@ class JointConfig:
     """Standard deviation (deg) of that prior's yaw."""
     max_rounds: int = 8
     """At most this many re-association + optimization rounds."""
-    lm_iterations: int = 6
-    """Levenberg-Marquardt iterations per round."""
+    optimizer: str = "gauss-newton"
+    """Optimizer of a round: "gauss-newton" (one linearization and one error evaluation per
+    iteration; the pose and offset priors keep every system well posed) or
+    "levenberg-marquardt" (damped; evaluates the Python factors again for every rejected
+    step)."""
+    iterations: int = 4
+    """Optimizer iterations per round."""
     tol_position: float = 0.002
     """Stop when a round moves the pose by less than this (m) ..."""
     tol_yaw_deg: float = 0.002
@@ -117,7 +124,8 @@ def check_joint_config(cfg: JointConfig) -> None:
         "pose_prior_sigma": not cfg.pose_prior_sigma > 0.0,
         "pose_prior_sigma_yaw_deg": not cfg.pose_prior_sigma_yaw_deg > 0.0,
         "max_rounds": cfg.max_rounds < 1,
-        "lm_iterations": cfg.lm_iterations < 1,
+        "optimizer": cfg.optimizer not in OPTIMIZERS,
+        "iterations": cfg.iterations < 1,
         "tol_position": cfg.tol_position < 0.0,
         "tol_yaw_deg": cfg.tol_yaw_deg < 0.0,
         "weak_sigma": not cfg.weak_sigma > 0.0,
