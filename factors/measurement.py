@@ -80,13 +80,12 @@ def range_rate(z: np.ndarray, rng: np.ndarray, centre: np.ndarray, v: np.ndarray
     """Doppler (m/s, positive away from the sensor) of detections at z (..., m, 2) with 3D
     ranges rng (..., m) on a rigid body with centre (..., 2), speed v, heading yaw and yaw rate
     (...): ``(v u(yaw) + yawrate e_z x (z - c)) . (z - s) / rng``. Shape (..., m)."""
-    z = np.asarray(z)
-    arm = z - np.asarray(centre)[..., None, :]
-    los = z - np.asarray(sensor)
+    z, centre, sensor = np.asarray(z), np.asarray(centre), np.asarray(sensor)
+    zx, zy = z[..., 0], z[..., 1]
     w = np.asarray(yawrate)[..., None]
-    vx = (np.asarray(v) * np.cos(yaw))[..., None] - w * arm[..., 1]
-    vy = (np.asarray(v) * np.sin(yaw))[..., None] + w * arm[..., 0]
-    return (vx * los[..., 0] + vy * los[..., 1]) / rng
+    vx = (np.asarray(v) * np.cos(yaw))[..., None] - w * (zy - centre[..., None, 1])
+    vy = (np.asarray(v) * np.sin(yaw))[..., None] + w * (zx - centre[..., None, 0])
+    return (vx * (zx - sensor[..., 0]) + vy * (zy - sensor[..., 1])) / rng
 
 
 def contour_candidates(points: np.ndarray, sensor: np.ndarray) -> np.ndarray:
@@ -96,22 +95,27 @@ def contour_candidates(points: np.ndarray, sensor: np.ndarray) -> np.ndarray:
     the point. (Field-of-view limits are the caller's: AND this with them.)"""
     p = np.asarray(points, dtype=float)
     s = np.asarray(sensor, dtype=float)
-    nxt = np.roll(p, -1, axis=-2)
-    tangent = nxt - np.roll(p, 1, axis=-2)
-    facing = (tangent[..., 1] * (s[0] - p[..., 0]) - tangent[..., 0] * (s[1] - p[..., 1])) > 0
-    # self-occlusion: segment s -> p_i against edges (p_j, p_j+1) not adjacent to i
-    e = nxt - p                                                     # (..., m, 2) edges
-    d = p - s                                                       # (..., m, 2) sight lines
-    den = d[..., :, None, 0] * e[..., None, :, 1] - d[..., :, None, 1] * e[..., None, :, 0]
-    ac0, ac1 = d[..., None, :, 0], d[..., None, :, 1]               # edge starts minus s
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (ac0 * e[..., None, :, 1] - ac1 * e[..., None, :, 0]) / den
-        w = (ac0 * d[..., :, None, 1] - ac1 * d[..., :, None, 0]) / den
     m = p.shape[-2]
-    idx = np.arange(m)
-    adjacent = (idx[None, :] == idx[:, None]) | (idx[None, :] == (idx[:, None] - 1) % m)
+    px, py = p[..., 0].reshape(-1, m), p[..., 1].reshape(-1, m)     # (B, m) batch flattened
+    nx, ny = np.roll(px, -1, axis=-1), np.roll(py, -1, axis=-1)
+    tx, ty = nx - np.roll(px, 1, axis=-1), ny - np.roll(py, 1, axis=-1)
+    facing = (ty * (s[0] - px) - tx * (s[1] - py)) > 0
+    # self-occlusion (only of the facing points): segment s -> p_i against the edges
+    # (p_j, p_j+1) not adjacent to i
+    b, i = np.nonzero(facing)
+    ex, ey = (nx - px)[b], (ny - py)[b]                            # (F, m) edges
+    ax, ay = (px - s[0])[b], (py - s[1])[b]                        # (F, m) edge starts - s
+    dx, dy = ax[np.arange(len(i)), i, None], ay[np.arange(len(i)), i, None]   # sight lines
+    den = dx * ey - dy * ex
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (ax * ey - ay * ex) / den
+        w = (ax * dy - ay * dx) / den
+    j = np.arange(m)
+    adjacent = (j[None, :] == i[:, None]) | (j[None, :] == ((i - 1) % m)[:, None])
     hit = (t > 0) & (t < 1 - 1e-9) & (w >= 0) & (w <= 1) & ~adjacent
-    return facing & ~hit.any(axis=-1)
+    occluded = hit.any(axis=-1)
+    facing[b[occluded], i[occluded]] = False
+    return facing.reshape(p.shape[:-1])
 
 
 def associate_candidates(z: np.ndarray, candidates: np.ndarray, capacity: int) -> np.ndarray:

@@ -52,15 +52,25 @@ class FieldOfView:
 
     def outside_distance(self, p: np.ndarray) -> np.ndarray:
         """(n,) how far (m, about) the points (n, 2) are outside the sector (<= 0 inside)."""
+        return self._outside_range(p)[0]
+
+    def _outside_range(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`outside_distance` and the range (n,) (m) from the sensor."""
         d = np.asarray(p) - self.sensor
-        r = np.linalg.norm(d, axis=-1)
+        r = np.sqrt(d[..., 0] * d[..., 0] + d[..., 1] * d[..., 1])
         off = np.abs(wrap_angle(np.arctan2(d[..., 1], d[..., 0]) - self.boresight))
         lateral = r * np.sin(np.clip(off - self.half_angle, 0.0, np.pi / 2))
         return np.maximum(np.where(off > self.half_angle, lateral, -np.inf),
-                          r - self.max_range)
+                          r - self.max_range), r
 
     def contains(self, p: np.ndarray) -> np.ndarray:
         return self.outside_distance(p) <= 0.0
+
+    def seen(self, p: np.ndarray) -> np.ndarray:
+        """(n,) points (n, 2) inside the sector and beyond the blind range (the same as
+        ``contains(p) & ~blind(p)``, one pass)."""
+        out, r = self._outside_range(p)
+        return (out <= 0.0) & (r >= self.min_range)
 
 
 @dataclass(frozen=True)

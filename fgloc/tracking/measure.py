@@ -15,6 +15,7 @@ import numpy as np
 
 from factors.gp import ContourGP
 from factors.measurement import contour_point, plain_angles, range_rate
+from fgloc.tracking.ukf import distinct_rows
 from fgloc.tracks import N_KIN, YAW, YAWRATE, V, X, Y
 
 
@@ -42,15 +43,26 @@ class ContourTable:
     def interp(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """H (..., n), prior mean (...) and conditional variance (...) at angles theta (...)."""
         i, fr = self._locate(np.asarray(theta, dtype=float))
+        H, mean = self._hm(i, fr)
+        return H, mean, self.var[i] * (1.0 - fr) + self.var[i + 1] * fr
+
+    def _hm(self, i: np.ndarray, fr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         H = self.H[i] * (1.0 - fr[..., None]) + self.H[i + 1] * fr[..., None]
-        mean = self.mean[i] * (1.0 - fr) + self.mean[i + 1] * fr
-        var = self.var[i] * (1.0 - fr) + self.var[i + 1] * fr
-        return H, mean, var
+        return H, self.mean[i] * (1.0 - fr) + self.mean[i + 1] * fr
+
+    def interp_mean(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """H (..., n) and prior mean (...) of :meth:`interp` (without the variance)."""
+        return self._hm(*self._locate(np.asarray(theta, dtype=float)))
+
+    def variance(self, theta: np.ndarray) -> np.ndarray:
+        """Conditional variance (...) of :meth:`interp`."""
+        i, fr = self._locate(np.asarray(theta, dtype=float))
+        return self.var[i] * (1.0 - fr) + self.var[i + 1] * fr
 
     def radius(self, f: np.ndarray, theta: np.ndarray) -> np.ndarray:
         """Conditional-mean radius (m) for basis radii f (..., S, n) at angles theta
         (..., m) shared by the S rows of f (e.g. sigma points): shape (..., S, m)."""
-        H, mean, _ = self.interp(theta)
+        H, mean = self.interp_mean(theta)
         return mean[..., None, :] + (f - self.gp.mu) @ np.swapaxes(H, -1, -2)
 
 
@@ -92,6 +104,10 @@ def predict_measurements(X_sig: np.ndarray, det: DetectionBatch, table: ContourT
     yaw = X_sig[..., YAW]
     f = X_sig[..., N_KIN:]
     z = det.z[:, None, :, :]                                          # (T, 1, M, 2)
+    # what depends on the kinematics only is evaluated once per distinct kinematic sigma
+    # point (ukf.distinct_rows: same values, 2 N_KIN + 1 instead of S evaluations)
+    rows, inv = distinct_rows(X_sig, N_KIN)
+    Xk = X_sig[:, rows]
     if det.theta is None:
         theta = plain_angles(z, centre, yaw)                          # (T, S, M)
         r = table.radius(f[..., None, :], theta)[..., 0, :]
@@ -99,14 +115,14 @@ def predict_measurements(X_sig: np.ndarray, det: DetectionBatch, table: ContourT
     else:
         # n . contour_point, by components (the (..., 2) stack and sum cost more than this)
         r = table.radius(f, det.theta)                                # (T, S, M)
-        a = det.theta[:, None, :] + yaw[..., None]
-        px = X_sig[..., X, None] + np.cos(a) * r
-        py = X_sig[..., Y, None] + np.sin(a) * r
+        a = det.theta[:, None, :] + Xk[..., YAW, None]
+        px = X_sig[..., X, None] + np.cos(a)[:, inv] * r
+        py = X_sig[..., Y, None] + np.sin(a)[:, inv] * r
         parts = [det.normal[:, None, :, 0] * px + det.normal[:, None, :, 1] * py]
     if use_doppler:
-        d = range_rate(z, det.rng[:, None, :], centre, X_sig[..., V], yaw, X_sig[..., YAWRATE],
-                       sensor)
-        parts.append(d * det.doppler_mask()[:, None, :])
+        d = range_rate(z, det.rng[:, None, :], Xk[..., [X, Y]], Xk[..., V], Xk[..., YAW],
+                       Xk[..., YAWRATE], sensor)
+        parts.append((d * det.doppler_mask()[:, None, :])[:, inv])
     if det.theta is None:
         Z = np.concatenate(parts[:1] + [p[..., None] for p in parts[1:]], axis=-1)
     else:
@@ -137,7 +153,7 @@ def measurement_noise(det: DetectionBatch, x: np.ndarray, table: ContourTable,
     r2d = np.maximum(np.sqrt(lx * lx + ly * ly), 1e-6)
     erx, ery = lx / r2d, ly / r2d                      # line of sight; et = (-ery, erx)
     theta = det.theta if det.theta is not None else plain_angles(det.z, x[:, [X, Y]], x[:, YAW])
-    _, _, var_f = table.interp(theta)
+    var_f = table.variance(theta)
     a = theta + x[:, YAW, None]
     ux, uy = np.cos(a), np.sin(a)
     s_az2 = (sigma_azimuth * r2d) ** 2

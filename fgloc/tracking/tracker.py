@@ -190,7 +190,8 @@ class Tracker:
     def _predict(self, dt: float) -> None:
         cfg = self.cfg
         Xs = ukf.sigma_points(self.x, self.P, self.w)
-        Xs = ctra_predict(Xs, dt)
+        rows, inv = ukf.distinct_rows(Xs, N_KIN)
+        Xs[..., :N_KIN] = ctra_predict(Xs[:, rows, :N_KIN], dt)[:, inv]
         f_new, Qc = self.gp.decay(Xs[..., N_KIN:], cfg.tau, dt)
         long = np.array([r.long for r in self.recs], dtype=bool)
         if long.any():
@@ -219,7 +220,7 @@ class Tracker:
         excess = dist - rmax
         ti, di = np.nonzero(dist < rmax + self.cfg.gate_max + self.cfg.gate_long_extra + 1.0)
         if len(ti):
-            H, mean, _ = self.table.interp(np.arctan2(la[ti, di], lo[ti, di]))
+            H, mean = self.table.interp_mean(np.arctan2(la[ti, di], lo[ti, di]))
             r = mean + np.sum(H * (f[ti] - self.gp.mu), axis=1)
             excess[ti, di] = dist[ti, di] - r
         return lo, la, excess
@@ -349,7 +350,7 @@ class Tracker:
         r = self.cand_mean + (x[:, N_KIN:] - self.gp.mu) @ self.cand_H.T          # (T, m)
         pts = contour_point(x[:, [X, Y]], x[:, YAW], r, self.cand_theta)         # (T, m, 2)
         vis = contour_candidates(pts, sensor)
-        in_fov = self.fov.contains(pts) & ~self.fov.blind(pts)
+        in_fov = self.fov.seen(pts)
         use_fov = (vis & in_fov).any(axis=1, keepdims=True)
         vis = np.where(use_fov, vis & in_fov, vis)
         vis |= ~vis.any(axis=1, keepdims=True)
@@ -371,7 +372,7 @@ class Tracker:
             lo, la = np.sum(dz * h[:, None], axis=2), np.sum(dz * lat[:, None], axis=2)
             axes = np.stack([h, lat, -h, -lat], axis=1)                       # (T, 4, 2)
             ends = c[:, None] + axes * rax[..., None]
-            ok_end = self.fov.contains(ends) & ~self.fov.blind(ends)
+            ok_end = self.fov.seen(ends)
             los = ends - sensor
             inc = (np.abs(np.sum(los * axes, axis=2))
                    / np.maximum(np.linalg.norm(los, axis=2), 1e-6))

@@ -61,6 +61,23 @@ def sigma_points(x: np.ndarray, P: np.ndarray, w: UnscentedWeights) -> np.ndarra
     return np.concatenate([x[:, None, :], x[:, None, :] + dev, x[:, None, :] - dev], axis=1)
 
 
+def distinct_rows(X: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """Sigma points X (T, S, n) whose first k components (the kinematics) are bitwise those
+    of the first point in every track need not be pushed through a function of those
+    components again. Returns rows (r,) -- the first point and every point differing from it
+    somewhere -- and inv (S,) with ``X[:, rows][:, inv, :k] == X[..., :k]`` exactly.
+
+    With the kinematics first in the state, the lower Cholesky factor of :func:`sigma_points`
+    has exact zeros there in the columns of the other components, so only 2 k + 1 rows stay
+    (the contour radii enter the measurement and the motion after these nonlinear parts)."""
+    same = np.all(X[..., :k] == X[:, :1, :k], axis=(0, 2))
+    same[0] = False
+    rows = np.flatnonzero(~same)
+    inv = np.zeros(X.shape[1], dtype=np.int64)
+    inv[rows] = np.arange(len(rows))
+    return rows, inv
+
+
 def state_mean(X: np.ndarray, w: UnscentedWeights) -> tuple[np.ndarray, np.ndarray]:
     """Weighted mean (T, n) of sigma points X (T, S, n) and their deviations (T, S, n), with
     the yaw averaged over wrapped differences."""
