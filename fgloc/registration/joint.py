@@ -26,7 +26,7 @@ The graph (gtsam, all variables Vectors, frame C unless stated)
 
 Rounds: correspondences are found for the current estimate with one KD-tree per label (built
 once, :class:`fgloc.registration.sicp.SemanticTargets`; least ``d^2 / compatibility`` within
-``max_correspondence``), the graph is optimized with a few Gauss-Newton iterations,
+``max_correspondence``), the graph is optimized with a few Levenberg-Marquardt iterations,
 the noise levels are re-estimated (``estimate_noise``), and this repeats until the pose moves
 by less than ``tol_position`` / ``tol_yaw_deg`` or ``max_rounds``.
 

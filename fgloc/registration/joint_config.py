@@ -80,11 +80,11 @@ class JointConfig:
     """Standard deviation (deg) of that prior's yaw."""
     max_rounds: int = 8
     """At most this many re-association + optimization rounds."""
-    optimizer: str = "gauss-newton"
-    """Optimizer of a round: "gauss-newton" (one linearization and one error evaluation per
-    iteration; the pose and offset priors keep every system well posed) or
-    "levenberg-marquardt" (damped; evaluates the Python factors again for every rejected
-    step)."""
+    optimizer: str = "levenberg-marquardt"
+    """Optimizer of a round: "levenberg-marquardt" (damped) or "gauss-newton" (one
+    linearization and one error evaluation per iteration, but undamped: on simulated
+    intersections it stopped on an indeterminate system -- weakly observed speed /
+    acceleration of short tracks -- so it is not the default)."""
     iterations: int = 4
     """Optimizer iterations per round."""
     tol_position: float = 0.002
