@@ -88,6 +88,11 @@ def range_rate(z: np.ndarray, rng: np.ndarray, centre: np.ndarray, v: np.ndarray
     return (vx * (zx - sensor[..., 0]) + vy * (zy - sensor[..., 1])) / rng
 
 
+def _shift(a: np.ndarray, k: int) -> np.ndarray:
+    """``np.roll(a, -k, axis=-1)`` (element i + k at i, cyclic), with less overhead."""
+    return np.concatenate([a[..., k:], a[..., :k]], axis=-1)
+
+
 def contour_candidates(points: np.ndarray, sensor: np.ndarray) -> np.ndarray:
     """Mask (..., m) of the contour points (..., m, 2) (closed CCW polygons, dense; leading
     axes are a batch) visible from the sensor position (2,): the outward normal (central
@@ -97,8 +102,8 @@ def contour_candidates(points: np.ndarray, sensor: np.ndarray) -> np.ndarray:
     s = np.asarray(sensor, dtype=float)
     m = p.shape[-2]
     px, py = p[..., 0].reshape(-1, m), p[..., 1].reshape(-1, m)     # (B, m) batch flattened
-    nx, ny = np.roll(px, -1, axis=-1), np.roll(py, -1, axis=-1)
-    tx, ty = nx - np.roll(px, 1, axis=-1), ny - np.roll(py, 1, axis=-1)
+    nx, ny = _shift(px, 1), _shift(py, 1)
+    tx, ty = nx - _shift(px, -1), ny - _shift(py, -1)
     facing = (ty * (s[0] - px) - tx * (s[1] - py)) > 0
     # self-occlusion (only of the facing points): segment s -> p_i against the edges
     # (p_j, p_j+1) not adjacent to i
@@ -177,11 +182,11 @@ def closest_on_chain(z: np.ndarray, points: np.ndarray, theta: np.ndarray,
     m = p.shape[-2]
     step = 2.0 * np.pi / m
     vis = np.asarray(visible, dtype=bool)
-    chain = vis & np.roll(vis, -1, axis=-1)
+    chain = vis & _shift(vis, 1)
     chain = chain | ~chain.any(axis=-1, keepdims=True)
     # x / y components apart (no reductions over the length-2 axis: same values, faster)
     px, py = p[..., 0], p[..., 1]
-    ex, ey = np.roll(px, -1, axis=-1) - px, np.roll(py, -1, axis=-1) - py   # (..., m) edges
+    ex, ey = _shift(px, 1) - px, _shift(py, 1) - py                # (..., m) edges
     ee = np.maximum(ex * ex + ey * ey, 1e-12)                       # (..., m)
     ex_, ey_ = ex[..., None, :], ey[..., None, :]
     dx = z[..., :, None, 0] - px[..., None, :]                      # (..., k, m)

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import lapack
 
 from fgloc.geo import wrap_angle
 from fgloc.tracks import YAW
@@ -59,6 +60,16 @@ def sigma_points(x: np.ndarray, P: np.ndarray, w: UnscentedWeights) -> np.ndarra
     L = robust_cholesky(P) * w.gamma
     dev = np.swapaxes(L, -1, -2)                              # rows = columns of L
     return np.concatenate([x[:, None, :], x[:, None, :] + dev, x[:, None, :] - dev], axis=1)
+
+
+def solve_spd(S: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """S^-1 B for symmetric positive definite S (T, m, m) and B (T, m, k): Cholesky (LAPACK
+    posv, about half the work of an LU solve), an LU solve where S is not positive definite."""
+    out = np.empty(B.shape)
+    for i in range(S.shape[0]):
+        _, x, info = lapack.dposv(S[i], B[i], lower=1)
+        out[i] = x if info == 0 else np.linalg.solve(S[i], B[i])
+    return out
 
 
 def distinct_rows(X: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -117,7 +128,7 @@ def update(x: np.ndarray, P: np.ndarray, X: np.ndarray, Z: np.ndarray, z: np.nda
     else:
         S += R
     Pxz = covariance(dx, dz, w)
-    K = np.swapaxes(np.linalg.solve(S, np.swapaxes(Pxz, -1, -2)), -1, -2)   # Pxz S^-1
+    K = np.swapaxes(solve_spd(S, np.swapaxes(Pxz, -1, -2)), -1, -2)       # Pxz S^-1
     x_new = x + (K @ (z - zhat)[..., None])[..., 0]
     x_new[:, YAW] = wrap_angle(x_new[:, YAW])
     P_new = P - K @ np.swapaxes(Pxz, -1, -2)                       # K S K^T = K Pxz^T
