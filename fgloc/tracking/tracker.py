@@ -204,14 +204,18 @@ class Tracker:
         Q[:, N_KIN:, N_KIN:] = Qc + max(dt, 0.0) * self.Q_size
         self.x, self.P = ukf.predict(Xs, Q, self.w)
 
-    def _local(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def _local(self, p: np.ndarray, excess: bool = True
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
         """Points p (D, 2) in every track's vehicle frame: longitudinal, lateral offsets (T, D)
-        (m) and the radial excess (T, D) (m) outside the predicted contour (< 0 inside)."""
+        (m) and the radial excess (T, D) (m) outside the predicted contour (< 0 inside; None
+        unless ``excess``)."""
         dx = p[None, :, 0] - self.x[:, X, None]
         dy = p[None, :, 1] - self.x[:, Y, None]
         c, s = np.cos(self.x[:, YAW, None]), np.sin(self.x[:, YAW, None])
         lo = c * dx + s * dy
         la = -s * dx + c * dy
+        if not excess:
+            return lo, la, None
         dist = np.hypot(lo, la)
         # the contour only where it matters: far from a track (beyond its largest basis
         # radius + the widest gate) the excess is bounded below by dist - max radius
@@ -225,12 +229,12 @@ class Tracker:
             excess[ti, di] = dist[ti, di] - r
         return lo, la, excess
 
-    def _outside(self, p: np.ndarray) -> tuple[np.ndarray, ...]:
+    def _outside(self, p: np.ndarray, excess: bool = True) -> tuple[np.ndarray, ...]:
         """For points p (D, 2) and every track: the distance (m) outside the contour's
         axis-aligned extent in the vehicle frame along (T, D) and across (T, D) the heading,
-        the radial excess (T, D) (m) outside the contour (< 0 inside) and the longitudinal
-        offset (T, D) (m) from the centre."""
-        lo, la, ex = self._local(p)
+        the radial excess (T, D) (m) outside the contour (< 0 inside; None unless
+        ``excess``) and the longitudinal offset (T, D) (m) from the centre."""
+        lo, la, ex = self._local(p, excess)
         axes = self.axis_mean + (self.x[:, N_KIN:] - self.gp.mu) @ self.axis_H.T
         out_long = np.maximum(np.maximum(lo - axes[:, :1], -axes[:, 2:3] - lo), 0.0)
         out_lat = np.maximum(np.maximum(la - axes[:, 1:2], -axes[:, 3:4] - la), 0.0)
@@ -553,11 +557,13 @@ class Tracker:
 
     def _record(self, t: float, det: _Frame, owner: np.ndarray, updated: np.ndarray) -> None:
         store = self.cfg.store_covariances
+        xs = self.x.copy()                          # one copy per frame, rows per track
+        Ps = self.P.copy() if store else None
         for i, rec in enumerate(self.recs):
             rec.t.append(t)
-            rec.states.append(self.x[i].copy())
-            if store:
-                rec.covs.append(self.P[i].copy())
+            rec.states.append(xs[i])
+            if Ps is not None:
+                rec.covs.append(Ps[i])
         for i in updated:
             rec = self.recs[i]
             idx = det.index[owner == i]
@@ -626,7 +632,7 @@ class Tracker:
         end = np.zeros(n, dtype=bool)
         # duplicates: a centre within gate sideways / duplicate_long lengthwise of a stronger
         # track's contour extent -> the weaker one dies
-        out_long, out_lat, _, _ = self._outside(self.x[:, [X, Y]])
+        out_long, out_lat, _, _ = self._outside(self.x[:, [X, Y]], excess=False)
         dup = (out_lat <= cfg.gate) & (out_long <= cfg.duplicate_long)
         np.fill_diagonal(dup, False)
         rank = np.array([(r.confirmed, r.hits, -r.id) for r in self.recs],
