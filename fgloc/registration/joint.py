@@ -299,7 +299,7 @@ def _track_factors(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray, 
     states at the filter's), its initial values, per-track keys and the contour model."""
     from fgloc.smoothing.graph import TrackModel, build_track_graph
 
-    smoothing = getattr(cfg, "smoothing", None)
+    smoothing = cfg.smoothing
     if cfg.joint.refine_tracks:
         tg = build_track_graph(tracks, det_xy, sensor_xy, smoothing, cfg.tracking)
         return tg.graph, tg.values, tg.keys, tg.model.gp
