@@ -1,10 +1,20 @@
-"""Localization accuracy through the file route, the way a user runs fgloc.
+"""Localization and tracking accuracy of every method, through the file route a user takes.
 
 For every case and seed: simulate, write the scenario directory, load it back, localize with
-each method (with the sensor.toml yaw guess and without it), and score against the ground truth.
-Prints one row per run (the paper's Table I columns plus dz and time) and a summary per method.
+each method (with the sensor.toml yaw guess, and with ``--without-guess`` also without it) and
+score against the ground truth. Prints (and with ``--markdown`` writes) these tables:
 
-    python bench/accuracy.py --cases intersection tjunction --seeds 1 2 3 4 5 --methods icp
+* Table I analogue: per scenario and method |dx|, |dy|, 2D, |dyaw| (deg), |dz|, time;
+* Table II analogue: per method and case mean / worst 2D and yaw error, and, for methods that
+  report a covariance, the mean normalized estimation error squared (NEES) of (x, y, yaw);
+* the straight road (``--straight-seeds``): errors, the along-road standard deviation and the
+  weak-direction flag of methods that report a covariance;
+* tracking (``--tracking-seeds``, oracle pose): filter, fixed-lag and batch smoother metrics;
+* data efficiency (``--efficiency-counts``): 2D and yaw error against the number of
+  trajectories used, for ``--efficiency-methods``; ``--plot`` writes it as a PNG.
+
+    OMP_NUM_THREADS=1 python bench/accuracy.py                       # the full set
+    OMP_NUM_THREADS=1 python bench/accuracy.py --quick               # under 5 minutes
 """
 
 from __future__ import annotations
@@ -12,85 +22,305 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from fgloc.config import Config, load_config
 from fgloc.evaluate import pose_error
+from fgloc.geo import pose_from_se3, wrap_angle
 from fgloc.io import load_scenario, write_scenario
 from fgloc.pipeline import METHODS, localize
+from fgloc.result import LocalizationResult
+from fgloc.scenario import Scenario
 from fgloc.sim import simulate
 
+PAPER = {  # the paper's figures (their data: real recordings + CARLA), for reference only
+    "Table I (filter-sicp, S1-S4)": "2D 0.38-0.94 m, |dyaw| 0.16-0.35 deg",
+    "Table II (icp baseline)": "2D 0.80-0.93 m, |dyaw| 0.03-1.25 deg",
+}
 
-def run(
-    case: str, seed: int, duration: float, methods: list[str], work: Path, cfg: Config
-) -> list[dict]:
+
+@dataclass
+class Run:
+    """One localization scored against the truth.
+
+    signed: (3,) estimate minus truth in L: x (m), y (m), yaw (rad, wrapped). cov: 3x3 (x, y,
+    yaw) covariance of the result or None. along_sd: standard deviation (m) along the road
+    direction given by ``road_dir`` (straight road only), weak: the result's weak-direction
+    flag, if it reports one.
+    """
+
+    case: str
+    seed: int
+    guess: bool
+    method: str
+    n_trajectories: int | None
+    converged: bool
+    time_s: float
+    err: dict
+    signed: np.ndarray
+    cov: np.ndarray | None
+    weak: bool | None
+
+    @property
+    def nees(self) -> float:
+        if self.cov is None:
+            return float("nan")
+        return float(self.signed @ np.linalg.solve(self.cov, self.signed))
+
+
+def weak_flag(res: LocalizationResult) -> bool | None:
+    """The result's weak-direction flag (diagnostics ``<stage>.degeneracy.weakly_observed``,
+    reported by the joint method), or None when the method reports none."""
+    for block in res.diagnostics.values():
+        if isinstance(block, dict) and isinstance(block.get("degeneracy"), dict):
+            deg = block["degeneracy"]
+            if "weakly_observed" in deg:
+                return bool(deg["weakly_observed"])
+    return None
+
+
+def score(scn: Scenario, res: LocalizationResult, method: str, guess: bool, dt: float,
+          n_traj: int | None, case: str, seed: int) -> Run:
+    assert scn.truth is not None
+    est, tru = pose_from_se3(res.T_local), pose_from_se3(scn.truth.sensor_pose)
+    signed = np.array([est[0] - tru[0], est[1] - tru[1], float(wrap_angle(est[3] - tru[3]))])
+    cov = None if res.covariance is None else np.asarray(res.covariance, float)[:3, :3]
+    return Run(case, seed, guess, method, n_traj, bool(res.converged), dt,
+               pose_error(res.T_local, scn.truth.sensor_pose).to_json(), signed, cov,
+               weak_flag(res))
+
+
+def localize_scored(scn: Scenario, method: str, cfg: Config, guess: bool, case: str, seed: int,
+                    n_traj: int | None = None) -> Run:
+    if n_traj is not None:
+        cfg = dataclasses.replace(cfg, fine=dataclasses.replace(cfg.fine, n_trajectories=n_traj))
+    t0 = time.perf_counter()
+    res = localize(scn, method=method, config=cfg)
+    return score(scn, res, method, guess, time.perf_counter() - t0, n_traj, case, seed)
+
+
+def scenario_file_route(case: str, seed: int, duration: float, work: Path) -> Path:
     d = work / f"{case}-{seed}"
     write_scenario(simulate(case, seed, duration=duration), d)
-    rows = []
-    for guess in (True, False):
+    return d
+
+
+def localization_runs(case: str, seed: int, duration: float, methods: list[str], work: Path,
+                      cfg: Config, guesses: tuple[bool, ...]) -> list[Run]:
+    d = scenario_file_route(case, seed, duration, work)
+    runs = []
+    for guess in guesses:
         scn = load_scenario(d)
         if not guess:
             scn.sensor = dataclasses.replace(scn.sensor, yaw_guess_deg=None)
         for method in methods:
-            t0 = time.perf_counter()
-            res = localize(scn, method=method, config=cfg)
-            dt = time.perf_counter() - t0
-            err = pose_error(res.T_local, scn.truth.sensor_pose)
-            rows.append(
-                {
-                    "case": case,
-                    "seed": seed,
-                    "guess": guess,
-                    "method": method,
-                    "converged": res.converged,
-                    "time_s": dt,
-                    **err.to_json(),
-                    "timings_s": res.timings,
-                }
-            )
-    return rows
+            r = localize_scored(scn, method, cfg, guess, case, seed)
+            print(f"  {case:<13}{seed:>3} {'guess' if guess else 'none ':<6}{method:<14}"
+                  f"2D {r.err['d2d']:6.3f} m  |dyaw| {r.err['dyaw_deg']:6.3f} deg  "
+                  f"{r.time_s:5.1f} s{'' if r.converged else '  NOT CONVERGED'}", flush=True)
+            runs.append(r)
+    return runs
+
+
+# ---------------------------------------------------------------------------------- tables
+def table_one(runs: list[Run]) -> list[str]:
+    out = ["| case | seed | yaw guess | method | \\|dx\\| m | \\|dy\\| m | 2D m | \\|dyaw\\| deg "
+           "| \\|dz\\| m | time s |", "|---|---:|---|---|---:|---:|---:|---:|---:|---:|"]
+    for r in runs:
+        e = r.err
+        out.append(f"| {r.case} | {r.seed} | {'yes' if r.guess else 'no'} | {r.method}"
+                   f"{'' if r.converged else ' (not converged)'} | {e['dx']:.3f} | "
+                   f"{e['dy']:.3f} | {e['d2d']:.3f} | {e['dyaw_deg']:.3f} | {e['dz']:.3f} | "
+                   f"{r.time_s:.1f} |")
+    return out
+
+
+def table_two(runs: list[Run], methods: list[str]) -> list[str]:
+    out = ["| method | case | runs | mean 2D m | worst 2D m | mean \\|dyaw\\| deg | worst "
+           "\\|dyaw\\| deg | mean NEES (x, y, yaw) | mean time s |",
+           "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    cases = sorted({r.case for r in runs})
+    for m in methods:
+        for case in [*cases, "all"]:
+            sel = [r for r in runs if r.method == m and case in (r.case, "all")]
+            if not sel:
+                continue
+            d2 = np.array([r.err["d2d"] for r in sel])
+            dy = np.array([r.err["dyaw_deg"] for r in sel])
+            nees = np.array([r.nees for r in sel])
+            ntxt = f"{np.nanmean(nees):.2f}" if np.isfinite(nees).any() else "-"
+            out.append(f"| {m} | {case} | {len(sel)} | {d2.mean():.3f} | {d2.max():.3f} | "
+                       f"{dy.mean():.3f} | {dy.max():.3f} | {ntxt} | "
+                       f"{np.mean([r.time_s for r in sel]):.1f} |")
+    return out
+
+
+def table_straight(runs: list[Run], road_dirs: dict[int, np.ndarray]) -> list[str]:
+    out = ["| seed | method | 2D m | along-road error m | \\|dyaw\\| deg | along-road sd m "
+           "| weak direction flagged |", "|---:|---|---:|---:|---:|---:|---|"]
+    for r in runs:
+        u = road_dirs[r.seed]
+        along = abs(float(r.signed[:2] @ u))
+        sd = "-" if r.cov is None else f"{np.sqrt(u @ r.cov[:2, :2] @ u):.3f}"
+        flag = "-" if r.weak is None else ("yes" if r.weak else "no")
+        out.append(f"| {r.seed} | {r.method} | {r.err['d2d']:.3f} | {along:.3f} | "
+                   f"{r.err['dyaw_deg']:.3f} | {sd} | {flag} |")
+    return out
+
+
+def road_direction(scn: Scenario) -> np.ndarray:
+    """Unit vector (L) of the straight road: the principal axis of the true vehicle centres."""
+    assert scn.truth is not None
+    xy = np.concatenate([tr.states[:, 1:3] for tr in scn.truth.tracks])
+    xy = xy - xy.mean(axis=0)
+    return np.linalg.eigh(xy.T @ xy)[1][:, -1]
+
+
+def table_efficiency(runs: list[Run], counts: list[int], methods: list[str]) -> list[str]:
+    out = ["| method | trajectories | runs | mean 2D m | worst 2D m | mean \\|dyaw\\| deg | "
+           "worst \\|dyaw\\| deg |", "|---|---:|---:|---:|---:|---:|---:|"]
+    for m in methods:
+        for n in counts:
+            sel = [r for r in runs if r.method == m and r.n_trajectories == n]
+            if sel:
+                d2 = np.array([r.err["d2d"] for r in sel])
+                dy = np.array([r.err["dyaw_deg"] for r in sel])
+                out.append(f"| {m} | {n} | {len(sel)} | {d2.mean():.3f} | {d2.max():.3f} | "
+                           f"{dy.mean():.3f} | {dy.max():.3f} |")
+    return out
+
+
+def plot_efficiency(runs: list[Run], counts: list[int], methods: list[str], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
+    for m in methods:
+        for ax, key in zip(axes, ("d2d", "dyaw_deg")):
+            mean = [np.mean([r.err[key] for r in runs if r.method == m and r.n_trajectories == n])
+                    for n in counts]
+            ax.plot(counts, mean, marker="o", label=m)
+    axes[0].set_ylabel("mean 2D error (m)")
+    axes[1].set_ylabel("mean |yaw error| (deg)")
+    for ax in axes:
+        ax.set_xlabel("trajectories used")
+        ax.set_xscale("log")
+        ax.set_xticks(counts, [str(n) for n in counts])
+        ax.grid(alpha=0.3)
+        ax.set_ylim(bottom=0)
+    axes[0].legend()
+    fig.tight_layout()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+
+
+def tracking_table(seeds: list[int], duration: float, vehicles: int, cfg: Config) -> list[str]:
+    """Filter, fixed-lag and batch smoother on the same scenarios, oracle pose."""
+    from fgloc.smoothing.run import compare_trackers
+
+    out: list[str] = []
+    for seed in seeds:
+        scn = simulate("intersection", seed, duration=duration, vehicles=vehicles)
+        out += [f"\nintersection seed {seed} ({len(scn.radar) / scn.radar.duration:.0f} "
+                f"detections/s, {vehicles} vehicles, {duration:g} s):\n",
+                "```", compare_trackers(scn, cfg, oracle_pose=True).table(), "```"]
+    return out
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--cases", nargs="+", default=["intersection", "tjunction"])
+    ap.add_argument("--quick", action="store_true",
+                    help="seed 1 of each case, 30 s, yaw guess only, small efficiency sweep")
+    ap.add_argument("--cases", nargs="+", default=["intersection", "tjunction", "curve"])
     ap.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3, 4, 5])
-    ap.add_argument("--methods", nargs="+", default=["icp"], choices=sorted(METHODS))
+    ap.add_argument("--methods", nargs="+", default=sorted(METHODS), choices=sorted(METHODS))
     ap.add_argument("--duration", type=float, default=60.0)
-    ap.add_argument("--json", default=None, help="also write all rows to this JSON file")
+    ap.add_argument("--without-guess", action="store_true",
+                    help="also localize every scenario without the sensor.toml yaw guess")
+    ap.add_argument("--straight-seeds", nargs="*", type=int, default=[1, 2, 3])
+    ap.add_argument("--tracking-seeds", nargs="*", type=int, default=[1, 2, 3, 4, 5])
+    ap.add_argument("--efficiency-counts", nargs="*", type=int, default=[5, 10, 20, 50])
+    ap.add_argument("--efficiency-methods", nargs="*", default=["filter-sicp", "joint"])
+    ap.add_argument("--efficiency-seeds", nargs="*", type=int, default=[1, 2, 3])
+    ap.add_argument("--plot", default=None, help="write the data-efficiency plot to this PNG")
+    ap.add_argument("--markdown", default=None, help="also write all tables to this file")
+    ap.add_argument("--json", default=None, help="also write all runs to this JSON file")
     ap.add_argument("--config", default=None, help="fgloc config TOML (default: all defaults)")
     args = ap.parse_args()
+    if args.quick:
+        args.seeds, args.duration = [1], 30.0
+        args.straight_seeds, args.tracking_seeds, args.efficiency_seeds = [1], [1], [1]
+        args.efficiency_counts = [5, 20]
     cfg = load_config(args.config)
+    eff_methods = [m for m in args.efficiency_methods if m in METHODS]
+    t_start = time.perf_counter()
+    md = [f"fgloc accuracy, {time.strftime('%Y-%m-%d', time.gmtime())}, {os.cpu_count()} CPUs, "
+          f"{args.duration:g} s scenarios, seeds {args.seeds}"]
 
-    print(
-        f"{'case':<13}{'seed':>4} {'guess':<6}{'method':<14}{'|dx|':>7}{'|dy|':>7}{'2D':>7}"
-        f"{'|dyaw|':>8}{'|dz|':>7}{'time s':>8}"
-    )
-    rows: list[dict] = []
+    runs: list[Run] = []
+    straight: list[Run] = []
+    eff: list[Run] = []
+    road_dirs: dict[int, np.ndarray] = {}
+    guesses = (True, False) if args.without_guess else (True,)
     with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        print("localization runs:")
         for case in args.cases:
             for seed in args.seeds:
-                for r in run(case, seed, args.duration, args.methods, Path(tmp), cfg):
-                    rows.append(r)
-                    print(
-                        f"{case:<13}{seed:>4} {'yes' if r['guess'] else 'no':<6}"
-                        f"{r['method']:<14}{r['dx']:7.3f}{r['dy']:7.3f}{r['d2d']:7.3f}"
-                        f"{r['dyaw_deg']:8.3f}{r['dz']:7.3f}{r['time_s']:8.2f}"
-                        f"{'' if r['converged'] else '  NOT CONVERGED'}",
-                        flush=True,
-                    )
-    print("\nsummary (mean / max over runs):")
-    for method in args.methods:
-        sel = [r for r in rows if r["method"] == method]
-        for key in ("dx", "dy", "d2d", "dyaw_deg", "dz", "time_s"):
-            v = np.array([r[key] for r in sel])
-            print(f"  {method:<14}{key:<9} mean {v.mean():7.3f}  max {v.max():7.3f}")
+                runs += localization_runs(case, seed, args.duration, args.methods, work, cfg,
+                                          guesses)
+        for seed in args.straight_seeds:
+            straight += localization_runs("straight", seed, args.duration, args.methods, work,
+                                          cfg, (True,))
+            road_dirs[seed] = road_direction(load_scenario(work / f"straight-{seed}"))
+        if eff_methods and args.efficiency_counts:
+            print("data efficiency runs:")
+        for seed in args.efficiency_seeds if eff_methods else []:
+            for case in ("intersection", "tjunction"):
+                scn = load_scenario(scenario_file_route(case, seed, args.duration, work))
+                for n in args.efficiency_counts:
+                    for m in eff_methods:
+                        r = localize_scored(scn, m, cfg, True, case, seed, n)
+                        print(f"  {case:<13}{seed:>3} {n:>3} trajectories {m:<14}"
+                              f"2D {r.err['d2d']:6.3f} m  |dyaw| {r.err['dyaw_deg']:6.3f} deg",
+                              flush=True)
+                        eff.append(r)
+
+    md += ["\n### Table I analogue: per scenario\n", *table_one(runs),
+           "\n### Table II analogue: per method\n", *table_two(runs, args.methods),
+           "\nThe paper's figures (their data, not ours): "
+           + "; ".join(f"{k}: {v}" for k, v in PAPER.items())]
+    if straight:
+        md += ["\n### Straight road without junction (weakly observed along the road)\n",
+               *table_straight(straight, road_dirs)]
+    if eff:
+        md += ["\n### Data efficiency (intersection + T-junction)\n",
+               *table_efficiency(eff, args.efficiency_counts, eff_methods)]
+        if args.plot:
+            plot_efficiency(eff, args.efficiency_counts, eff_methods, Path(args.plot))
+            md.append(f"\nPlot: {args.plot}")
+    if args.tracking_seeds:
+        print("tracking runs ...", flush=True)
+        md += ["\n### Tracking: filter, fixed-lag and batch smoother (oracle pose)"]
+        md += tracking_table(args.tracking_seeds, args.duration, 30 if args.quick else 50, cfg)
+    md.append(f"\nTotal time {time.perf_counter() - t_start:.0f} s.")
+    text = "\n".join(md)
+    print("\n" + text)
+    if args.markdown:
+        Path(args.markdown).write_text(text + "\n")
     if args.json:
-        Path(args.json).write_text(json.dumps(rows, indent=1))
+        Path(args.json).write_text(json.dumps(
+            [dict(dataclasses.asdict(r), signed=r.signed.tolist(),
+                  cov=None if r.cov is None else r.cov.tolist())
+             for r in [*runs, *straight, *eff]], indent=1))
     return 0
 
 

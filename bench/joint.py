@@ -7,20 +7,17 @@ error of both, joint's NEES of (x, y, yaw) against its 3x3 covariance, its stand
 deviations, weak-direction flag and time; then the means.
 
     OMP_NUM_THREADS=1 python bench/joint.py accuracy --seeds 1 2 3 4 5
-    OMP_NUM_THREADS=1 python bench/joint.py efficiency --seeds 1 2 3 4 5 --counts 5 10 20 50 \
-        --plot docs/figures/joint_efficiency.png
     OMP_NUM_THREADS=1 python bench/joint.py straight --seeds 1 2 3
     OMP_NUM_THREADS=1 python bench/joint.py timing --duration 120
 
-"accuracy" and "straight" use the sensor.toml yaw guess; "efficiency" repeats the fine
-stages with ``fine.n_trajectories`` = each count (the same seeded subset for both methods);
-"timing" reports the joint stage's split into Python callbacks and the rest.
+"accuracy" and "straight" use the sensor.toml yaw guess; "timing" reports the joint stage's
+split into Python callbacks and the rest. The data-efficiency sweep (error against the number
+of trajectories, every method) is bench/accuracy.py's ``--efficiency-*`` part.
 """
 
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import time
 from pathlib import Path
@@ -78,10 +75,6 @@ def both(scn, target, coarse, tracks, cfg: Config) -> tuple[dict, dict]:
     return score(fs, truth, t1 - t0), score(jt, truth, t2 - t1)
 
 
-def with_count(cfg: Config, n: int | None) -> Config:
-    return dataclasses.replace(cfg, fine=dataclasses.replace(cfg.fine, n_trajectories=n))
-
-
 def accuracy(args, cfg: Config) -> list[dict]:
     rows = []
     print(f"{'case':<13}{'seed':>4}{'tracks':>7} | {'f-sicp 2D':>9}{'yaw':>7} | {'joint 2D':>9}"
@@ -104,57 +97,6 @@ def accuracy(args, cfg: Config) -> list[dict]:
     nees = [r["joint"]["nees"] for r in rows if r["joint"]["nees"] is not None]
     print(f"joint NEES mean {np.mean(nees):.2f} (median {np.median(nees):.2f}, n={len(nees)})")
     return rows
-
-
-def efficiency(args, cfg: Config) -> list[dict]:
-    rows = []
-    for case in args.cases:
-        for seed in args.seeds:
-            scn, target, coarse, tracks = prepared(case, seed, args.duration, cfg)
-            for n in args.counts:
-                f, j = both(scn, target, coarse, tracks, with_count(cfg, n))
-                rows.append({"case": case, "seed": seed, "n": n, "available": len(tracks),
-                             "filter_sicp": f, "joint": j})
-                nees = j["nees"] if j["nees"] is not None else np.nan
-                print(f"{case:<13}{seed:>4} n={n:<3} of {len(tracks):<3} f-sicp "
-                      f"{f['d2d']:.3f} m {f['dyaw_deg']:.3f} deg | joint {j['d2d']:.3f} m "
-                      f"{j['dyaw_deg']:.3f} deg NEES {nees:.2f}", flush=True)
-    print("\n| trajectories | filter-sicp 2D m | joint 2D m | filter-sicp yaw deg | "
-          "joint yaw deg | joint NEES |\n|---:|---:|---:|---:|---:|---:|")
-    for n in args.counts:
-        sel = [r for r in rows if r["n"] == n]
-        m = {k: (np.mean([r[k]["d2d"] for r in sel]), np.mean([r[k]["dyaw_deg"] for r in sel]))
-             for k in ("filter_sicp", "joint")}
-        nees = np.mean([r["joint"]["nees"] for r in sel if r["joint"]["nees"] is not None])
-        print(f"| {n} | {m['filter_sicp'][0]:.3f} | {m['joint'][0]:.3f} | "
-              f"{m['filter_sicp'][1]:.3f} | {m['joint'][1]:.3f} | {nees:.2f} |")
-    if args.plot:
-        plot_efficiency(rows, args.counts, args.plot)
-    return rows
-
-
-def plot_efficiency(rows: list[dict], counts: list[int], path: str) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4), dpi=110)
-    for key, label, style in (("filter_sicp", "filter-sicp", "o-"), ("joint", "joint", "s-")):
-        for ax, metric in zip(axes, ("d2d", "dyaw_deg")):
-            mean = [np.mean([r[key][metric] for r in rows if r["n"] == n]) for n in counts]
-            ax.plot(counts, mean, style, label=label)
-    axes[0].set_ylabel("mean 2D error [m]")
-    axes[1].set_ylabel("mean |yaw error| [deg]")
-    for ax in axes:
-        ax.set_xlabel("trajectories used")
-        ax.set_xscale("log")
-        ax.set_xticks(counts, [str(c) for c in counts])
-        ax.grid(alpha=0.3)
-        ax.legend()
-    fig.tight_layout()
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path)
 
 
 def straight(args, cfg: Config) -> list[dict]:
@@ -181,21 +123,18 @@ def timing(args, cfg: Config) -> list[dict]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("part", choices=["accuracy", "efficiency", "straight", "timing"])
+    ap.add_argument("part", choices=["accuracy", "straight", "timing"])
     ap.add_argument("--cases", nargs="+", default=["intersection", "tjunction"])
     ap.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3, 4, 5])
-    ap.add_argument("--counts", nargs="+", type=int, default=[5, 10, 20, 50])
     ap.add_argument("--duration", type=float, default=None,
                     help="scenario length in s (default 60; timing: 120)")
-    ap.add_argument("--plot", default=None, help="efficiency: write the plot to this PNG")
     ap.add_argument("--json", default=None, help="also write all rows to this JSON file")
     ap.add_argument("--config", default=None, help="fgloc config TOML (default: all defaults)")
     args = ap.parse_args()
     if args.duration is None:
         args.duration = 120.0 if args.part == "timing" else 60.0
     cfg = load_config(args.config)
-    rows = {"accuracy": accuracy, "efficiency": efficiency, "straight": straight,
-            "timing": timing}[args.part](args, cfg)
+    rows = {"accuracy": accuracy, "straight": straight, "timing": timing}[args.part](args, cfg)
     if args.json:
         Path(args.json).write_text(json.dumps(rows, indent=1))
     return 0

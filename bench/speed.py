@@ -10,9 +10,11 @@ writing the scenario are not timed.
 
 Sections: (1) stages + peak memory on one 120 s intersection with 60 vehicles (--quick: 60 s,
 30 vehicles); (2) SICP vs Open3D ``registration_icp`` on the same clouds (bench.sicp_vs_open3d);
-(3) tracker real-time factors on one core with the oracle pose (recording s / CPU s), for every
-tracker in ``TRACKERS``; (4) scaling: recording length 30, 60, 120, 300 s (vehicle arrivals
-proportional to length) and vehicle count 20, 50, 100 in 60 s (--quick: 30, 60 s; 20, 50).
+(3) tracker real-time factors on one core with the oracle pose (recording s / CPU s) of the
+filter, the fixed-lag and the batch smoother (``fgloc.smoothing.run.compare_trackers``; a smoother's
+time excludes the filter it starts from); (4) scaling: recording length 30, 60, 120, 300 s
+(vehicle arrivals proportional to length) and vehicle count 20, 50, 100 in 60 s (--quick:
+30, 60 s; 20, 50).
 """
 
 from __future__ import annotations
@@ -25,22 +27,12 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
-
-import numpy as np
 
 from fgloc.io import write_scenario
 from fgloc.pipeline import METHODS
 from fgloc.scenario import Scenario
 from fgloc.sim import simulate
-from fgloc.tracking import TrackingConfig, track_scenario
-from fgloc.tracks import TrackSet
-
-#: tracker name -> function (scenario, sensor pose) -> TrackSet, timed in section (3).
-TRACKERS: dict[str, Callable[[Scenario, np.ndarray], TrackSet]] = {
-    "filter (UKF)": lambda scn, T: track_scenario(scn, T, TrackingConfig()),
-}
 
 
 def child_main(method: str, scenario: str, out: str) -> int:
@@ -129,16 +121,14 @@ def section_sicp(repeats: int) -> None:
 
 
 def section_realtime(scn: Scenario) -> None:
-    assert scn.truth is not None
-    rec = scn.radar.duration
+    from fgloc.smoothing.run import compare_trackers
+
     print(f"\n## (3) tracker real-time factors, oracle pose, one core: {describe(scn)}\n")
-    print("| tracker | CPU s | real-time factor (CPU) | wall s |")
-    print("|---|---:|---:|---:|")
-    for name, fn in TRACKERS.items():
-        c0, w0 = time.process_time(), time.perf_counter()
-        fn(scn, scn.truth.sensor_pose)
-        cpu, wall = time.process_time() - c0, time.perf_counter() - w0
-        print(f"| {name} | {cpu:.1f} | {rec / cpu:.1f} | {wall:.1f} |")
+    cmp = compare_trackers(scn, oracle_pose=True)
+    print("```\n" + cmp.table() + "\n```")
+    i = cmp.names.index("batch")
+    print(f"batch smoother: {cmp.cpu_seconds[i] / max(cmp.track_minutes, 1e-9):.2f} CPU s per "
+          f"track-minute ({cmp.track_minutes:.1f} track-minutes)")
 
 
 def section_scaling(work: Path, methods: list[str], durations: list[float],
