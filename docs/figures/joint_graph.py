@@ -4,7 +4,7 @@
 
 Circles are variables (the shared sensor pose T and the track states x_{j,k}); small squares
 are factors: prior on x_{j,0}, process between consecutive states, contour measurement on each
-state, semantic point-to-point between T and each state, optional map-aided on each state.
+state, semantic point-to-point between T, each state and its track's lateral offset b_j.
 """
 
 from __future__ import annotations
@@ -21,7 +21,6 @@ COLOURS = {
     "process": "#1f77b4",
     "measurement": "#2ca02c",
     "semantic p2p": "#d62728",
-    "map-aided (optional)": "#9467bd",
 }
 
 
@@ -45,23 +44,24 @@ def draw(path: Path) -> None:
     for j, (y, n) in tracks.items():
         xs = [1.0 + 1.6 * k for k in range(n)]
         pts = [(x, y) for x in xs]
+        b = (-0.6, y * 0.45)
         factor(ax, (xs[0] - 0.8, y), "prior", [pts[0]])
         for k in range(n):
             up = 1.0 if y > 0 else -1.0
-            factor(ax, (xs[k] - 0.35, y + 0.9 * up), "measurement", [pts[k]])
-            factor(ax, (xs[k] + 0.35, y + 0.9 * up), "map-aided (optional)", [pts[k]])
+            factor(ax, (xs[k], y + 0.9 * up), "measurement", [pts[k]])
             mid = ((xs[k] + T[0]) / 2, (y + T[1]) / 2)
-            factor(ax, mid, "semantic p2p", [pts[k], T])
+            factor(ax, mid, "semantic p2p", [pts[k], T, b])
             if k + 1 < n:
                 factor(ax, (xs[k] + 0.8, y), "process", [pts[k], pts[k + 1]])
         for k, p in enumerate(pts):
             variable(ax, p, f"x$_{{{j},{k}}}$")
+        variable(ax, b, f"b$_{j}$")
     variable(ax, T, "T", big=True)
     for kind, c in COLOURS.items():
         ax.plot([], [], "s", color=c, label=f"{kind} factor")
     ax.legend(loc="center left", bbox_to_anchor=(1.0, 0.5), frameon=False, fontsize=9)
     ax.set_aspect("equal")
-    ax.set_xlim(-0.5, 7.5)
+    ax.set_xlim(-1.2, 7.5)
     ax.set_ylim(-5.0, 5.0)
     ax.axis("off")
     ax.set_title("joint refinement: one shared sensor pose T, track states x$_{j,k}$")
