@@ -213,6 +213,7 @@ def plot_efficiency(runs: list[Run], counts: list[int], methods: list[str], path
     for ax in axes:
         ax.set_xlabel("trajectories used")
         ax.set_xscale("log")
+        ax.minorticks_off()
         ax.set_xticks(counts, [str(n) for n in counts])
         ax.grid(alpha=0.3)
         ax.set_ylim(bottom=0)
