@@ -355,20 +355,14 @@ def _optimize(graph: gtsam.NonlinearFactorGraph, python: gtsam.NonlinearFactorGr
     t1 = time.perf_counter()
     python.error(values)
     t2 = time.perf_counter()
-    if jc.optimizer == "gauss-newton":
-        params = gtsam.GaussNewtonParams()
-        params.setMaxIterations(jc.iterations)
-        params.setRelativeErrorTol(1e-6)
-        params.setOrdering(order)
-        opt = gtsam.GaussNewtonOptimizer(graph, values, params)
-        evals = 1
-    else:
-        params = gtsam.LevenbergMarquardtParams()
-        params.setMaxIterations(jc.iterations)
-        params.setRelativeErrorTol(1e-6)
-        params.setOrdering(order)
-        opt = gtsam.LevenbergMarquardtOptimizer(graph, values, params)
-        evals = 2
+    gauss_newton = jc.optimizer == "gauss-newton"
+    params = gtsam.GaussNewtonParams() if gauss_newton else gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(jc.iterations)
+    params.setRelativeErrorTol(1e-6)
+    params.setOrdering(order)
+    optimizer = gtsam.GaussNewtonOptimizer if gauss_newton else gtsam.LevenbergMarquardtOptimizer
+    opt = optimizer(graph, values, params)
+    evals = 1 if gauss_newton else 2
     out = opt.optimize()
     n = int(opt.iterations())
     _add_time(timing, "optimize", t2)
