@@ -31,8 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from fgloc.config import Config, load_config
-from fgloc.evaluate import pose_error
-from fgloc.geo import pose_from_se3, wrap_angle
+from fgloc.evaluate import pose_error, pose_error_vector
 from fgloc.io import load_scenario, write_scenario
 from fgloc.pipeline import METHODS, localize
 from fgloc.result import LocalizationResult
@@ -88,8 +87,7 @@ def weak_flag(res: LocalizationResult) -> bool | None:
 def score(scn: Scenario, res: LocalizationResult, method: str, guess: bool, dt: float,
           n_traj: int | None, case: str, seed: int) -> Run:
     assert scn.truth is not None
-    est, tru = pose_from_se3(res.T_local), pose_from_se3(scn.truth.sensor_pose)
-    signed = np.array([est[0] - tru[0], est[1] - tru[1], float(wrap_angle(est[3] - tru[3]))])
+    signed = pose_error_vector(res.T_local, scn.truth.sensor_pose)
     cov = None if res.covariance is None else np.asarray(res.covariance, float)[:3, :3]
     return Run(case, seed, guess, method, n_traj, bool(res.converged), dt,
                pose_error(res.T_local, scn.truth.sensor_pose).to_json(), signed, cov,

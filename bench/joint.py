@@ -26,8 +26,8 @@ import numpy as np
 
 from fgloc.coarse import target_and_coarse
 from fgloc.config import Config, load_config
+from fgloc.evaluate import pose_error_vector
 from fgloc.fine import register_tracks
-from fgloc.geo import pose_from_se3, wrap_angle
 from fgloc.progress import Timer
 from fgloc.registration.joint import joint_from_tracks
 from fgloc.result import LocalizationResult
@@ -35,14 +35,8 @@ from fgloc.sim import simulate
 from fgloc.tracking import track_scenario
 
 
-def error_vector(res: LocalizationResult, truth: np.ndarray) -> np.ndarray:
-    """(dx m, dy m, dyaw rad) of the sensor in L, estimate minus truth (yaw wrapped)."""
-    e, g = pose_from_se3(res.T_local), pose_from_se3(truth)
-    return np.array([e[0] - g[0], e[1] - g[1], float(wrap_angle(e[3] - g[3]))])
-
-
 def score(res: LocalizationResult, truth: np.ndarray, seconds: float) -> dict:
-    e = error_vector(res, truth)
+    e = pose_error_vector(res.T_local, truth)
     row = {"d2d": float(np.hypot(e[0], e[1])), "dyaw_deg": float(np.rad2deg(abs(e[2]))),
            "time_s": seconds, "converged": bool(res.converged), "nees": None}
     if res.covariance is not None:

@@ -55,3 +55,12 @@ def pose_error(T_est: np.ndarray, T_true: np.ndarray) -> PoseError:
         dpitch_deg=dang[1],
         droll_deg=dang[2],
     )
+
+
+def pose_error_vector(T_est: np.ndarray, T_true: np.ndarray) -> np.ndarray:
+    """(3,) signed planar error of ``T_est`` against ``T_true`` (4x4, the same frame): x (m),
+    y (m), yaw (rad, wrapped) of the estimate minus the truth, in the order of result.json's
+    ``covariance`` (for NEES ``e @ inv(cov) @ e``)."""
+    e = pose_from_se3(T_est)
+    g = pose_from_se3(T_true)
+    return np.array([e[0] - g[0], e[1] - g[1], float(wrap_angle(e[3] - g[3]))])

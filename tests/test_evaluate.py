@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fgloc.evaluate import pose_error
+from fgloc.evaluate import pose_error, pose_error_vector
 from fgloc.geo import se3_from_pose
 
 
@@ -21,3 +21,11 @@ def test_pose_error_known_offsets():
     assert e.dpitch_deg == pytest.approx(1.0)
     assert e.droll_deg == pytest.approx(0.5)
     assert "2D m" in e.table()
+
+
+def test_pose_error_vector_signed_and_wrapped():
+    """Estimate minus truth in x, y and yaw, the yaw difference wrapped across +-pi."""
+    truth = se3_from_pose(10.0, -5.0, 6.0, np.pi - 0.01, 0.02, 0.0)
+    est = se3_from_pose(10.3, -5.2, 6.5, -np.pi + 0.02, 0.0, 0.01)
+    np.testing.assert_allclose(pose_error_vector(est, truth), [0.3, -0.2, 0.03], atol=1e-9)
+    np.testing.assert_allclose(pose_error_vector(truth, est), [-0.3, 0.2, -0.03], atol=1e-9)
