@@ -81,8 +81,8 @@ def ctra_jacobian(k: np.ndarray, dt: float | np.ndarray) -> np.ndarray:
     return J
 
 
-def ctra_process_noise(k: np.ndarray, dt: float, sigma_jerk: float, sigma_yaw_acc: float,
-                       sigma_pos: float = 0.0) -> np.ndarray:
+def ctra_process_noise(k: np.ndarray, dt: float | np.ndarray, sigma_jerk: float,
+                       sigma_yaw_acc: float, sigma_pos: float = 0.0) -> np.ndarray:
     """``(..., 6, 6)`` process noise of one CTRA step.
 
     Discrete (piecewise-constant over the step) white jerk ``j ~ N(0, sigma_jerk^2)`` (m/s^3)

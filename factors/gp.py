@@ -137,6 +137,7 @@ class ContourGP:
         """Contour process over ``dt`` s with forgetting rate ``tau`` (1/s): the deviation from
         the prior mean decays, ``f' = mu + exp(-tau dt) (f - mu)``, with noise
         ``Q = (1 - exp(-2 tau dt)) K``, so N(mu, K) is stationary (paper's model, centred on
-        mu instead of 0). Returns ``(f', Q)``."""
-        e = np.exp(-tau * dt)
-        return self.mu + e * (np.asarray(f) - self.mu), (1.0 - e * e) * self.K
+        mu instead of 0). ``f`` (..., n) and ``dt`` (...) may carry a batch shape. Returns
+        ``(f' (..., n), Q (..., n, n))``."""
+        e = np.exp(-tau * np.asarray(dt, dtype=float))[..., None]
+        return self.mu + e * (np.asarray(f) - self.mu), (1.0 - e * e)[..., None] * self.K

@@ -106,50 +106,57 @@ def _check_gp(gp: ContourGP) -> None:
 
 
 # ---- process ---------------------------------------------------------------------------------
-def process_error(x0: np.ndarray, x1: np.ndarray, dt: float, gp: ContourGP,
+def process_error(x0: np.ndarray, x1: np.ndarray, dt: float | np.ndarray, gp: ContourGP,
                   tau: float) -> np.ndarray:
-    """Process residual (26,) ``x1 - f(x0, dt)``: CTRA for the kinematics (yaw difference
+    """Process residual (..., 26) ``x1 - f(x0, dt)``: CTRA for the kinematics (yaw difference
     wrapped to ``[-pi, pi)``), decay ``mu + exp(-tau dt) (f - mu)`` for the radii. Units of
-    the state; ``dt`` in s, ``tau`` in 1/s."""
+    the state; ``dt`` (...) in s, ``tau`` in 1/s; leading axes are a batch."""
     x0 = np.asarray(x0, dtype=float)
     x1 = np.asarray(x1, dtype=float)
-    pred_k = ctra_predict(x0[:N_KIN], dt)
-    pred_f, _ = gp.decay(x0[N_KIN:], tau, dt)
-    e = np.concatenate([x1[:N_KIN] - pred_k, x1[N_KIN:] - pred_f])
-    e[YAW] = wrap_angle(e[YAW])
+    pred_k = ctra_predict(x0[..., :N_KIN], dt)
+    pred_f, _ = gp.decay(x0[..., N_KIN:], tau, dt)
+    e = np.concatenate([x1[..., :N_KIN] - pred_k, x1[..., N_KIN:] - pred_f], axis=-1)
+    e[..., YAW] = wrap_angle(e[..., YAW])
     return e
 
 
-def process_jacobian_x0(x0: np.ndarray, dt: float, tau: float) -> np.ndarray:
-    """(26, 26) Jacobian of :func:`process_error` w.r.t. ``x0`` (w.r.t. ``x1`` it is I)."""
-    J = np.zeros((N_STATE, N_STATE))
-    J[:N_KIN, :N_KIN] = -ctra_jacobian(np.asarray(x0, dtype=float)[:N_KIN], dt)
-    J[N_KIN:, N_KIN:] = -np.exp(-tau * dt) * np.eye(N_CONTOUR)
+def process_jacobian_x0(x0: np.ndarray, dt: float | np.ndarray, tau: float) -> np.ndarray:
+    """(..., 26, 26) Jacobian of :func:`process_error` w.r.t. ``x0`` (w.r.t. ``x1`` it is I)."""
+    x0 = np.asarray(x0, dtype=float)
+    J = np.zeros((*x0.shape[:-1], N_STATE, N_STATE))
+    J[..., :N_KIN, :N_KIN] = -ctra_jacobian(x0[..., :N_KIN], dt)
+    decay = np.exp(-tau * np.asarray(dt, dtype=float))
+    idx = np.arange(N_KIN, N_STATE)
+    J[..., idx, idx] = -decay[..., None]
     return J
 
 
-def process_covariance(x_ref: np.ndarray, dt: float, gp: ContourGP, tau: float,
+def process_covariance(x_ref: np.ndarray, dt: float | np.ndarray, gp: ContourGP, tau: float,
                        sigma_jerk: float, sigma_yaw_acc: float, sigma_pos: float = 0.0,
                        q_floor: float = 1e-8, contour_rw: np.ndarray | None = None
                        ) -> np.ndarray:
-    """(26, 26) process noise ``Q_ctra(x_ref) (+) ((1 - exp(-2 tau dt)) K + dt contour_rw)``
-    plus ``q_floor`` on the diagonal (each component's squared unit): the CTRA noise has rank
-    4 of 6 (jerk and yaw acceleration only), the floor makes ``Q`` invertible. ``Q_ctra``
-    depends on the speed and yaw of ``x_ref`` (the state the factor is built around); it is
-    kept fixed. ``contour_rw`` (20, 20) m^2/s is an optional random walk of the radii (the
-    tracker's length/width random walk ``Q_size``), None for none."""
-    Q = np.zeros((N_STATE, N_STATE))
-    Q[:N_KIN, :N_KIN] = ctra_process_noise(np.asarray(x_ref, dtype=float)[:N_KIN], dt,
-                                           sigma_jerk, sigma_yaw_acc, sigma_pos)
-    Q[N_KIN:, N_KIN:] = (1.0 - np.exp(-2.0 * tau * dt)) * gp.K
+    """(..., 26, 26) process noise ``Q_ctra(x_ref) (+) ((1 - exp(-2 tau dt)) K + dt
+    contour_rw)`` plus ``q_floor`` on the diagonal (each component's squared unit): the CTRA
+    noise has rank 4 of 6 (jerk and yaw acceleration only), the floor makes ``Q`` invertible.
+    ``Q_ctra`` depends on the speed and yaw of ``x_ref`` (..., 26) (the state the factor is
+    built around); it is kept fixed. ``contour_rw`` (20, 20) m^2/s is an optional random walk
+    of the radii (the tracker's length/width random walk ``Q_size``), None for none. ``dt``
+    (...) s; leading axes are a batch."""
+    x_ref = np.asarray(x_ref, dtype=float)
+    dt = np.asarray(dt, dtype=float)
+    Q = np.zeros((*x_ref.shape[:-1], N_STATE, N_STATE))
+    Q[..., :N_KIN, :N_KIN] = ctra_process_noise(x_ref[..., :N_KIN], dt, sigma_jerk,
+                                                sigma_yaw_acc, sigma_pos)
+    Q[..., N_KIN:, N_KIN:] = (1.0 - np.exp(-2.0 * tau * dt))[..., None, None] * gp.K
     if contour_rw is not None:
         rw = np.asarray(contour_rw, dtype=float)
         if rw.shape != (N_CONTOUR, N_CONTOUR):
             raise ValueError(f"contour_rw shape {rw.shape}, expected ({N_CONTOUR}, "
                              f"{N_CONTOUR})")
-        Q[N_KIN:, N_KIN:] += dt * rw
-    Q[np.diag_indices(N_STATE)] += q_floor
-    return 0.5 * (Q + Q.T)
+        Q[..., N_KIN:, N_KIN:] += dt[..., None, None] * rw
+    idx = np.arange(N_STATE)
+    Q[..., idx, idx] += q_floor
+    return 0.5 * (Q + np.swapaxes(Q, -1, -2))
 
 
 def process_factor(key_k: int, key_k1: int, dt: float, gp: ContourGP, tau: float,
@@ -235,17 +242,26 @@ class ConditionalTable:
         return H, self.gp.mean(theta), self.var[i] * (1.0 - fr) + self.var[i + 1] * fr
 
 
-class ContourMeasurement:
-    """Sensor-aware normal-offset rows of all detections of one track in one frame.
+def _frames(a: np.ndarray | float, single: bool) -> np.ndarray:
+    """``a`` as an array, with a leading frame axis added when the object holds one frame."""
+    return np.asarray(a)[None] if single else np.asarray(a)
 
-    detections (m, 2) and sensor (2,) in m, tracking frame. The contour of the state is sampled
-    at ``n_candidates`` equally spaced object-frame angles (GP conditional mean); the samples
-    visible from the sensor (outward normal facing it, not self-occluded:
-    :func:`factors.measurement.contour_candidates`) form the visible chain, each detection is
-    matched to its closest point on that chain (:func:`closest_on_chain`), giving a contour
-    angle ``theta*`` and a unit normal ``n``; the row is ``n . (z - c - u(theta* + yaw)
-    f(theta*))`` (m), ``f(theta*)`` the GP conditional mean. Field-of-view limits are not
-    applied (the caller should pass only detections it trusts).
+
+class ContourMeasurement:
+    """Sensor-aware normal-offset rows of all detections of one track in one frame, or of a
+    batch of frames (one track-step each) at once.
+
+    detections (m, 2) -- one frame -- or (F, M, 2) -- F frames padded to M detections, with
+    ``valid`` (F, M) marking the real ones (padding must be finite; its rows are zero) --
+    and sensor (2,) in m, tracking frame. Every method takes and returns arrays with the
+    frame axis exactly when the detections had it (state (26,) or (F, 26)). The contour of
+    the state is sampled at ``n_candidates`` equally spaced object-frame angles (GP
+    conditional mean); the samples visible from the sensor (outward normal facing it, not
+    self-occluded: :func:`factors.measurement.contour_candidates`) form the visible chain,
+    each detection is matched to its closest point on that chain (:func:`closest_on_chain`),
+    giving a contour angle ``theta*`` and a unit normal ``n``; the row is ``n . (z - c -
+    u(theta* + yaw) f(theta*))`` (m), ``f(theta*)`` the GP conditional mean. Field-of-view
+    limits are not applied (the caller should pass only detections it trusts).
 
     The association (theta*, n) is **re-done at every evaluation** (each linearization of the
     optimizer, like point-to-plane ICP); the Jacobian treats it as fixed, which is exact up to
@@ -266,12 +282,18 @@ class ContourMeasurement:
     def __init__(self, detections: np.ndarray, sensor: np.ndarray, gp: ContourGP,
                  sigma: float = 0.3, huber_k: float = 1.345, n_candidates: int = 48,
                  sigma_range: float = 0.0, sigma_azimuth: float = 0.0,
-                 gp_variance: bool = False, table: ConditionalTable | None = None) -> None:
+                 gp_variance: bool = False, table: ConditionalTable | None = None,
+                 valid: np.ndarray | None = None) -> None:
         _check_gp(gp)
         z = np.asarray(detections, dtype=float)
         s = np.asarray(sensor, dtype=float)
-        if z.ndim != 2 or z.shape[1] != 2 or z.shape[0] < 1:
-            raise ValueError(f"detections shape {z.shape}, expected (m >= 1, 2)")
+        self.single = z.ndim == 2
+        z = z[None] if self.single else z
+        if z.ndim != 3 or z.shape[2] != 2 or z.shape[1] < 1:
+            raise ValueError(f"detections shape {z.shape[self.single:]}, expected (m >= 1, 2) "
+                             "or (F, M >= 1, 2)")
+        self.valid = (np.ones(z.shape[:2], dtype=bool) if valid is None
+                      else np.asarray(valid, dtype=bool).reshape(z.shape[:2]))
         if s.shape != (2,):
             raise ValueError(f"sensor shape {s.shape}, expected (2,)")
         if not sigma > 0:
@@ -284,9 +306,9 @@ class ContourMeasurement:
         self.radar_var = None
         if sigma_range > 0 or sigma_azimuth > 0:
             los = z - s
-            r2d = np.maximum(np.linalg.norm(los, axis=1), 1e-6)
-            self.e_r = los / r2d[:, None]
-            self.e_t = np.stack([-self.e_r[:, 1], self.e_r[:, 0]], axis=1)
+            r2d = np.maximum(np.linalg.norm(los, axis=-1), 1e-6)
+            self.e_r = los / r2d[..., None]
+            self.e_t = np.stack([-self.e_r[..., 1], self.e_r[..., 0]], axis=-1)
             self.radar_var = (float(sigma_range) ** 2, (float(sigma_azimuth) * r2d) ** 2)
         self.cand_theta = 2.0 * np.pi * np.arange(int(n_candidates)) / int(n_candidates)
         self.table = table
@@ -294,63 +316,94 @@ class ContourMeasurement:
 
     @property
     def dim(self) -> int:
-        """Number of residual rows (one per detection)."""
-        return int(self.z.shape[0])
+        """Number of residual rows per frame (one per detection, padding included)."""
+        return int(self.z.shape[1])
+
+    def _states(self, x: np.ndarray) -> np.ndarray:
+        x = np.asarray(x, dtype=float)
+        want = (N_STATE,) if self.single else (len(self.z), N_STATE)
+        if x.shape != want:
+            raise ValueError(f"state shape {x.shape}, expected {want}")
+        return x[None] if self.single else x
+
+    def _out(self, a: np.ndarray) -> np.ndarray:
+        return a[0] if self.single else a
 
     def associate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(theta* (m,), normal (m, 2))`` of the detections for state ``x`` (26,)."""
-        f = x[N_KIN:]
-        r = self.cand_mean + (f - self.gp.mu) @ self.cand_H.T
-        pts = contour_point(x[[X, Y]], x[YAW], r, self.cand_theta)
+        """``(theta* (m,), normal (m, 2))`` of the detections for state ``x`` (26,) (with a
+        leading frame axis for a batch)."""
+        theta, normal = self._associate(self._states(x))
+        return self._out(theta), self._out(normal)
+
+    def _associate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        r = self.cand_mean + (x[:, N_KIN:] - self.gp.mu) @ self.cand_H.T       # (F, c)
+        pts = contour_point(x[:, [X, Y]], x[:, YAW], r, self.cand_theta)       # (F, c, 2)
         vis = contour_candidates(pts, self.sensor)
         return closest_on_chain(self.z, pts, self.cand_theta, vis)
 
     def conditional(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``(H, prior mean, variance)`` of the GP at ``theta``: from the table when given,
-        else exact."""
+        """``(H (..., n), prior mean (...), variance (...))`` of the GP at ``theta`` (...):
+        from the table when given, else exact."""
+        theta = np.asarray(theta, dtype=float)
+        flat = theta.ravel()
         if self.table is not None:
-            return self.table(theta)
-        H, var = self.gp.conditional(theta)
-        return H, self.gp.mean(theta), var
+            H, mean, var = self.table(flat)
+        else:
+            H, var = self.gp.conditional(flat)
+            mean = self.gp.mean(flat)
+        return (H.reshape(*theta.shape, -1), mean.reshape(theta.shape),
+                var.reshape(theta.shape))
 
-    def row_sigma(self, yaw: float, theta: np.ndarray, normal: np.ndarray,
+    def row_sigma(self, yaw: np.ndarray | float, theta: np.ndarray, normal: np.ndarray,
                   var_f: np.ndarray) -> np.ndarray:
-        """(m,) std. dev. (m) of each row (class doc); ``sigma`` everywhere without per-row
-        noise."""
-        var = np.full(self.dim, self.sigma**2)
+        """(m,) std. dev. (m) of each row (class doc) for yaw, theta (m,), normal (m, 2),
+        var_f (m,) (each with a leading frame axis for a batch); ``sigma`` everywhere without
+        per-row noise."""
+        yaw, theta, normal, var_f = (_frames(a, self.single) for a in (yaw, theta, normal, var_f))
+        return self._out(self._row_sigma(yaw, theta, normal, var_f))
+
+    def _row_sigma(self, yaw: np.ndarray, theta: np.ndarray, normal: np.ndarray,
+                   var_f: np.ndarray) -> np.ndarray:
+        var = np.full(theta.shape, self.sigma**2)
         if self.gp_variance:
-            var += var_f * np.sum(unit(theta + yaw) * normal, axis=1) ** 2
+            var += var_f * np.sum(unit(theta + yaw[:, None]) * normal, axis=-1) ** 2
         if self.radar_var is not None:
-            var += (self.radar_var[0] * np.sum(self.e_r * normal, axis=1) ** 2
-                    + self.radar_var[1] * np.sum(self.e_t * normal, axis=1) ** 2)
+            var += (self.radar_var[0] * np.sum(self.e_r * normal, axis=-1) ** 2
+                    + self.radar_var[1] * np.sum(self.e_t * normal, axis=-1) ** 2)
         return np.sqrt(var)
 
     def rows(self, x: np.ndarray, assoc: tuple[np.ndarray, np.ndarray] | None = None,
              weights: np.ndarray | None = None, jacobian: bool = False
              ) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
-        """Weighted rows (m,) (m), their Jacobian (m, 26) if asked, and the weights (m,).
+        """Weighted rows (m,) (m), their Jacobian (m, 26) if asked, and the weights (m,)
+        (each with a leading frame axis for a batch; padding rows and weights are 0).
 
         ``assoc`` and ``weights`` are recomputed from ``x`` unless given (tests freeze them to
         differentiate the rows exactly as the Jacobian does)."""
-        x = np.asarray(x, dtype=float)
-        if x.shape != (N_STATE,):
-            raise ValueError(f"state shape {x.shape}, expected ({N_STATE},)")
-        theta, normal = self.associate(x) if assoc is None else assoc
+        x = self._states(x)
+        if assoc is None:
+            theta, normal = self._associate(x)
+        else:
+            theta, normal = (_frames(a, self.single) for a in assoc)
         H, mean, var_f = self.conditional(theta)
-        radius = mean + (x[N_KIN:] - self.gp.mu) @ H.T
-        e = normal_offset(self.z, x[[X, Y]], x[YAW], radius, theta, normal)
+        radius = mean + np.einsum("fmn,fn->fm", H, x[:, N_KIN:] - self.gp.mu)
+        e = normal_offset(self.z, x[:, [X, Y]], x[:, YAW], radius, theta, normal)
         if weights is None:
-            scale = self.row_sigma(x[YAW], theta, normal, var_f) / self.sigma
+            scale = self._row_sigma(x[:, YAW], theta, normal, var_f) / self.sigma
             weights = huber_weights(e / (self.sigma * scale), self.huber_k) / scale**2
+            weights = np.where(self.valid, weights, 0.0)
+        else:
+            weights = _frames(weights, self.single)
         sw = np.sqrt(weights)
         J = None
         if jacobian:
-            Jr = normal_offset_jacobian(x[YAW], radius, theta, H, normal)   # (m, 3 + n)
-            J = np.zeros((self.dim, N_STATE))
-            J[:, [X, Y, YAW]] = Jr[:, :3]
-            J[:, N_KIN:] = Jr[:, 3:]
-            J *= sw[:, None]
-        return sw * e, J, weights
+            Jr = normal_offset_jacobian(x[:, YAW], radius, theta, H, normal)   # (F, M, 3 + n)
+            J = np.zeros((*theta.shape, N_STATE))
+            J[..., [X, Y, YAW]] = Jr[..., :3]
+            J[..., N_KIN:] = Jr[..., 3:]
+            J *= sw[..., None]
+            J = self._out(J)
+        return self._out(sw * e), J, self._out(weights)
 
 
 @dataclass(frozen=True)
@@ -367,7 +420,8 @@ class ExtentSettings:
 
 
 class ExtentRows:
-    """Visible-extent rows of one track in one frame (the tracker's extent measurement).
+    """Visible-extent rows of one track in one frame, or of a batch of frames (the tracker's
+    extent measurement).
 
     For a side face seen from the sensor (the sensor beyond the contour's lateral extent,
     incidence at least ``min_incidence``) whose detections span at least ``min_cover`` of the
@@ -382,66 +436,88 @@ class ExtentRows:
     Field-of-view cuts are the caller's: ``trusted`` (k,) marks the detections that may be
     an end (e.g. not next to the FOV's edge, where the view may be cut); a row whose extreme
     detection is not trusted does not apply.
+
+    detections (k, 2) for one frame, or (F, K, 2) padded with ``valid`` (F, K) for a batch;
+    states, rows and Jacobians then carry the frame axis too.
     """
 
     def __init__(self, detections: np.ndarray, sensor: np.ndarray, settings: ExtentSettings,
-                 sigma_factor: float, trusted: np.ndarray | None = None) -> None:
+                 sigma_factor: float, trusted: np.ndarray | None = None,
+                 valid: np.ndarray | None = None) -> None:
         if N_CONTOUR % 4:
             raise ValueError("the contour basis must hold the four axis angles")
-        self.z = np.asarray(detections, dtype=float)
-        self.trusted = (np.ones(len(self.z), dtype=bool) if trusted is None
-                        else np.asarray(trusted, dtype=bool))
-        if self.trusted.shape != (len(self.z),):
-            raise ValueError(f"trusted shape {self.trusted.shape}, expected ({len(self.z)},)")
+        z = np.asarray(detections, dtype=float)
+        self.single = z.ndim == 2
+        self.z = z[None] if self.single else z
+        shape = self.z.shape[:2]
+        trusted = (np.ones(shape[self.single:], dtype=bool) if trusted is None
+                   else np.asarray(trusted, dtype=bool))
+        if trusted.shape != shape[self.single:]:
+            raise ValueError(f"trusted shape {trusted.shape}, expected {shape[self.single:]}")
+        self.trusted = trusted.reshape(shape)
+        self.valid = (np.ones(shape, dtype=bool) if valid is None
+                      else np.asarray(valid, dtype=bool).reshape(shape))
         self.sensor = np.asarray(sensor, dtype=float)
         self.cfg = settings
         self.scale = float(sigma_factor) / float(settings.sigma)
         self.axis_idx = N_KIN + np.arange(4) * (N_CONTOUR // 4)
 
     @staticmethod
-    def axes(yaw: float) -> tuple[np.ndarray, np.ndarray]:
-        """(4, 2) axis directions front, left, rear, right and their yaw derivatives."""
-        h = np.array([np.cos(yaw), np.sin(yaw)])
-        lat = np.array([-h[1], h[0]])
-        return np.stack([h, lat, -h, -lat]), np.stack([lat, -h, -lat, h])
+    def axes(yaw: np.ndarray | float) -> tuple[np.ndarray, np.ndarray]:
+        """(..., 4, 2) axis directions front, left, rear, right and their yaw derivatives for
+        yaw (...)."""
+        yaw = np.asarray(yaw, dtype=float)
+        h = np.stack([np.cos(yaw), np.sin(yaw)], axis=-1)
+        lat = np.stack([-h[..., 1], h[..., 0]], axis=-1)
+        return np.stack([h, lat, -h, -lat], axis=-2), np.stack([lat, -h, -lat, h], axis=-2)
 
     def select(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(j (4,), use (4,))``: index of the extreme detection along each axis and which
-        rows apply, for state ``x`` (26,)."""
+        rows apply, for state ``x`` (26,) (each with a leading frame axis for a batch)."""
+        j, use = self._select(_frames(x, self.single))
+        return (j[0], use[0]) if self.single else (j, use)
+
+    def _select(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.cfg
-        c = x[[X, Y]]
-        ax, _ = self.axes(x[YAW])
-        rax = x[self.axis_idx]
-        proj = (self.z - c) @ ax.T                                   # (m, 4)
-        j = np.argmax(proj, axis=0)
-        s = (self.sensor - c) @ ax.T                                 # (4,)
-        los = c + ax * rax[:, None] - self.sensor
-        inc = np.abs(np.sum(los * ax, axis=1)) / np.maximum(np.linalg.norm(los, axis=1), 1e-6)
+        c = x[:, [X, Y]]
+        ax, _ = self.axes(x[:, YAW])                                    # (F, 4, 2)
+        rax = x[:, self.axis_idx]                                       # (F, 4)
+        proj = np.einsum("fkd,fad->fka", self.z - c[:, None], ax)       # (F, K, 4)
+        proj[~self.valid] = -np.inf
+        j = np.argmax(proj, axis=1)                                     # (F, 4)
+        s = np.einsum("fd,fad->fa", self.sensor - c, ax)
+        los = c[:, None] + ax * rax[..., None] - self.sensor
+        inc = (np.abs(np.sum(los * ax, axis=-1))
+               / np.maximum(np.linalg.norm(los, axis=-1), 1e-6))
         seen = (s > rax) & (inc >= cfg.min_incidence)
-        span = proj.max(axis=0)[:2] + proj.max(axis=0)[2:]           # along heading, across
-        side = (seen[1] | seen[3]) & (span[0] >= cfg.min_cover * (rax[0] + rax[2]))
-        face = (seen[0] | seen[2]) & (span[1] >= cfg.min_cover * (rax[1] + rax[3]))
-        use = (np.array([side, face, side, face]) & (len(self.z) >= cfg.min_points)
-               & self.trusted[j])
+        top = proj.max(axis=1)
+        span = top[:, :2] + top[:, 2:]                                  # along heading, across
+        side = (seen[:, 1] | seen[:, 3]) & (span[:, 0] >= cfg.min_cover * (rax[:, 0] + rax[:, 2]))
+        face = (seen[:, 0] | seen[:, 2]) & (span[:, 1] >= cfg.min_cover * (rax[:, 1] + rax[:, 3]))
+        enough = self.valid.sum(axis=1) >= cfg.min_points
+        use = (np.stack([side, face, side, face], axis=1) & enough[:, None]
+               & np.take_along_axis(self.trusted, j, axis=1))
         return j, use
 
     def rows(self, x: np.ndarray, sel: tuple[np.ndarray, np.ndarray] | None = None,
              jacobian: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
-        """Scaled rows (4,) and their Jacobian (4, 26) if asked; ``sel`` from
-        :meth:`select` (recomputed from ``x`` unless given)."""
-        j, use = self.select(x) if sel is None else sel
-        ax, dax = self.axes(x[YAW])
-        d = self.z[j] - x[[X, Y]]                                    # (4, 2)
+        """Scaled rows (4,) and their Jacobian (4, 26) if asked (each with a leading frame axis
+        for a batch); ``sel`` from :meth:`select` (recomputed from ``x`` unless given)."""
+        x = _frames(x, self.single).astype(float)
+        j, use = self._select(x) if sel is None else (_frames(a, self.single) for a in sel)
+        ax, dax = self.axes(x[:, YAW])
+        d = np.take_along_axis(self.z, j[..., None], axis=1) - x[:, None, [X, Y]]   # (F, 4, 2)
         w = use * self.scale
-        e = w * (np.sum(ax * d, axis=1) - x[self.axis_idx])
+        e = w * (np.sum(ax * d, axis=-1) - x[:, self.axis_idx])
         J = None
         if jacobian:
-            J = np.zeros((4, N_STATE))
-            J[:, [X, Y]] = -ax
-            J[:, YAW] = np.sum(dax * d, axis=1)
-            J[np.arange(4), self.axis_idx] = -1.0
-            J *= w[:, None]
-        return e, J
+            J = np.zeros((len(x), 4, N_STATE))
+            J[..., [X, Y]] = -ax
+            J[..., YAW] = np.sum(dax * d, axis=-1)
+            J[:, np.arange(4), self.axis_idx] = -1.0
+            J *= w[..., None]
+            J = J[0] if self.single else J
+        return (e[0] if self.single else e), J
 
 
 def contour_measurement_factor(key: int, detections_xy: np.ndarray, sensor_xy: np.ndarray,

@@ -54,17 +54,17 @@ def contour_point(centre: np.ndarray, yaw: np.ndarray, radius: np.ndarray,
     return np.asarray(centre)[..., None, :] + unit(theta + yaw) * np.asarray(radius)[..., None]
 
 
-def contour_point_jacobian(yaw: float, radius: np.ndarray, theta: np.ndarray,
+def contour_point_jacobian(yaw: np.ndarray | float, radius: np.ndarray, theta: np.ndarray,
                            H: np.ndarray) -> np.ndarray:
-    """``(m, 2, 3 + n)`` Jacobian of :func:`contour_point` (with ``radius = mu* + H (f - mu)``)
-    w.r.t. ``[x, y, yaw, f_1..f_n]`` for fixed ``theta*`` (m,); ``H`` (m, n) from the GP
-    conditional."""
-    u = unit(theta + yaw)                                      # (m, 2)
-    m, n = H.shape
-    J = np.zeros((m, 2, 3 + n))
-    J[:, 0, 0] = J[:, 1, 1] = 1.0
-    J[:, :, 2] = np.stack([-u[:, 1], u[:, 0]], axis=-1) * radius[:, None]
-    J[:, :, 3:] = u[:, :, None] * H[:, None, :]
+    """``(..., m, 2, 3 + n)`` Jacobian of :func:`contour_point` (with ``radius = mu* + H (f -
+    mu)``) w.r.t. ``[x, y, yaw, f_1..f_n]`` for fixed ``theta*`` (..., m); yaw (...), radius
+    (..., m), ``H`` (..., m, n) from the GP conditional (leading axes are a batch)."""
+    u = unit(theta + np.asarray(yaw)[..., None])               # (..., m, 2)
+    J = np.zeros((*H.shape[:-1], 2, 3 + H.shape[-1]))
+    J[..., 0, 0] = J[..., 1, 1] = 1.0
+    J[..., 0, 2] = -u[..., 1] * radius
+    J[..., 1, 2] = u[..., 0] * radius
+    J[..., 3:] = u[..., :, None] * H[..., None, :]
     return J
 
 
@@ -215,9 +215,17 @@ def normal_offset(z: np.ndarray, centre: np.ndarray, yaw: np.ndarray, radius: np
     return np.sum(np.asarray(normal) * (np.asarray(z) - p), axis=-1)
 
 
-def normal_offset_jacobian(yaw: float, radius: np.ndarray, theta: np.ndarray, H: np.ndarray,
-                           normal: np.ndarray) -> np.ndarray:
-    """``(m, 3 + n)`` Jacobian of :func:`normal_offset` (``radius = mu* + H (f - mu)``)
-    w.r.t. ``[x, y, yaw, f_1..f_n]`` for fixed theta (m,) and normal (m, 2)."""
-    J = contour_point_jacobian(yaw, radius, theta, H)
-    return -np.einsum("mi,mij->mj", np.asarray(normal), J)
+def normal_offset_jacobian(yaw: np.ndarray | float, radius: np.ndarray, theta: np.ndarray,
+                           H: np.ndarray, normal: np.ndarray) -> np.ndarray:
+    """``(..., m, 3 + n)`` Jacobian of :func:`normal_offset` (``radius = mu* + H (f - mu)``)
+    w.r.t. ``[x, y, yaw, f_1..f_n]`` for fixed theta (..., m) and normal (..., m, 2); yaw
+    (...), radius (..., m), H (..., m, n): ``-n`` on the centre, ``-r n . u'`` on the yaw and
+    ``-(n . u) H`` on the radii (``u = u(theta + yaw)``, ``u'`` its derivative)."""
+    u = unit(theta + np.asarray(yaw)[..., None])               # (..., m, 2)
+    n = np.asarray(normal, dtype=float)
+    J = np.empty((*H.shape[:-1], 3 + H.shape[-1]))
+    J[..., 0] = -n[..., 0]
+    J[..., 1] = -n[..., 1]
+    J[..., 2] = -radius * (n[..., 1] * u[..., 0] - n[..., 0] * u[..., 1])
+    J[..., 3:] = -(n[..., 0] * u[..., 0] + n[..., 1] * u[..., 1])[..., None] * H
+    return J

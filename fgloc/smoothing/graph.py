@@ -39,12 +39,16 @@ from factors.ctra import ctra_predict
 from factors.gp import ContourGP, rectangle_radius_gradient
 from factors.gtsam_factors import (
     ConditionalTable,
+    ContourMeasurement,
+    ExtentRows,
     ExtentSettings,
     contour_measurement_factor,
     prior_factor,
+    process_covariance,
     process_factor,
     track_key,
 )
+from factors.track_system import StackedTracks, sqrt_information
 from fgloc.scenario import Scenario
 from fgloc.smoothing.config import SmoothingConfig
 from fgloc.tracking.birth import FieldOfView
@@ -122,11 +126,23 @@ class TrackModel:
         return process_factor(key0, key1, dt, self.gp, c.tau, c.sigma_jerk, c.sigma_yaw_acc,
                               c.sigma_pos, x_ref=x_ref, contour_rw=self.contour_rw)
 
+    def process_noise(self, x_ref: np.ndarray, dt: np.ndarray) -> np.ndarray:
+        """(..., 26, 26) noise of the process factors at ``x_ref`` (..., 26), ``dt`` (...) s
+        (the covariance :meth:`process` uses)."""
+        c = self.tracking
+        return process_covariance(x_ref, dt, self.gp, c.tau, c.sigma_jerk, c.sigma_yaw_acc,
+                                  c.sigma_pos, contour_rw=self.contour_rw)
+
     def predict(self, x: np.ndarray, dt: float) -> np.ndarray:
         """State (26,) after ``dt`` s of the process model's mean motion from ``x`` (26,)."""
         out = ctra_predict(np.asarray(x, dtype=float), dt)
         out[N_KIN:], _ = self.gp.decay(out[N_KIN:], self.tracking.tau, dt)
         return out
+
+    def _radar_noise(self) -> tuple[float, float]:
+        c = self.tracking
+        return ((c.sigma_range, float(np.deg2rad(c.sigma_azimuth_deg)))
+                if self.smoothing.radar_noise else (0.0, 0.0))
 
     def measurement(self, key: int, z: np.ndarray, sensor_xy: np.ndarray,
                     trusted: np.ndarray | None = None) -> gtsam.CustomFactor:
@@ -136,12 +152,26 @@ class TrackModel:
         c, s = self.tracking, self.smoothing
         z_all = np.asarray(z, dtype=float)
         z = z_all[regular_subsample(len(z_all), s.max_detections)]
-        noise = (c.sigma_range, np.deg2rad(c.sigma_azimuth_deg)) if s.radar_noise else (0, 0)
         return contour_measurement_factor(key, z, sensor_xy, self.gp, c.sigma_contour,
-                                          s.huber_k, c.n_candidates, *noise,
+                                          s.huber_k, c.n_candidates, *self._radar_noise(),
                                           gp_variance=s.radar_noise, table=self.table,
                                           extent=self.extent, extent_detections=z_all,
                                           extent_trusted=trusted)
+
+    def measurement_batch(self, z: np.ndarray, valid: np.ndarray, z_all: np.ndarray,
+                          valid_all: np.ndarray, trusted: np.ndarray, sensor_xy: np.ndarray
+                          ) -> tuple[ContourMeasurement, ExtentRows | None]:
+        """The rows of :meth:`measurement` for F frames at once: the subsampled detections
+        ``z`` (F, M, 2) / ``valid`` (F, M), all of them ``z_all`` (F, K, 2) / ``valid_all``
+        with ``trusted`` (F, K) for the extent rows (padding finite, not valid)."""
+        c, s = self.tracking, self.smoothing
+        meas = ContourMeasurement(z, sensor_xy, self.gp, c.sigma_contour, s.huber_k,
+                                  c.n_candidates, *self._radar_noise(),
+                                  gp_variance=s.radar_noise, table=self.table, valid=valid)
+        ext = (None if self.extent is None else
+               ExtentRows(z_all, sensor_xy, self.extent, meas.sigma, trusted & valid_all,
+                          valid_all))
+        return meas, ext
 
     def initial_covariance(self) -> np.ndarray:
         """(26, 26) P0 of a new track from the ``[tracking]`` init sigmas and the GP kernel."""
@@ -153,11 +183,15 @@ class TrackModel:
         P0[N_KIN:, N_KIN:] = self.gp.K
         return P0
 
-    def prior(self, key: int, track: Track, step: int = 0) -> gtsam.PriorFactorVector:
-        """Prior on ``key``: the filter's state and covariance of ``track`` at ``step``."""
+    def prior_covariance(self, track: Track, step: int = 0) -> np.ndarray:
+        """(26, 26) covariance of the prior on ``track`` at ``step``: the filter's (or P0)."""
         P = (track.covariances[step] if track.covariances is not None
              else self.initial_covariance())
-        return prior_factor(key, track.states[step], P + _PRIOR_JITTER * np.eye(N_STATE))
+        return P + _PRIOR_JITTER * np.eye(N_STATE)
+
+    def prior(self, key: int, track: Track, step: int = 0) -> gtsam.PriorFactorVector:
+        """Prior on ``key``: the filter's state and covariance of ``track`` at ``step``."""
+        return prior_factor(key, track.states[step], self.prior_covariance(track, step))
 
 
 def step_detections(track: Track) -> list[np.ndarray]:
@@ -227,29 +261,106 @@ def build_track_graph(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarra
     return TrackGraph(graph, values, keys, model)
 
 
-def tracks_from_values(tracks: TrackSet, values: gtsam.Values, keys: list[np.ndarray],
+def pad_ragged(values: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Groups of consecutive rows of ``values`` (K, d) with sizes ``counts`` (F,) (each >= 1)
+    as ``(padded (F, max count, d), valid (F, max count))``; padding repeats each group's
+    first row (finite wherever the values are)."""
+    counts = np.asarray(counts, dtype=np.int64)
+    off = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
+    grp = np.repeat(np.arange(len(counts)), counts)
+    pos = np.arange(len(values)) - off[grp]
+    width = int(counts.max()) if len(counts) else 1
+    out = np.repeat(values[off][:, None, :], width, axis=1)
+    out[grp, pos] = values
+    valid = np.zeros((len(counts), width), dtype=bool)
+    valid[grp, pos] = True
+    return out, valid
+
+
+def stack_tracks(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
+                 smoothing: SmoothingConfig | None = None,
+                 tracking: TrackingConfig | None = None,
+                 det_trusted: np.ndarray | None = None,
+                 chunk: int = 1024) -> StackedTracks:
+    """The factors of :func:`build_track_graph` (same arguments, same residuals and noise)
+    as one :class:`factors.track_system.StackedTracks` over the steps of all tracks, in
+    ``tracks.tracks`` order; measurement frames in chunks of ``chunk`` (bounds the memory
+    of an evaluation)."""
+    det_xy = np.asarray(det_xy, dtype=float)
+    sensor_xy = np.asarray(sensor_xy, dtype=float)
+    model = TrackModel.of(tracking, smoothing)
+    trusted = (np.ones(len(det_xy), dtype=bool) if det_trusted is None
+               else np.asarray(det_trusted, dtype=bool))
+    lengths = np.array([len(tr) for tr in tracks.tracks], dtype=np.int64)
+    start = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+    first_states = np.array([tr.states[0] for tr in tracks.tracks]).reshape(-1, N_STATE)
+    prior_cov = np.array([model.prior_covariance(tr) for tr in tracks.tracks])
+    prior_W = (sqrt_information(prior_cov) if len(prior_cov)
+               else np.zeros((0, N_STATE, N_STATE)))
+    x_ref = np.concatenate([tr.states[:-1] for tr in tracks.tracks] or [np.zeros((0, 26))])
+    dt = np.concatenate([np.diff(tr.t) for tr in tracks.tracks] or [np.zeros(0)])
+    if np.any(dt <= 0):
+        raise ValueError("track times must increase")
+    proc_step = np.concatenate([start[i] + np.arange(1, n) for i, n in enumerate(lengths)]
+                               or [np.zeros(0, np.int64)]).astype(np.int64)
+    proc_W = (sqrt_information(model.process_noise(x_ref, dt)) if len(dt)
+              else np.zeros((0, N_STATE, N_STATE)))
+    # measurement frames: the steps with detections
+    frames = [(start[i] + s, idx) for i, tr in enumerate(tracks.tracks)
+              for s, idx in enumerate(step_detections(tr)) if len(idx)]
+    meas_step = np.array([f[0] for f in frames], dtype=np.int64)
+    m = model.smoothing.max_detections
+    subs = [idx[regular_subsample(len(idx), m)] for _, idx in frames]
+    alls = [idx for _, idx in frames]
+    meas, bounds = [], [0]
+    for a in range(0, len(frames), chunk):
+        sub, full = subs[a:a + chunk], alls[a:a + chunk]
+        z, valid = pad_ragged(det_xy[np.concatenate(sub)], np.array([len(i) for i in sub]))
+        counts = np.array([len(i) for i in full])
+        idx = np.concatenate(full)
+        z_all, valid_all = pad_ragged(det_xy[idx], counts)
+        tr_all, _ = pad_ragged(trusted[idx][:, None], counts)
+        meas.append(model.measurement_batch(z, valid, z_all, valid_all, tr_all[..., 0],
+                                            sensor_xy))
+        bounds.append(bounds[-1] + len(sub))
+    return StackedTracks(start, first_states, prior_W, proc_step, dt, proc_W, meas_step, meas,
+                         np.array(bounds, dtype=np.int64), model.gp, model.tracking.tau)
+
+
+def tracks_from_states(tracks: TrackSet, states: list[np.ndarray],
                        tracking: TrackingConfig | None = None,
-                       marginals: gtsam.Marginals | None = None,
+                       covariances: list[np.ndarray] | None = None,
                        smoother: str = "smoother") -> TrackSet:
-    """The same tracks with the states read from ``values`` (``keys`` as in
-    :class:`TrackGraph`), clipped to the tracker's road-vehicle limits (0 <= v <= max_speed,
-    |a| <= max_accel, |yaw rate| <= max_yawrate, radii >= min_radius), labels recomputed from
-    kappa = yawrate / v (``tracking.eta``, ``label_min_speed``) and covariances from
-    ``marginals`` (None without). Same frame, T_frame_to_L, ids, times and detections;
-    diagnostics gain ``smoother``."""
+    """The same tracks with new ``states`` (one (n, 26) array per track, in order), clipped
+    to the tracker's road-vehicle limits (0 <= v <= max_speed, |a| <= max_accel, |yaw rate|
+    <= max_yawrate, radii >= min_radius), labels recomputed from kappa = yawrate / v
+    (``tracking.eta``, ``label_min_speed``) and ``covariances`` ((n, 26, 26) per track, None
+    = without). Same frame, T_frame_to_L, ids, times and detections; diagnostics gain
+    ``smoother``."""
     c = tracking or TrackingConfig()
     out = []
-    for tr, k in zip(tracks.tracks, keys):
-        s = np.array([values.atVector(int(key)) for key in k], dtype=float).reshape(-1, N_STATE)
+    for i, (tr, s) in enumerate(zip(tracks.tracks, states)):
+        s = np.array(s, dtype=float).reshape(-1, N_STATE)
         s[:, V] = np.clip(s[:, V], 0.0, c.max_speed)
         s[:, A] = np.clip(s[:, A], -c.max_accel, c.max_accel)
         s[:, YAWRATE] = np.clip(s[:, YAWRATE], -c.max_yawrate, c.max_yawrate)
         s[:, N_KIN:] = np.maximum(s[:, N_KIN:], c.min_radius)
-        cov = (None if marginals is None
-               else np.array([marginals.marginalCovariance(int(key)) for key in k]))
         out.append(dataclasses.replace(
-            tr, t=tr.t.copy(), states=s, covariances=cov,
+            tr, t=tr.t.copy(), states=s,
+            covariances=None if covariances is None else covariances[i],
             labels=kappa_labels(s, c.eta, c.label_min_speed),
             det_index=tr.det_index.copy(), det_step=tr.det_step.copy()))
     return dataclasses.replace(tracks, tracks=out,
                                diagnostics={**tracks.diagnostics, "smoother": smoother})
+
+
+def tracks_from_values(tracks: TrackSet, values: gtsam.Values, keys: list[np.ndarray],
+                       tracking: TrackingConfig | None = None,
+                       marginals: gtsam.Marginals | None = None,
+                       smoother: str = "smoother") -> TrackSet:
+    """:func:`tracks_from_states` with the states read from ``values`` (``keys`` as in
+    :class:`TrackGraph`) and covariances from ``marginals`` (None without)."""
+    states = [np.array([values.atVector(int(key)) for key in k], dtype=float) for k in keys]
+    covs = (None if marginals is None else
+            [np.array([marginals.marginalCovariance(int(key)) for key in k]) for k in keys])
+    return tracks_from_states(tracks, states, tracking, covs, smoother)
