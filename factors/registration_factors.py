@@ -149,34 +149,52 @@ class PointRows:
         if pose.shape != (N_POSE,) or x.shape != (N_STATE,):
             raise ValueError(f"pose shape {pose.shape} / state shape {x.shape}, expected "
                              f"({N_POSE},) / ({N_STATE},)")
-        radius = self.mean + (x[N_KIN:] - self.gp.mu) @ self.H.T
-        s = contour_point(x[[X, Y]], x[YAW], radius, self.theta)          # (m, 2)
-        c, sn = np.cos(pose[2]), np.sin(pose[2])
-        R = np.array([[c, -sn], [sn, c]])
-        rs = s @ R.T                                                      # (m, 2)
-        d = rs + pose[:2] - self.target - b * self.normal
-        r = np.einsum("mij,mj->mi", self.sqrt_info, d)                    # (m, 2)
+        one = (self.theta[None], self.H[None], self.mean[None], self.target[None],
+               self.normal[None], self.sqrt_info[None])
         if weights is None:
             weights = self.weights
         if weights is None:
+            r = point_rows_batch(pose, x[None], np.array([b]), *one, np.ones((1, len(self.theta))),
+                                 self.gp.mu)[0][0]
             weights = huber_weights(np.linalg.norm(r, axis=1), self.huber_k) * self.compat
-        sw = np.sqrt(weights)[:, None]
-        e = (sw * r).reshape(-1)
+        e, J = point_rows_batch(pose, x[None], np.array([b]), *one,
+                                np.asarray(weights, dtype=float)[None], self.gp.mu, jacobian)
         if not jacobian:
-            return e, None, weights
-        m = s.shape[0]
-        dq_pose = np.zeros((m, 2, N_POSE))
-        dq_pose[:, 0, 0] = dq_pose[:, 1, 1] = 1.0
-        dq_pose[:, 0, 2], dq_pose[:, 1, 2] = -rs[:, 1], rs[:, 0]
-        js = contour_point_jacobian(x[YAW], radius, self.theta, self.H)   # (m, 2, 3 + n)
-        dq_x = np.zeros((m, 2, N_STATE))
-        dq_x[:, :, [X, Y, YAW]] = np.einsum("ij,mjk->mik", R, js[:, :, :3])
-        dq_x[:, :, N_KIN:] = np.einsum("ij,mjk->mik", R, js[:, :, 3:])
-        scale = sw[:, :, None] * self.sqrt_info                           # (m, 2, 2)
-        J_pose = np.einsum("mij,mjk->mik", scale, dq_pose).reshape(-1, N_POSE)
-        J_x = np.einsum("mij,mjk->mik", scale, dq_x).reshape(-1, N_STATE)
-        J_b = -np.einsum("mij,mj->mi", scale, self.normal).reshape(-1, 1)
-        return e, [J_pose, J_x, J_b], weights
+            return e.reshape(-1), None, weights
+        return e.reshape(-1), [J[0].reshape(-1, N_POSE), J[1].reshape(-1, N_STATE),
+                               J[2].reshape(-1, 1)], weights
+
+
+def point_rows_batch(pose: np.ndarray, x: np.ndarray, b: np.ndarray, theta: np.ndarray,
+                     H: np.ndarray, mean: np.ndarray, target: np.ndarray, normal: np.ndarray,
+                     sqrt_info: np.ndarray, weights: np.ndarray, gp_mu: np.ndarray,
+                     jacobian: bool = False
+                     ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray] | None]:
+    """The rows of :class:`PointRows` for F frames of K points each at once (padding points
+    get weight 0): pose (3,), states x (F, 26), offsets b (F,) (m; 0 without), angles theta
+    (F, K), GP conditional H (F, K, n) and mean (F, K), targets (F, K, 2) and normals
+    (F, K, 2) in L, sqrt_info (F, K, 2, 2), fixed weights (F, K), prior mean radii gp_mu (n,).
+    Returns the weighted residual (F, K, 2) and, with ``jacobian``, its derivatives w.r.t. the
+    pose (F, K, 2, 3), the state (F, K, 2, 26) and the offset (F, K, 2)."""
+    radius = mean + np.einsum("fkn,fn->fk", H, x[:, N_KIN:] - gp_mu)
+    s = contour_point(x[:, [X, Y]], x[:, YAW], radius, theta)            # (F, K, 2)
+    c, sn = np.cos(pose[2]), np.sin(pose[2])
+    R = np.array([[c, -sn], [sn, c]])
+    rs = s @ R.T
+    d = rs + pose[:2] - target - b[:, None, None] * normal
+    sw = np.sqrt(weights)[..., None]
+    e = sw * (sqrt_info @ d[..., None])[..., 0]
+    if not jacobian:
+        return e, None
+    dq_pose = np.zeros((*theta.shape, 2, N_POSE))
+    dq_pose[..., 0, 0] = dq_pose[..., 1, 1] = 1.0
+    dq_pose[..., 0, 2], dq_pose[..., 1, 2] = -rs[..., 1], rs[..., 0]
+    js = contour_point_jacobian(x[:, YAW], radius, theta, H)              # (F, K, 2, 3 + n)
+    dq_x = np.zeros((*theta.shape, 2, N_STATE))
+    dq_x[..., [X, Y, YAW]] = R @ js[..., :3]
+    dq_x[..., N_KIN:] = R @ js[..., 3:]
+    scale = sw[..., None] * sqrt_info                                     # (F, K, 2, 2)
+    return e, (scale @ dq_pose, scale @ dq_x, -(scale @ normal[..., None])[..., 0])
 
 
 def point_to_point_factor(pose_key: int, state_key: int, rows: PointRows,

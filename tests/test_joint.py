@@ -143,41 +143,76 @@ def test_config_fields_are_checked():
             check_joint_config(dataclasses.replace(JointConfig(), **{field: value}))
 
 
-def test_pose_information_matches_gtsam_marginals():
-    """The per-track Schur complement equals gtsam.Marginals on a well-conditioned graph."""
+def test_arrow_solve_and_covariance_match_gtsam():
+    """One Gauss-Newton step and the pose's marginal covariance of the vectorized joint
+    problem equal gtsam's on the equivalent factor graph (the track graph, one
+    point_to_point_factor per frame, the pose and offset priors)."""
     import gtsam
 
-    from factors.gtsam_factors import sensor_key, track_key
-    from factors.registration_factors import offset_key
-    from fgloc.registration.joint import pose_information
+    from factors.gtsam_factors import sensor_key
+    from factors.registration_factors import PointRows, offset_key, point_to_point_factor
+    from fgloc.registration import joint as J
+    from fgloc.registration.joint_solver import Priors, linearize, solve_arrow
+    from fgloc.smoothing.banded_lm import BandedLayout
+    from fgloc.smoothing.graph import build_track_graph
 
-    rng = np.random.default_rng(4)
+    T_true = se2(0.3, -0.2, np.deg2rad(0.4))
+    tracks, det, sensor_c, lines = _scene(True, T_true, np.array([12.0, -12.0]), 5,
+                                          per_lane=1)
+    cfg = _cfg()
+    tracks = dataclasses.replace(tracks, tracks=[dataclasses.replace(
+        t, t=t.t[:6], states=t.states[:6], labels=t.labels[:6],
+        det_index=t.det_index[t.det_step < 6], det_step=t.det_step[t.det_step < 6])
+        for t in tracks.tracks])
+    lengths = [len(t) for t in tracks.tracks]
+    start = np.concatenate([[0], np.cumsum(lengths)])
+    owner = np.repeat(np.arange(len(lengths)), lengths)
+    x = np.concatenate([t.states for t in tracks.tracks])
+    x = x + np.random.default_rng(1).normal(0, 0.02, x.shape)
+    tq, gp = J.track_quadratic(tracks, det, sensor_c, cfg, x)
+    fp = J.frame_points(tracks, start, det, sensor_c, gp, 6)
+    pad = fp.padded(6)
+    pose, b = np.array([0.25, -0.1, 0.005]), np.array([0.05, -0.02, 0.0, 0.03])
+    index, compat, target, normal = J._correspondences(fp, x, pose, lines, gp, cfg.joint)
+    sigma = np.full(len(index), 0.2)
+    pts = J._point_set(fp, pad, index, compat, target, normal, sigma, x, pose, b, 0.2, gp,
+                       cfg.joint)
+    pri = Priors(np.zeros(3), np.array([1 / 20, 1 / 20, 1 / 0.03]), 1 / 0.3)
+    sol = solve_arrow(linearize(tq, pts, pri, len(lengths), x, pose, b),
+                      BandedLayout(len(x), tq.below), owner, True)
+
+    tg = build_track_graph(tracks, det, sensor_c, cfg.smoothing, cfg.tracking)
+    values = gtsam.Values()
+    for k, v in zip(np.concatenate(tg.keys), x):
+        values.update(int(k), v) if values.exists(int(k)) else values.insert(int(k), v)
     G = sensor_key()
-    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
-    values.insert(G, np.zeros(3))
-    graph.add(gtsam.PriorFactorVector(G, np.zeros(3), gtsam.noiseModel.Isotropic.Sigma(3, 2.0)))
-    for tid in range(3):
-        kb = offset_key(tid)
-        values.insert(kb, np.zeros(1))
-        graph.add(gtsam.PriorFactorVector(kb, np.zeros(1),
+    values.insert(G, pose)
+    graph = tg.graph
+    graph.add(gtsam.PriorFactorVector(G, np.zeros(3),
+                                      gtsam.noiseModel.Diagonal.Sigmas(1 / pri.pose_w)))
+    for i, t in enumerate(tracks.tracks):
+        values.insert(offset_key(t.id), b[i:i + 1])
+        graph.add(gtsam.PriorFactorVector(offset_key(t.id), np.zeros(1),
                                           gtsam.noiseModel.Isotropic.Sigma(1, 0.3)))
-        keys = [track_key(tid, s) for s in range(4)]
-        for s, k in enumerate(keys):
-            values.insert(k, rng.normal(size=N_STATE))
-            graph.add(gtsam.PriorFactorVector(k, np.zeros(N_STATE),
-                                              gtsam.noiseModel.Isotropic.Sigma(N_STATE, 1.0)))
-            if s:
-                graph.add(gtsam.BetweenFactorVector(keys[s - 1], k, np.zeros(N_STATE),
-                                                    gtsam.noiseModel.Isotropic.Sigma(N_STATE,
-                                                                                     0.1)))
-            A = [rng.normal(size=(5, d)) for d in (3, N_STATE, 1)]
-            lin = gtsam.JacobianFactor(G, A[0], k, A[1], kb, A[2], np.zeros(5),
-                                       gtsam.noiseModel.Unit.Create(5))
-            graph.add(gtsam.LinearContainerFactor(lin, values))
-    info, shares = pose_information(graph, values)
+    for f in range(len(fp.frame_state)):
+        w = pts.weights[f]
+        use = w > 0
+        if not use.any():
+            continue
+        rows = PointRows(pts.theta[f][use], pts.target[f][use], pts.normal[f][use],
+                         pts.sqrt_info[f][use], np.ones(use.sum()), np.inf, gp,
+                         pts.H[f][use], pts.mean[f][use], w[use])
+        t = tracks.tracks[fp.frame_track[f]]
+        graph.add(point_to_point_factor(G, int(tg.keys[fp.frame_track[f]][fp.frame_step[f]]),
+                                        rows, offset_key(t.id)))
+    delta = graph.linearize(values).optimize()
+    np.testing.assert_allclose(sol.dp, delta.at(G), rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(sol.db, [delta.at(offset_key(t.id))[0] for t in tracks.tracks],
+                               rtol=1e-6, atol=1e-9)
+    dx = np.array([delta.at(int(k)) for k in np.concatenate(tg.keys)])
+    np.testing.assert_allclose(sol.dx, dx, rtol=1e-5, atol=1e-7 * np.abs(dx).max())
     expect = gtsam.Marginals(graph, values).marginalCovariance(G)
-    np.testing.assert_allclose(np.linalg.inv(info), expect, rtol=1e-8, atol=1e-12)
-    assert sorted(shares) == [0, 1, 2]
+    np.testing.assert_allclose(np.linalg.inv(sol.pose_information), expect, rtol=1e-6)
 
 
 @pytest.mark.slow

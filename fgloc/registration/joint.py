@@ -5,18 +5,18 @@ Pipeline: target cloud -> coarse pose -> GP-EOT tracks in C -> filter-sicp's reg
 (the start, :func:`fgloc.fine.register_tracks`) -> the joint graph below -> ``T_fine`` (C -> L)
 with its marginal covariance -> ``T_utm = T~_fine · T_coarse``.
 
-The graph (gtsam, all variables Vectors, frame C unless stated)
---------------------------------------------------------------
-* the track graph of :mod:`fgloc.smoothing.graph` (prior on each track's first state, process
-  factors, stacked contour measurement factors) on every ``step_stride``-th step of every
-  track used (``fine.n_trajectories`` / ``trajectory_share`` pick a seeded subset, the same
+The problem (frame C unless stated; the factor graph of docs/method.md section 7)
+-------------------------------------------------------------------------------
+* the track factors of :mod:`fgloc.smoothing.graph` (prior on each track's first state,
+  process factors, stacked contour measurement factors) on every ``step_stride``-th step of
+  every track used (``fine.n_trajectories`` / ``trajectory_share`` pick a seeded subset, the same
   one filter-sicp uses);
 * the pose ``T = (tx, ty, phi)``: C -> L, started at SICP's result (or the coarse pose), with
   a loose prior at the coarse pose (``pose_prior_sigma``), so a direction no factor observes
   stays finite and shows up as weak instead of taking an arbitrary value;
 * per track a lateral offset ``b`` (m) with prior ``N(0, offset_sigma^2)``;
-* per (track, step) one point-to-point factor
-  (:func:`factors.registration_factors.point_to_point_factor`): the track's contour at the
+* per (track, step) one point-to-point block (the rows of
+  :func:`factors.registration_factors.point_to_point_factor`): the track's contour at the
   object-frame angles of up to ``max_points_per_frame`` of its detections in that frame (the
   sensor-aware angles of the filter's state, fixed), moved by ``T`` into L, against their
   correspondences on the lanelet centre lines shifted towards the sensor by
@@ -26,9 +26,18 @@ The graph (gtsam, all variables Vectors, frame C unless stated)
 
 Rounds: correspondences are found for the current estimate with one KD-tree per label (built
 once, :class:`fgloc.registration.sicp.SemanticTargets`; least ``d^2 / compatibility`` within
-``max_correspondence``), the graph is optimized with a few Levenberg-Marquardt iterations,
+``max_correspondence``), the problem is optimized with a few Levenberg-Marquardt iterations,
 the noise levels are re-estimated (``estimate_noise``), and this repeats until the pose moves
 by less than ``tol_position`` / ``tol_yaw_deg`` or ``max_rounds``.
+
+Solver: :mod:`fgloc.registration.joint_solver`, vectorized in numpy -- the track factors
+as a quadratic model linearized once at the filter's states (``relinearize_tracks``), the
+point rows of all frames evaluated in batched calls, and each Gauss-Newton system solved by
+eliminating the banded track block (one banded Cholesky for all tracks) onto the pose and
+the offsets. The same factors as gtsam CustomFactors (:func:`factors.registration_factors.
+point_to_point_factor`, :func:`fgloc.smoothing.graph.build_track_graph`) give the same step
+and the same pose marginal (tests); one Python callback per factor and linearization made the
+gtsam optimization ~70x slower (docs/benchmarks.md).
 
 Correlation and the covariance
 ------------------------------
@@ -39,8 +48,9 @@ but tell the pose only as much as one line measurement of std. dev. ``offset_sig
 and errors of the track shape are shared through its states. ``sigma_line`` (the residual
 scatter about the offset line, a robust MAD estimate) and ``offset_sigma`` (RMS of the
 estimated offsets) are re-estimated from the data each round, so the covariance follows the
-data rather than a tuned constant. The covariance is ``gtsam.Marginals`` of ``T`` at the
-solution, mapped to the sensor's (x, y, yaw) in L. Its calibration (NEES) is measured in
+data rather than a tuned constant. The covariance is the marginal covariance of ``T`` at the
+solution (the inverse of its Schur complement, equal to ``gtsam.Marginals`` on the
+equivalent graph), mapped to the sensor's (x, y, yaw) in L. Its calibration (NEES) is measured in
 docs/benchmarks.md.
 
 Degeneracy report: the information of ``T`` (inverse marginal covariance) re-expressed in
@@ -57,36 +67,29 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-import gtsam
 import numpy as np
-from scipy.linalg import solveh_banded
 from scipy.spatial import cKDTree
 
 from factors.gp import ContourGP
-from factors.gtsam_factors import (
-    TRACK_CHAR,
-    ContourMeasurement,
-    decode_track_key,
-    huber_weights,
-    prior_factor,
-    sensor_key,
-    track_key,
-)
-from factors.registration_factors import (
-    OFFSET_CHAR,
-    PointRows,
-    line_sqrt_info,
-    offset_key,
-    point_to_point_factor,
-)
+from factors.gtsam_factors import ContourMeasurement, huber_weights
+from factors.registration_factors import line_sqrt_info
 from fgloc.config import Config
 from fgloc.geo import se2, se2_params, se2_to_se3, transform_points, wrap_angle
 from fgloc.labels import NAMES
 from fgloc.progress import Timer
 from fgloc.registration.joint_config import JointConfig, check_joint_config
+from fgloc.registration.joint_solver import (
+    PointSet,
+    Priors,
+    TrackQuadratic,
+    joint_cost,
+    linearize,
+    solve_arrow,
+)
 from fgloc.registration.sicp import _degeneracy
 from fgloc.result import LocalizationResult, json_ready
 from fgloc.scenario import Scenario
+from fgloc.smoothing.banded_lm import BandedLayout
 from fgloc.tracks import N_KIN, N_STATE, YAW, Track, TrackSet, X, Y
 
 if TYPE_CHECKING:
@@ -194,15 +197,16 @@ def decimate(tracks: TrackSet, stride: int, min_steps: int) -> TrackSet:
 class FramePoints:
     """The contour points of all (track, step) frames, stacked.
 
-    frame_track / frame_step / frame_key: (F,) track index, step and state key of each frame.
-    start: (F + 1,) offsets of each frame's points. theta: (P,) object-frame angles (rad).
+    frame_track / frame_step / frame_state: (F,) track index, step in the track and index of
+    the state in the stacked steps of all tracks. start: (F + 1,) offsets of each frame's
+    points. theta: (P,) object-frame angles (rad).
     label: (P,) label code of each point (its track's label at that step). H, mean: (P, n),
     (P,) GP conditional of each angle.
     """
 
     frame_track: np.ndarray
     frame_step: np.ndarray
-    frame_key: np.ndarray
+    frame_state: np.ndarray
     start: np.ndarray
     theta: np.ndarray
     label: np.ndarray
@@ -211,7 +215,18 @@ class FramePoints:
 
     @property
     def point_frame(self) -> np.ndarray:
-        return np.repeat(np.arange(len(self.frame_key)), np.diff(self.start))
+        return np.repeat(np.arange(len(self.frame_state)), np.diff(self.start))
+
+    def padded(self, width: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(index (F, width), valid (F, width))``: each frame's points as indices into the
+        P points (padding repeats the frame's first point and is not valid)."""
+        pf = self.point_frame
+        pos = np.arange(len(pf)) - self.start[pf]
+        index = np.repeat(self.start[:-1, None], width, axis=1)
+        index[pf, pos] = np.arange(len(pf))
+        valid = np.zeros(index.shape, dtype=bool)
+        valid[pf, pos] = True
+        return index, valid
 
     def points(self, states: np.ndarray, gp_mu: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -225,14 +240,15 @@ class FramePoints:
         return xy, radius * np.sin(self.theta), s[:, YAW]
 
 
-def frame_points(tracks: TrackSet, keys: list[np.ndarray], det_xy: np.ndarray,
+def frame_points(tracks: TrackSet, start: np.ndarray, det_xy: np.ndarray,
                  sensor_xy: np.ndarray, gp, max_points: int) -> FramePoints:
     """Per (track, step) with detections: the sensor-aware contour angles of up to
-    ``max_points`` of them (a regular subsample) on the track's state there."""
+    ``max_points`` of them (a regular subsample) on the track's state there; ``start``
+    (T + 1,) the offsets of the tracks' steps in the stacked states."""
     from fgloc.smoothing.graph import regular_subsample, step_detections
 
-    ft, fs, fk, theta, label, start = [], [], [], [], [], [0]
-    for j, (tr, k) in enumerate(zip(tracks.tracks, keys)):
+    ft, fs, fk, theta, label, offs = [], [], [], [], [], [0]
+    for j, tr in enumerate(tracks.tracks):
         for s, idx in enumerate(step_detections(tr)):
             if len(idx) == 0:
                 continue
@@ -240,14 +256,14 @@ def frame_points(tracks: TrackSet, keys: list[np.ndarray], det_xy: np.ndarray,
             th, _ = ContourMeasurement(z, sensor_xy, gp).associate(tr.states[s])
             ft.append(j)
             fs.append(s)
-            fk.append(int(k[s]))
+            fk.append(int(start[j]) + s)
             theta.append(th)
             label.append(np.full(len(th), tr.labels[s], np.int64))
-            start.append(start[-1] + len(th))
+            offs.append(offs[-1] + len(th))
     th = np.concatenate(theta) if theta else np.zeros(0)
     H, _ = gp.conditional(th)
     return FramePoints(np.array(ft, np.int64), np.array(fs, np.int64), np.array(fk, np.int64),
-                       np.array(start, np.int64), th,
+                       np.array(offs, np.int64), th,
                        np.concatenate(label) if label else np.zeros(0, np.int64), H,
                        gp.mean(th))
 
@@ -262,10 +278,9 @@ class JointResult:
     converged: the pose (and the noise levels) settled before ``max_rounds``. noise: the final
     :class:`NoiseLevels` (summary). offsets: track id -> lateral offset (m).
     matched: (P, 2) matched contour points in L, matched_label (P,) their labels. history:
-    per round pose, noise and error. timing: seconds of building, association, graph
-    assembly, track-factor linearization, optimization, marginals, and the optimization's
-    split into Python factor callbacks (estimated from one timed linearization and error
-    evaluation) and the rest (gtsam).
+    per round pose, noise and cost. timing: seconds of building (track factors and points),
+    association, point-row linearization with the system assembly, banded solves, cost
+    evaluations, the final marginal covariance, and the iteration count.
     """
 
     T: np.ndarray
@@ -284,139 +299,63 @@ class JointResult:
     timing: dict[str, float]
 
 
-def _pose_vec(values: gtsam.Values) -> np.ndarray:
-    return np.asarray(values.atVector(sensor_key()), dtype=float)
-
-
 def _add_time(timing: dict[str, float], key: str, t0: float) -> None:
     timing[key] = timing.get(key, 0.0) + time.perf_counter() - t0
 
 
-def _track_factors(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray, cfg: Config
-                   ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, list[np.ndarray],
-                              ContourGP]:
-    """The smoother's track graph (or, without ``refine_tracks``, tight priors holding the
-    states at the filter's), its initial values, per-track keys and the contour model."""
-    from fgloc.smoothing.graph import TrackModel, build_track_graph
+def track_quadratic(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray, cfg: Config,
+                    x_lin: np.ndarray) -> tuple[TrackQuadratic, ContourGP]:
+    """The track factors' quadratic model about ``x_lin`` (the stacked states) and the contour
+    model; without ``refine_tracks`` a tight hold (information 1e8 per state unit) instead."""
+    from fgloc.smoothing.graph import TrackModel, stack_tracks
 
-    smoothing = cfg.smoothing
     if cfg.joint.refine_tracks:
-        tg = build_track_graph(tracks, det_xy, sensor_xy, smoothing, cfg.tracking)
-        return tg.graph, tg.values, tg.keys, tg.model.gp
-    graph, values, keys = gtsam.NonlinearFactorGraph(), gtsam.Values(), []
-    hold = 1e-8 * np.eye(N_STATE)
-    for tr in tracks.tracks:
-        k = np.array([track_key(tr.id, s) for s in range(len(tr))], np.int64)
-        keys.append(k)
-        for s in range(len(tr)):
-            values.insert(int(k[s]), tr.states[s])
-            graph.add(prior_factor(int(k[s]), tr.states[s], hold))
-    return graph, values, keys, TrackModel.of(cfg.tracking, smoothing).gp
+        system = stack_tracks(tracks, det_xy, sensor_xy, cfg.smoothing, cfg.tracking)
+        ne = system.evaluate(x_lin)
+        return (TrackQuadratic(x_lin, float(ne.cost.sum()), ne.g, ne.D, ne.B,
+                               system.proc_step), system.gp)
+    n = len(x_lin)
+    return (TrackQuadratic(x_lin, 0.0, np.zeros_like(x_lin),
+                           np.broadcast_to(1e8 * np.eye(N_STATE), (n, N_STATE, N_STATE)).copy(),
+                           np.zeros((0, N_STATE, N_STATE)), np.zeros(0, np.int64)),
+            TrackModel.of(cfg.tracking, cfg.smoothing).gp)
 
 
-def linearized(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
-               ) -> gtsam.NonlinearFactorGraph:
-    """``graph`` linearized at ``values``, each factor kept as a C++ ``LinearContainerFactor``
-    (its Gaussian at that point), so optimizing with it calls no Python."""
-    lin = graph.linearize(values)
-    out = gtsam.NonlinearFactorGraph()
-    for i in range(lin.size()):
-        f = lin.at(i)
-        if f is None:
-            continue
-        point = gtsam.Values()
-        for k in f.keys():
-            point.insert(k, values.atVector(k))
-        out.add(gtsam.LinearContainerFactor(f, point))
-    return out
+def _point_set(fp: FramePoints, pad: tuple[np.ndarray, np.ndarray], index: np.ndarray,
+               compat: np.ndarray, target: np.ndarray, normal: np.ndarray, sigma: np.ndarray,
+               x: np.ndarray, pose: np.ndarray, b: np.ndarray | None, huber_scale: float,
+               gp: ContourGP, jc: JointConfig) -> PointSet:
+    """The round's matched points, padded per frame (:class:`PointSet`); sigma: (P,) std.
+    dev. (m) of each point across its line. The per-point weights (label compatibility x
+    Huber of the across-line residual at (x, pose, b) in units of ``huber_scale`` m) are
+    fixed for the round (IRLS), so the optimizer sees a smooth objective."""
+    pi, valid = pad
+    ok = index >= 0
+    sig_t = sigma / np.sqrt(jc.along_weight) if jc.along_weight > 0 else np.inf
+    n = np.where(ok[:, None], normal, np.array([1.0, 0.0]))
+    info = line_sqrt_info(n, np.where(ok, sigma, 1.0), sig_t)
+    pts = PointSet(fp.frame_state, fp.frame_track, fp.theta[pi], fp.H[pi], fp.mean[pi],
+                   target[pi], n[pi], info[pi], (valid & ok[pi]).astype(float), gp.mu)
+    e, _ = pts.rows(x, pose, b)
+    across = np.linalg.norm(e, axis=-1) * sigma[pi]               # m (the along row is 0)
+    w = compat[pi] * (huber_weights(across / huber_scale, jc.huber_k) if jc.huber_k > 0
+                      else 1.0)
+    pts.weights = np.where(valid & ok[pi], w, 0.0)
+    return pts
 
 
-def elimination_order(keys: list[np.ndarray], okeys: np.ndarray | None) -> gtsam.Ordering:
-    """Every track's states in time order, then the offsets, then the pose: eliminating a
-    track's chain first keeps every clique at two states plus its offset and the pose (COLAMD
-    may eliminate an offset early, which joins all of its track's states in one dense
-    clique)."""
-    order = gtsam.Ordering()
-    for k in [*np.concatenate(keys), *([] if okeys is None else okeys), sensor_key()]:
-        order.push_back(int(k))
-    return order
-
-
-def _optimize(graph: gtsam.NonlinearFactorGraph, python: gtsam.NonlinearFactorGraph,
-              values: gtsam.Values, order: gtsam.Ordering, jc: JointConfig,
-              timing: dict[str, float]) -> gtsam.Values:
-    """``jc.iterations`` iterations of ``jc.optimizer`` on ``graph`` in elimination order
-    ``order``. ``python`` (the Python factors in it) is linearized and evaluated once, timed,
-    to estimate the callback share of the optimization (Gauss-Newton linearizes and evaluates
-    the error once per iteration; Levenberg-Marquardt evaluates the error once per trial,
-    about twice per iteration when few steps are rejected)."""
-    t0 = time.perf_counter()
-    python.linearize(values)
-    t1 = time.perf_counter()
-    python.error(values)
-    t2 = time.perf_counter()
-    gauss_newton = jc.optimizer == "gauss-newton"
-    params = gtsam.GaussNewtonParams() if gauss_newton else gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(jc.iterations)
-    params.setRelativeErrorTol(1e-6)
-    params.setOrdering(order)
-    optimizer = gtsam.GaussNewtonOptimizer if gauss_newton else gtsam.LevenbergMarquardtOptimizer
-    opt = optimizer(graph, values, params)
-    evals = 1 if gauss_newton else 2
-    out = opt.optimize()
-    n = int(opt.iterations())
-    _add_time(timing, "optimize", t2)
-    timing["iterations"] = timing.get("iterations", 0) + n
-    timing["python_callbacks_est"] = (timing.get("python_callbacks_est", 0.0)
-                                      + (n + 1) * (t1 - t0) + evals * (n + 1) * (t2 - t1))
-    return out
-
-
-def _point_factors(fp: FramePoints, index: np.ndarray, compat: np.ndarray,
-                   target: np.ndarray, normal: np.ndarray, okeys: np.ndarray | None,
-                   sigma: np.ndarray, values: gtsam.Values, huber_scale: float,
-                   gp: ContourGP, jc: JointConfig) -> gtsam.NonlinearFactorGraph:
-    """One point-to-point factor per frame with matched points (module docstring); sigma:
-    (P,) std. dev. (m) of each point across its line. The per-point weights (label
-    compatibility x Huber of the across-line residual at ``values`` in units of
-    ``huber_scale`` m) are fixed for the round (IRLS), so the optimizer sees a smooth
-    objective."""
-    graph = gtsam.NonlinearFactorGraph()
-    pose = _pose_vec(values)
-    for f in range(len(fp.frame_key)):
-        sl = slice(fp.start[f], fp.start[f + 1])
-        ok = index[sl] >= 0
-        if not np.any(ok):
-            continue
-        n = normal[sl][ok]
-        sig = sigma[sl][ok]
-        sig_t = sig / np.sqrt(jc.along_weight) if jc.along_weight > 0 else np.inf
-        okey = None if okeys is None else int(okeys[fp.frame_track[f]])
-        rows = PointRows(fp.theta[sl][ok], target[sl][ok], n, line_sqrt_info(n, sig, sig_t),
-                         compat[sl][ok], np.inf, gp, fp.H[sl][ok], fp.mean[sl][ok])
-        b = 0.0 if okey is None else float(values.atVector(okey)[0])
-        x = np.asarray(values.atVector(int(fp.frame_key[f])), dtype=float)
-        e = rows.rows(pose, x, b, np.ones(len(sig)))[0].reshape(-1, 2)
-        across = np.linalg.norm(e, axis=1) * sig          # m (the along row is 0 or small)
-        w = rows.compat * (huber_weights(across / huber_scale, jc.huber_k)
-                           if jc.huber_k > 0 else 1.0)
-        rows.weights = w
-        graph.add(point_to_point_factor(sensor_key(), int(fp.frame_key[f]), rows, okey))
-    return graph
-
-
-def _correspondences(fp: FramePoints, values: gtsam.Values, lines: LaneLines, gp: ContourGP,
-                     jc: JointConfig) -> tuple[np.ndarray, ...]:
-    """Match every contour point at the current estimate: the target index (-1 none), the
-    compatibility, the target point (P, 2) and the offset direction (P, 2) of each.
+def _correspondences(fp: FramePoints, x: np.ndarray, pose: np.ndarray, lines: LaneLines,
+                     gp: ContourGP, jc: JointConfig) -> tuple[np.ndarray, ...]:
+    """Match every contour point at the estimate (stacked states x, pose): the target index
+    (-1 none), the compatibility, the target point (P, 2) and the offset direction (P, 2) of
+    each.
 
     "contour" model: a point's lateral place in its vehicle (``r sin theta``) is where it
     should lie beside the lane centre line; it is matched by its foot on the vehicle's axis and
     its target is the matched line point moved by that lateral place along the vehicle's left
     normal. "visible-side": the point itself is matched to the shifted lines."""
-    T = se2(*_pose_vec(values))
-    states = np.array([values.atVector(int(k)) for k in fp.frame_key])
-    xy, lateral, yaw = fp.points(states, gp.mu)
+    T = se2(*pose)
+    xy, lateral, yaw = fp.points(x[fp.frame_state], gp.mu)
     if jc.lateral_model == "visible-side":
         lateral = np.zeros_like(lateral)
     yaw_l = yaw + np.arctan2(T[1, 0], T[0, 0])
@@ -431,75 +370,6 @@ def _correspondences(fp: FramePoints, values: gtsam.Values, lines: LaneLines, gp
     target = np.zeros_like(xy)
     target[ok] = lines.xy[index[ok]] + lateral[ok, None] * n[ok]
     return index, compat, target, n
-
-
-def _owner(key: int) -> int | None:
-    """Track id of a track-state or offset key, None for any other key."""
-    sym = gtsam.Symbol(int(key))
-    c, idx = chr(sym.chr()), int(sym.index())
-    if c == OFFSET_CHAR:
-        return idx
-    return decode_track_key(key)[0] if c == TRACK_CHAR else None
-
-
-def _banded_solve(Hxx: np.ndarray, rhs: np.ndarray) -> np.ndarray:
-    """``Hxx^-1 rhs`` for a symmetric positive definite, banded ``Hxx`` (block tridiagonal
-    track states), by a banded Cholesky; a least-squares solve if that fails."""
-    n = Hxx.shape[0]
-    rows, cols = np.nonzero(Hxx)
-    u = int(np.max(cols - rows)) if rows.size else 0
-    ab = np.zeros((u + 1, n))
-    for d in range(u + 1):
-        ab[u - d, d:] = np.diagonal(Hxx, d)
-    try:
-        return solveh_banded(ab, rhs)
-    except np.linalg.LinAlgError:
-        return np.linalg.lstsq(Hxx, rhs, rcond=1e-12)[0]
-
-
-def pose_information(graph: gtsam.NonlinearFactorGraph, values: gtsam.Values
-                     ) -> tuple[np.ndarray, dict[int, np.ndarray]]:
-    """Marginal information (3x3, of (tx, ty, phi)) of the pose at ``values``, and each
-    track's share of it (track id -> 3x3).
-
-    Given the pose the tracks are independent, so the marginal information is the pose
-    factors' own plus, per track, the Schur complement of its states and offset: the
-    track's linearized factors form an arrow-shaped Hessian (block-tridiagonal states, the
-    offset and the pose dense) that is reduced with a banded Cholesky. Same answer as
-    ``gtsam.Marginals`` where that works, but it does not stop on a poorly conditioned
-    state direction (speed and acceleration of a short track), and gives the per-track
-    shares."""
-    G = sensor_key()
-    lin = graph.linearize(values)
-    groups: dict[int | None, gtsam.GaussianFactorGraph] = {}
-    for i in range(lin.size()):
-        f = lin.at(i)
-        owners = {_owner(k) for k in f.keys() if k != G}
-        owner = owners.pop() if owners else None
-        groups.setdefault(owner, gtsam.GaussianFactorGraph()).push_back(f)
-    info = np.zeros((3, 3))
-    shares: dict[int, np.ndarray] = {}
-    for owner, gfg in groups.items():
-        keys = sorted({k for j in range(gfg.size()) for k in gfg.at(j).keys()} - {G},
-                      key=lambda k: (gtsam.Symbol(k).chr() == ord(OFFSET_CHAR), k))
-        order = gtsam.Ordering()
-        for k in [*keys, G]:
-            order.push_back(k)
-        H, _ = gfg.hessian(order)
-        n_off = 1 if keys and gtsam.Symbol(keys[-1]).chr() == ord(OFFSET_CHAR) else 0
-        nx = H.shape[0] - 3 - n_off
-        y = slice(nx, H.shape[0])
-        S = H[y, y]
-        if nx:
-            S = S - H[y, :nx] @ _banded_solve(H[:nx, :nx], H[:nx, y])
-        if n_off:
-            S = S[1:, 1:] - np.outer(S[1:, 0], S[0, 1:]) / S[0, 0]
-        if owner is None:
-            info += S
-        else:
-            shares[owner] = 0.5 * (S + S.T)
-            info += shares[owner]
-    return 0.5 * (info + info.T), shares
 
 
 @dataclass
@@ -557,7 +427,7 @@ def noise_levels(fp: FramePoints, states0: np.ndarray, T: np.ndarray, index: np.
     count = np.bincount(track, minlength=n_tracks)
     raw = np.bincount(track, res, minlength=n_tracks) / np.maximum(count, 1)
     dev = res - raw[track]
-    nf = len(fp.frame_key)
+    nf = len(fp.frame_state)
     fcount = np.bincount(frame, minlength=nf)
     fmean = np.bincount(frame, dev, minlength=nf) / np.maximum(fcount, 1)
     within = 1.4826 * float(np.median(np.abs(dev - fmean[frame])))
@@ -591,66 +461,81 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     dec = decimate(tracks, jc.step_stride, jc.min_track_steps)
     if not dec.tracks:
         raise ValueError(f"no track has {jc.min_track_steps} steps at stride {jc.step_stride}")
-    track_graph, values, keys, gp = _track_factors(dec, det_xy, sensor_xy, cfg)
-    fp = frame_points(dec, keys, det_xy, sensor_xy, gp, jc.max_points_per_frame)
-    states0 = np.array([values.atVector(int(k)) for k in fp.frame_key])
-    G = sensor_key()
-    values.insert(G, np.array(se2_params(T0), dtype=float))
+    lengths = [len(tr) for tr in dec.tracks]
+    start = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
+    owner = np.repeat(np.arange(len(lengths)), lengths)
+    x = np.concatenate([tr.states for tr in dec.tracks])
+    tq, gp = track_quadratic(dec, det_xy, sensor_xy, cfg, x)
+    _add_time(timing, "build", t0)
+    fp = frame_points(dec, start, det_xy, sensor_xy, gp, jc.max_points_per_frame)
+    pad = fp.padded(max(1, int(np.max(np.diff(fp.start), initial=1))))
+    states0 = x[fp.frame_state]
+    layout = BandedLayout(len(x), tq.below)
+    offsets = jc.offset_sigma > 0.0
+    pose = np.array(se2_params(T0), dtype=float)
+    b = np.zeros(len(dec.tracks)) if offsets else None
     prior_sd = np.array([jc.pose_prior_sigma, jc.pose_prior_sigma,
                          np.deg2rad(jc.pose_prior_sigma_yaw_deg)])
-    pose_prior = gtsam.PriorFactorVector(G, np.zeros(3),
-                                         gtsam.noiseModel.Diagonal.Sigmas(prior_sd))
-    okeys = (np.array([offset_key(tr.id) for tr in dec.tracks], np.int64)
-             if jc.offset_sigma > 0.0 else None)
-    for k in [] if okeys is None else okeys:
-        values.insert(int(k), np.zeros(1))
     _add_time(timing, "build", t0)
 
     fixed = NoiseLevels(jc.sigma_line, jc.sigma_line, 0.0, jc.offset_sigma)
     noise: NoiseLevels | None = None if jc.estimate_noise else fixed
     history: list[dict[str, object]] = []
-    converged, rounds, lin_tracks = False, 0, None
-    order = elimination_order(keys, okeys)
+    converged, rounds, lam = False, 0, 1e-5
+    gauss_newton = jc.optimizer == "gauss-newton"
     for rounds in range(1, jc.max_rounds + 1):
         t0 = time.perf_counter()
-        if lin_tracks is None or jc.relinearize_tracks:
-            lin_tracks = linearized(track_graph, values)
+        if jc.relinearize_tracks and rounds > 1 and jc.refine_tracks:
+            tq, gp = track_quadratic(dec, det_xy, sensor_xy, cfg, x)
         _add_time(timing, "linearize_tracks", t0)
         t0 = time.perf_counter()
-        pose = _pose_vec(values)
-        index, compat, target, normal = _correspondences(fp, values, lines, gp, jc)
+        index, compat, target, normal = _correspondences(fp, x, pose, lines, gp, jc)
         ok = index >= 0
         if noise is None:        # first round: the noise levels at the start pose
             noise = noise_levels(fp, states0, se2(*pose), index, target, normal, gp,
                                  len(dec.tracks), jc.min_sigma)
-        _add_time(timing, "associate", t0)
-        t0 = time.perf_counter()
-        per_frame = np.bincount(fp.point_frame[ok], minlength=len(fp.frame_key))
+        per_frame = np.bincount(fp.point_frame[ok], minlength=len(fp.frame_state))
         sigma = noise.point_sigma(per_frame[fp.point_frame])
-        points = _point_factors(fp, index, compat, target, normal, okeys, sigma, values,
-                                noise.within, gp, jc)
-        graph = gtsam.NonlinearFactorGraph(lin_tracks)
-        graph.push_back(points)
-        graph.add(pose_prior)
-        for k in [] if okeys is None else okeys:
-            graph.add(gtsam.PriorFactorVector(int(k), np.zeros(1),
-                                              gtsam.noiseModel.Isotropic.Sigma(1, noise.offset)))
-        _add_time(timing, "graph", t0)
-        values = _optimize(graph, points, values, order, jc, timing)
-        new = _pose_vec(values)
-        step_xy = float(np.hypot(*(new[:2] - pose[:2])))
-        step_yaw = float(abs(wrap_angle(new[2] - pose[2])))
-        history.append({"round": rounds, "tx": float(new[0]), "ty": float(new[1]),
-                        "yaw_deg": float(np.rad2deg(new[2])), "step_m": step_xy,
+        pts = _point_set(fp, pad, index, compat, target, normal, sigma, x, pose, b,
+                         noise.within, gp, jc)
+        pri = Priors(np.zeros(3), 1.0 / prior_sd, 1.0 / noise.offset if offsets else 0.0)
+        _add_time(timing, "associate", t0)
+        before = pose.copy()
+        cost = joint_cost(tq, pts, pri, x, pose, b)
+        for _ in range(jc.iterations):
+            t0 = time.perf_counter()
+            arrow = linearize(tq, pts, pri, len(dec.tracks), x, pose, b)
+            _add_time(timing, "linearize", t0)
+            t0 = time.perf_counter()
+            sol = solve_arrow(arrow, layout, owner, offsets, 0.0 if gauss_newton else lam)
+            _add_time(timing, "solve", t0)
+            t0 = time.perf_counter()
+            cand = (x + sol.dx, pose + sol.dp, None if b is None else b + sol.db)
+            new_cost = joint_cost(tq, pts, pri, *cand)
+            _add_time(timing, "cost", t0)
+            timing["iterations"] = timing.get("iterations", 0) + 1
+            if gauss_newton or new_cost < cost:
+                x, pose, b = cand
+                lam = max(lam / 10.0, 1e-9)
+                done = (cost - new_cost) < 1e-6 * cost
+                cost = new_cost
+                if done:
+                    break
+            else:
+                lam *= 10.0
+        step_xy = float(np.hypot(*(pose[:2] - before[:2])))
+        step_yaw = float(abs(wrap_angle(pose[2] - before[2])))
+        history.append({"round": rounds, "tx": float(pose[0]), "ty": float(pose[1]),
+                        "yaw_deg": float(np.rad2deg(pose[2])), "step_m": step_xy,
                         "step_yaw_deg": float(np.rad2deg(step_yaw)), "noise": noise.summary(),
-                        "matched": int(ok.sum()), "error": float(graph.error(values))})
+                        "matched": int(ok.sum()), "error": float(cost)})
         if step_xy >= jc.tol_position or step_yaw >= np.deg2rad(jc.tol_yaw_deg):
             continue
         if not jc.estimate_noise or np.count_nonzero(ok) < 10:
             converged = True
             break
         # the pose settled: re-estimate the noise levels; done when they settled too
-        again = noise_levels(fp, states0, se2(*new), index, target, normal, gp,
+        again = noise_levels(fp, states0, se2(*pose), index, target, normal, gp,
                              len(dec.tracks), jc.min_sigma)
         settled, noise = again.settled(noise), again
         if settled:
@@ -658,24 +543,24 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
             break
 
     t0 = time.perf_counter()
-    info, _ = pose_information(graph, values)
+    sol = solve_arrow(linearize(tq, pts, pri, len(dec.tracks), x, pose, b), layout, owner,
+                      offsets)
+    info = sol.pose_information
     cov = np.linalg.inv(info) if np.linalg.cond(info) < 1e12 else None
     _add_time(timing, "marginals", t0)
-    timing["gtsam_est"] = max(0.0, timing["optimize"] - timing["python_callbacks_est"])
 
-    from fgloc.smoothing.graph import tracks_from_values
+    from fgloc.smoothing.graph import tracks_from_states
 
-    T = se2(*_pose_vec(values))
-    refined = dataclasses.replace(tracks_from_values(dec, values, keys, cfg.tracking,
-                                                     smoother="joint"), T_frame_to_L=T)
-    ok = index >= 0
-    states = np.array([values.atVector(int(k)) for k in fp.frame_key])
-    matched = transform_points(T, fp.points(states, gp.mu)[0])[ok]
-    offsets = ({} if okeys is None else
-               {int(tr.id): float(values.atVector(int(k))[0]) for tr, k in zip(dec.tracks, okeys)})
-    return JointResult(T, cov, refined, rounds, converged, noise.summary(), offsets,
-                       matched, fp.label[ok], int(ok.sum()), len(dec.tracks),
-                       int(sum(len(tr) for tr in dec.tracks)), history, timing)
+    T = se2(*pose)
+    refined = dataclasses.replace(
+        tracks_from_states(dec, np.split(x, start[1:-1]), cfg.tracking, smoother="joint"),
+        T_frame_to_L=T)
+    matched = transform_points(T, fp.points(x[fp.frame_state], gp.mu)[0])[ok]
+    offs = ({} if b is None else
+            {int(tr.id): float(v) for tr, v in zip(dec.tracks, b)})
+    return JointResult(T, cov, refined, rounds, converged, noise.summary(), offs,
+                       matched, fp.label[ok], int(ok.sum()), len(dec.tracks), len(x),
+                       history, timing)
 
 
 # ---- degeneracy --------------------------------------------------------------------------

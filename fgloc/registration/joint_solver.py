@@ -1,0 +1,215 @@
+"""The joint registration's least-squares problem and its solver: track states, one sensor
+pose and per-track lateral offsets, vectorized.
+
+Variables: the stacked track states ``x`` (N, 26) (:class:`factors.track_system.StackedTracks`
+order), the pose ``p = (tx, ty, phi)`` (C -> L) and one lateral offset ``b_t`` (m) per track
+(none when the offsets are off). Cost (``0.5 |whitened residual|^2`` summed):
+
+* the track factors (prior, process, contour measurement) as a quadratic model about a
+  linearization point ``x_lin``: ``c + g . dx + 0.5 dx^T H dx`` with ``dx = x - x_lin`` and
+  ``H`` block tridiagonal (:class:`TrackQuadratic`; the joint linearizes them once at the
+  filter's states, or again each round with ``relinearize_tracks``);
+* the point-to-point rows of every matched point (:func:`factors.registration_factors.
+  point_rows_batch`, weights fixed per round), evaluated exactly at each iteration;
+* a Gaussian prior on the pose (at the coarse pose: zero) and on each offset (mean 0).
+
+The Gauss-Newton system is arrow shaped: the banded track block ``A``, the border ``E`` to
+the pose and the offsets (the offset ``b_t`` touches only track t's states) and a small dense
+block ``C``. :func:`solve_arrow` eliminates the states with one banded Cholesky for five
+right-hand sides (gradient, three pose columns, the offset columns of all tracks packed in one
+because ``A`` is block diagonal over tracks) and solves the reduced (3 + T) system; the
+pose's marginal covariance is the inverse of its Schur complement -- the same matrix
+``gtsam.Marginals`` returns for the pose of the equivalent factor graph (tests).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.linalg import solveh_banded
+
+from factors.registration_factors import N_POSE, point_rows_batch
+from factors.state import N_STATE
+from fgloc.smoothing.banded_lm import BandedLayout
+
+_DIAG = np.arange(N_STATE)
+#: damping floor added with lambda to each diagonal entry (a direction no row observes)
+_EPS = 1e-9
+
+
+@dataclass
+class TrackQuadratic:
+    """Quadratic model of the track factors about ``x_lin`` (N, 26): cost ``c`` at it,
+    gradient ``g`` (N, 26), diagonal blocks ``D`` (N, 26, 26), blocks ``B`` (P, 26, 26) at
+    (``below[p]``, ``below[p] - 1``)."""
+
+    x_lin: np.ndarray
+    c: float
+    g: np.ndarray
+    D: np.ndarray
+    B: np.ndarray
+    below: np.ndarray
+
+    def apply(self, dx: np.ndarray) -> np.ndarray:
+        """``H dx`` (N, 26) for dx (N, 26)."""
+        out = (self.D @ dx[..., None])[..., 0]
+        lo = self.below
+        out[lo] += (self.B @ dx[lo - 1][..., None])[..., 0]
+        out[lo - 1] += (np.swapaxes(self.B, 1, 2) @ dx[lo][..., None])[..., 0]
+        return out
+
+    def cost(self, x: np.ndarray) -> float:
+        dx = x - self.x_lin
+        return float(self.c + np.sum(self.g * dx) + 0.5 * np.sum(dx * self.apply(dx)))
+
+    def gradient(self, x: np.ndarray) -> np.ndarray:
+        return self.g + self.apply(x - self.x_lin)
+
+
+@dataclass
+class PointSet:
+    """The matched contour points of a round, padded per frame: frame_step (F,) the global
+    step of each frame's state, frame_track (F,) its track; theta / mean (F, K), H (F, K, n),
+    target / normal (F, K, 2) in L, sqrt_info (F, K, 2, 2) (1/m), weights (F, K) (0 for
+    padding and unmatched points); gp_mu (n,) the prior mean radii."""
+
+    frame_step: np.ndarray
+    frame_track: np.ndarray
+    theta: np.ndarray
+    H: np.ndarray
+    mean: np.ndarray
+    target: np.ndarray
+    normal: np.ndarray
+    sqrt_info: np.ndarray
+    weights: np.ndarray
+    gp_mu: np.ndarray
+
+    def rows(self, x: np.ndarray, pose: np.ndarray, b: np.ndarray | None,
+             jacobian: bool = False):
+        """:func:`factors.registration_factors.point_rows_batch` at states x (N, 26), pose
+        (3,) and offsets b (T,) (None = without)."""
+        bf = np.zeros(len(self.frame_step)) if b is None else b[self.frame_track]
+        return point_rows_batch(pose, x[self.frame_step], bf, self.theta, self.H, self.mean,
+                                self.target, self.normal, self.sqrt_info, self.weights,
+                                self.gp_mu, jacobian)
+
+
+@dataclass
+class Priors:
+    """Pose prior: mean (3,) and sqrt information (3,) (diagonal, 1/sigma); offset prior
+    sqrt information (scalar, 1/m; 0 = no offsets)."""
+
+    pose_mean: np.ndarray
+    pose_w: np.ndarray
+    offset_w: float
+
+
+@dataclass
+class ArrowSystem:
+    """Normal equations of the joint problem (module docstring) at one estimate: track
+    block D (N, 26, 26) / B (P, 26, 26), border to the pose E (N, 26, 3) and to the owning
+    track's offset e (N, 26), the pose block Hp (3, 3), offset diagonal Hb (T,), offset-pose
+    block Hbp (T, 3), gradients gx (N, 26), gp (3,), gb (T,)."""
+
+    D: np.ndarray
+    B: np.ndarray
+    E: np.ndarray
+    e: np.ndarray
+    Hp: np.ndarray
+    Hb: np.ndarray
+    Hbp: np.ndarray
+    gx: np.ndarray
+    gp: np.ndarray
+    gb: np.ndarray
+
+
+def joint_cost(tq: TrackQuadratic, pts: PointSet, pri: Priors, x: np.ndarray,
+               pose: np.ndarray, b: np.ndarray | None) -> float:
+    """The total cost (module docstring) at (x, pose, b)."""
+    e, _ = pts.rows(x, pose, b)
+    rp = pri.pose_w * (pose - pri.pose_mean)
+    rb = 0.0 if b is None else pri.offset_w**2 * np.sum(b * b)
+    return tq.cost(x) + 0.5 * (np.sum(e * e) + np.sum(rp * rp) + rb)
+
+
+def linearize(tq: TrackQuadratic, pts: PointSet, pri: Priors, n_tracks: int,
+              x: np.ndarray, pose: np.ndarray, b: np.ndarray | None) -> ArrowSystem:
+    """The :class:`ArrowSystem` at (x, pose, b)."""
+    e, (Jp, Jx, Jb) = pts.rows(x, pose, b, jacobian=True)
+    F, K = e.shape[:2]
+    e = e.reshape(F, 2 * K)
+    Jp, Jx, Jb = Jp.reshape(F, 2 * K, N_POSE), Jx.reshape(F, 2 * K, N_STATE), Jb.reshape(F, -1)
+    JxT = np.swapaxes(Jx, 1, 2)
+    s, t = pts.frame_step, pts.frame_track
+    D = tq.D.copy()
+    D[s] += JxT @ Jx
+    gx = tq.gradient(x)
+    gx[s] += (JxT @ e[..., None])[..., 0]
+    E = np.zeros((len(x), N_STATE, N_POSE))
+    E[s] = JxT @ Jp
+    eb = np.zeros((len(x), N_STATE))
+    eb[s] = (JxT @ Jb[..., None])[..., 0]
+    Hp = np.einsum("fki,fkj->ij", Jp, Jp) + np.diag(pri.pose_w**2)
+    gp = np.einsum("fki,fk->i", Jp, e) + pri.pose_w**2 * (pose - pri.pose_mean)
+    Hb = np.bincount(t, np.sum(Jb * Jb, axis=1), minlength=n_tracks) + pri.offset_w**2
+    Hbp = np.zeros((n_tracks, N_POSE))
+    np.add.at(Hbp, t, np.einsum("fk,fki->fi", Jb, Jp))
+    gb = np.bincount(t, np.sum(Jb * e, axis=1), minlength=n_tracks)
+    if b is not None:
+        gb = gb + pri.offset_w**2 * b
+    return ArrowSystem(D, tq.B, E, eb, Hp, Hb, Hbp, gx, gp, gb)
+
+
+@dataclass
+class ArrowSolution:
+    """Step (dx (N, 26), dp (3,), db (T,)) and the pose's reduced information (3, 3) (its
+    Schur complement of everything else, of the damped system)."""
+
+    dx: np.ndarray
+    dp: np.ndarray
+    db: np.ndarray
+    pose_information: np.ndarray
+
+
+def solve_arrow(sys: ArrowSystem, layout: BandedLayout, owner: np.ndarray, offsets: bool,
+                lam: float = 0.0) -> ArrowSolution:
+    """Solve ``(H + lambda (diag(H) + eps)) step = -g`` (module docstring); owner (N,) the
+    track of each step; ``offsets`` False drops the offset variables. ``LinAlgError`` if the
+    damped track block is not positive definite."""
+    n, T = len(sys.D), len(sys.Hb)
+    D = sys.D.copy()
+    d = D[:, _DIAG, _DIAG]
+    D[:, _DIAG, _DIAG] = d + lam * (d + _EPS)
+    rhs = np.concatenate([sys.gx.reshape(-1, 1), sys.E.reshape(-1, N_POSE),
+                          sys.e.reshape(-1, 1)], axis=1)
+    Y = solveh_banded(layout.fill(D, sys.B), rhs, lower=True, check_finite=False)
+    Ag, AE, Ae = Y[:, 0], Y[:, 1:4], Y[:, 4]
+    Ef, ef = sys.E.reshape(-1, N_POSE), sys.e.reshape(-1)
+    row_track = np.repeat(owner, N_STATE)
+    Hp = sys.Hp + lam * np.diag(np.diag(sys.Hp) + _EPS)
+    Sp = Hp - Ef.T @ AE
+    rp = -sys.gp + Ef.T @ Ag
+    if offsets and T:
+        Hb = sys.Hb * (1.0 + lam) + lam * _EPS
+        Sb = Hb - np.bincount(row_track, ef * Ae, minlength=T)
+        Sbp = sys.Hbp - _track_sums(row_track, ef[:, None] * AE, T)
+        rb = -sys.gb + np.bincount(row_track, ef * Ag, minlength=T)
+        # eliminate the offsets (diagonal) from the reduced system
+        S = Sp - Sbp.T @ (Sbp / Sb[:, None])
+        dp = np.linalg.solve(S, rp - Sbp.T @ (rb / Sb))
+        db = (rb - Sbp @ dp) / Sb
+        dx = -Ag - AE @ dp - Ae * db[row_track]
+    else:
+        S = Sp
+        dp = np.linalg.solve(S, rp)
+        db = np.zeros(T)
+        dx = -Ag - AE @ dp
+    return ArrowSolution(dx.reshape(n, N_STATE), dp, db, 0.5 * (S + S.T))
+
+
+def _track_sums(row_track: np.ndarray, values: np.ndarray, T: int) -> np.ndarray:
+    """(T, k) sums of the rows of ``values`` (R, k) per track."""
+    out = np.zeros((T, values.shape[1]))
+    np.add.at(out, row_track, values)
+    return out
