@@ -154,10 +154,10 @@ class PointRows:
         if weights is None:
             weights = self.weights
         if weights is None:
-            r = point_rows_batch(pose, x[None], np.array([b]), *one, np.ones((1, len(self.theta))),
-                                 self.gp.mu)[0][0]
+            r = point_rows_batch(pose, x[None], np.full((1, 1), b), *one,
+                                 np.ones((1, len(self.theta))), self.gp.mu)[0][0]
             weights = huber_weights(np.linalg.norm(r, axis=1), self.huber_k) * self.compat
-        e, J = point_rows_batch(pose, x[None], np.array([b]), *one,
+        e, J = point_rows_batch(pose, x[None], np.full((1, 1), b), *one,
                                 np.asarray(weights, dtype=float)[None], self.gp.mu, jacobian)
         if not jacobian:
             return e.reshape(-1), None, weights
@@ -171,17 +171,18 @@ def point_rows_batch(pose: np.ndarray, x: np.ndarray, b: np.ndarray, theta: np.n
                      jacobian: bool = False
                      ) -> tuple[np.ndarray, tuple[np.ndarray, np.ndarray, np.ndarray] | None]:
     """The rows of :class:`PointRows` for F frames of K points each at once (padding points
-    get weight 0): pose (3,), states x (F, 26), offsets b (F,) (m; 0 without), angles theta
+    get weight 0): pose (3,), states x (F, 26), offsets b (F, K) or (F, 1) (m, of each
+    point along its normal; 0 without), angles theta
     (F, K), GP conditional H (F, K, n) and mean (F, K), targets (F, K, 2) and normals
     (F, K, 2) in L, sqrt_info (F, K, 2, 2), fixed weights (F, K), prior mean radii gp_mu (n,).
     Returns the weighted residual (F, K, 2) and, with ``jacobian``, its derivatives w.r.t. the
-    pose (F, K, 2, 3), the state (F, K, 2, 26) and the offset (F, K, 2)."""
+    pose (F, K, 2, 3), the state (F, K, 2, 26) and the point's offset (F, K, 2)."""
     radius = mean + np.einsum("fkn,fn->fk", H, x[:, N_KIN:] - gp_mu)
     s = contour_point(x[:, [X, Y]], x[:, YAW], radius, theta)            # (F, K, 2)
     c, sn = np.cos(pose[2]), np.sin(pose[2])
     R = np.array([[c, -sn], [sn, c]])
     rs = s @ R.T
-    d = rs + pose[:2] - target - b[:, None, None] * normal
+    d = rs + pose[:2] - target - b[..., None] * normal
     sw = np.sqrt(weights)[..., None]
     e = sw * (sqrt_info @ d[..., None])[..., 0]
     if not jacobian:

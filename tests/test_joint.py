@@ -176,7 +176,7 @@ def test_arrow_solve_and_covariance_match_gtsam():
     index, compat, target, normal = J._correspondences(fp, x, pose, lines, gp, cfg.joint)
     sigma = np.full(len(index), 0.2)
     pts = J._point_set(fp, pad, index, compat, target, normal, sigma, x, pose, b, 0.2, gp,
-                       cfg.joint)
+                       cfg.joint, np.zeros(2))
     pri = Priors(np.zeros(3), np.array([1 / 20, 1 / 20, 1 / 0.03]), 1 / 0.3)
     sol = solve_arrow(linearize(tq, pts, pri, len(lengths), x, pose, b),
                       BandedLayout(len(x), tq.below), owner, True)

@@ -323,20 +323,24 @@ def track_quadratic(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
 
 def _point_set(fp: FramePoints, pad: tuple[np.ndarray, np.ndarray], index: np.ndarray,
                compat: np.ndarray, target: np.ndarray, normal: np.ndarray, sigma: np.ndarray,
-               x: np.ndarray, pose: np.ndarray, b: np.ndarray | None, huber_scale: float,
-               gp: ContourGP, jc: JointConfig) -> PointSet:
+               x: np.ndarray, glob: np.ndarray, b: np.ndarray | None, huber_scale: float,
+               gp: ContourGP, jc: JointConfig, sensor_l: np.ndarray) -> PointSet:
     """The round's matched points, padded per frame (:class:`PointSet`); sigma: (P,) std.
-    dev. (m) of each point across its line. The per-point weights (label compatibility x
-    Huber of the across-line residual at (x, pose, b) in units of ``huber_scale`` m) are
-    fixed for the round (IRLS), so the optimizer sees a smooth objective."""
+    dev. (m) of each point across its line; glob: the global parameters (pose, and the side
+    bias with ``side_bias_sigma``); sensor_l (2,): the sensor in L (the side of each line).
+    The per-point weights (label compatibility x Huber of the across-line residual at (x,
+    glob, b) in units of ``huber_scale`` m) are fixed for the round (IRLS), so the optimizer
+    sees a smooth objective."""
     pi, valid = pad
     ok = index >= 0
     sig_t = sigma / np.sqrt(jc.along_weight) if jc.along_weight > 0 else np.inf
     n = np.where(ok[:, None], normal, np.array([1.0, 0.0]))
     info = line_sqrt_info(n, np.where(ok, sigma, 1.0), sig_t)
+    side = (np.where(np.einsum("pi,pi->p", sensor_l - target, n) >= 0.0, 1.0, -1.0)[pi]
+            if jc.side_bias_sigma > 0.0 else None)
     pts = PointSet(fp.frame_state, fp.frame_track, fp.theta[pi], fp.H[pi], fp.mean[pi],
-                   target[pi], n[pi], info[pi], (valid & ok[pi]).astype(float), gp.mu)
-    e, _ = pts.rows(x, pose, b)
+                   target[pi], n[pi], info[pi], (valid & ok[pi]).astype(float), gp.mu, side)
+    e, _ = pts.rows(x, glob, b)
     across = np.linalg.norm(e, axis=-1) * sigma[pi]               # m (the along row is 0)
     w = compat[pi] * (huber_weights(across / huber_scale, jc.huber_k) if jc.huber_k > 0
                       else 1.0)
@@ -354,7 +358,7 @@ def _correspondences(fp: FramePoints, x: np.ndarray, pose: np.ndarray, lines: La
     should lie beside the lane centre line; it is matched by its foot on the vehicle's axis and
     its target is the matched line point moved by that lateral place along the vehicle's left
     normal. "visible-side": the point itself is matched to the shifted lines."""
-    T = se2(*pose)
+    T = se2(*pose[:3])
     xy, lateral, yaw = fp.points(x[fp.frame_state], gp.mu)
     if jc.lateral_model == "visible-side":
         lateral = np.zeros_like(lateral)
@@ -472,10 +476,12 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     states0 = x[fp.frame_state]
     layout = BandedLayout(len(x), tq.below)
     offsets = jc.offset_sigma > 0.0
-    pose = np.array(se2_params(T0), dtype=float)
+    bias = jc.side_bias_sigma > 0.0
+    pose = np.array([*se2_params(T0), *([0.0] if bias else [])], dtype=float)
     b = np.zeros(len(dec.tracks)) if offsets else None
     prior_sd = np.array([jc.pose_prior_sigma, jc.pose_prior_sigma,
-                         np.deg2rad(jc.pose_prior_sigma_yaw_deg)])
+                         np.deg2rad(jc.pose_prior_sigma_yaw_deg),
+                         *([jc.side_bias_sigma] if bias else [])])
     _add_time(timing, "build", t0)
 
     fixed = NoiseLevels(jc.sigma_line, jc.sigma_line, 0.0, jc.offset_sigma)
@@ -492,13 +498,15 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
         index, compat, target, normal = _correspondences(fp, x, pose, lines, gp, jc)
         ok = index >= 0
         if noise is None:        # first round: the noise levels at the start pose
-            noise = noise_levels(fp, states0, se2(*pose), index, target, normal, gp,
+            noise = noise_levels(fp, states0, se2(*pose[:3]), index, target, normal, gp,
                                  len(dec.tracks), jc.min_sigma)
         per_frame = np.bincount(fp.point_frame[ok], minlength=len(fp.frame_state))
         sigma = noise.point_sigma(per_frame[fp.point_frame])
+        sensor_l = transform_points(se2(*pose[:3]), sensor_xy[None])[0]
         pts = _point_set(fp, pad, index, compat, target, normal, sigma, x, pose, b,
-                         noise.within, gp, jc)
-        pri = Priors(np.zeros(3), 1.0 / prior_sd, 1.0 / noise.offset if offsets else 0.0)
+                         noise.within, gp, jc, sensor_l)
+        pri = Priors(np.zeros(len(pose)), 1.0 / prior_sd,
+                     1.0 / noise.offset if offsets else 0.0)
         _add_time(timing, "associate", t0)
         before = pose.copy()
         cost = joint_cost(tq, pts, pri, x, pose, b)
@@ -527,6 +535,7 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
         step_yaw = float(abs(wrap_angle(pose[2] - before[2])))
         history.append({"round": rounds, "tx": float(pose[0]), "ty": float(pose[1]),
                         "yaw_deg": float(np.rad2deg(pose[2])), "step_m": step_xy,
+                        "side_bias_m": float(pose[3]) if bias else None,
                         "step_yaw_deg": float(np.rad2deg(step_yaw)), "noise": noise.summary(),
                         "matched": int(ok.sum()), "error": float(cost)})
         if step_xy >= jc.tol_position or step_yaw >= np.deg2rad(jc.tol_yaw_deg):
@@ -535,7 +544,7 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
             converged = True
             break
         # the pose settled: re-estimate the noise levels; done when they settled too
-        again = noise_levels(fp, states0, se2(*pose), index, target, normal, gp,
+        again = noise_levels(fp, states0, se2(*pose[:3]), index, target, normal, gp,
                              len(dec.tracks), jc.min_sigma)
         settled, noise = again.settled(noise), again
         if settled:
@@ -546,12 +555,12 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     sol = solve_arrow(linearize(tq, pts, pri, len(dec.tracks), x, pose, b), layout, owner,
                       offsets)
     info = sol.pose_information
-    cov = np.linalg.inv(info) if np.linalg.cond(info) < 1e12 else None
+    cov = np.linalg.inv(info)[:3, :3] if np.linalg.cond(info) < 1e12 else None
     _add_time(timing, "marginals", t0)
 
     from fgloc.smoothing.graph import tracks_from_states
 
-    T = se2(*pose)
+    T = se2(*pose[:3])
     refined = dataclasses.replace(
         tracks_from_states(dec, np.split(x, start[1:-1]), cfg.tracking, smoother="joint"),
         T_frame_to_L=T)

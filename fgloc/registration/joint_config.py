@@ -64,6 +64,12 @@ class JointConfig:
     """Prior standard deviation (m) of each track's lateral offset from its target lines
     (shared by all of its points: models their correlation) without ``estimate_noise``;
     0 = no offset variables."""
+    side_bias_sigma: float = 0.0
+    """Prior standard deviation (m) of a common side bias: one offset, shared by every
+    vehicle, of the contour points towards the sensor (a tracker that fills a vehicle's
+    unseen far side with the mean width places every centre, and so the matched lateral
+    places, a little towards the sensor; unmodelled, that bias is read as a pose shift).
+    0 = no side-bias variable."""
     estimate_noise: bool = True
     """Estimate the noise levels from the data (``fgloc.registration.joint.NoiseLevels``:
     point scatter, frame scatter, the correlation of consecutive frames, the tracks' offset
@@ -97,14 +103,6 @@ class JointConfig:
     """A direction of the pose (metric coordinates: translation of the matched points'
     centroid, rotation as arc length at their RMS radius) whose standard deviation exceeds
     this (m) is reported as weakly observed."""
-    map_heading: bool = False
-    """Map-aided factor: each vehicle's heading against its lanelet's direction."""
-    map_centre: bool = False
-    """Map-aided factor: each vehicle's centre against its lane centre line."""
-    sigma_heading_deg: float = 3.0
-    """Standard deviation (deg) of a vehicle heading about its lanelet's direction."""
-    sigma_centre: float = 0.3
-    """Standard deviation (m) of a vehicle centre across its lane centre line."""
 
 
 def check_joint_config(cfg: JointConfig) -> None:
@@ -122,6 +120,7 @@ def check_joint_config(cfg: JointConfig) -> None:
         "along_weight": not 0.0 <= cfg.along_weight <= 1.0,
         "huber_k": cfg.huber_k < 0.0,
         "offset_sigma": cfg.offset_sigma < 0.0,
+        "side_bias_sigma": cfg.side_bias_sigma < 0.0,
         "min_sigma": not cfg.min_sigma > 0.0,
         "pose_prior_sigma": not cfg.pose_prior_sigma > 0.0,
         "pose_prior_sigma_yaw_deg": not cfg.pose_prior_sigma_yaw_deg > 0.0,
@@ -131,8 +130,6 @@ def check_joint_config(cfg: JointConfig) -> None:
         "tol_position": cfg.tol_position < 0.0,
         "tol_yaw_deg": cfg.tol_yaw_deg < 0.0,
         "weak_sigma": not cfg.weak_sigma > 0.0,
-        "sigma_heading_deg": not cfg.sigma_heading_deg > 0.0,
-        "sigma_centre": not cfg.sigma_centre > 0.0,
     }
     bad = [k for k, v in problems.items() if v]
     if bad:

@@ -2,8 +2,11 @@
 pose and per-track lateral offsets, vectorized.
 
 Variables: the stacked track states ``x`` (N, 26) (:class:`factors.track_system.StackedTracks`
-order), the pose ``p = (tx, ty, phi)`` (C -> L) and one lateral offset ``b_t`` (m) per track
-(none when the offsets are off). Cost (``0.5 |whitened residual|^2`` summed):
+order), the global parameters ``p`` -- the pose ``(tx, ty, phi)`` (C -> L) and, optionally, a
+side bias ``beta`` (m): the common offset of every vehicle's contour points towards the
+sensor (a point's offset along its normal is ``b_t + beta side_i``, ``side_i = +-1`` the
+sensor's side of its line) -- and one lateral offset ``b_t`` (m) per track (none when the
+offsets are off). Cost (``0.5 |whitened residual|^2`` summed):
 
 * the track factors (prior, process, contour measurement) as a quadratic model about a
   linearization point ``x_lin``: ``c + g . dx + 0.5 dx^T H dx`` with ``dx = x - x_lin`` and
@@ -11,15 +14,17 @@ order), the pose ``p = (tx, ty, phi)`` (C -> L) and one lateral offset ``b_t`` (
   filter's states, or again each round with ``relinearize_tracks``);
 * the point-to-point rows of every matched point (:func:`factors.registration_factors.
   point_rows_batch`, weights fixed per round), evaluated exactly at each iteration;
-* a Gaussian prior on the pose (at the coarse pose: zero) and on each offset (mean 0).
+* a Gaussian prior on the global parameters (the pose at the coarse pose: zero) and on
+  each offset (mean 0).
 
 The Gauss-Newton system is arrow shaped: the banded track block ``A``, the border ``E`` to
-the pose and the offsets (the offset ``b_t`` touches only track t's states) and a small dense
-block ``C``. :func:`solve_arrow` eliminates the states with one banded Cholesky for five
-right-hand sides (gradient, three pose columns, the offset columns of all tracks packed in one
-because ``A`` is block diagonal over tracks) and solves the reduced (3 + T) system; the
-pose's marginal covariance is the inverse of its Schur complement -- the same matrix
-``gtsam.Marginals`` returns for the pose of the equivalent factor graph (tests).
+the global parameters and the offsets (the offset ``b_t`` touches only track t's states) and
+a small dense block ``C``. :func:`solve_arrow` eliminates the states with one banded Cholesky
+for G + 2 right-hand sides (gradient, a column per global parameter, the offset columns of
+all tracks packed in one because ``A`` is block diagonal over tracks) and solves the reduced
+(G + T) system; the global parameters' marginal covariance is the inverse of their Schur complement
+-- the same matrix ``gtsam.Marginals`` returns for the pose of the equivalent factor graph
+(tests).
 """
 
 from __future__ import annotations
@@ -72,7 +77,8 @@ class PointSet:
     """The matched contour points of a round, padded per frame: frame_step (F,) the global
     step of each frame's state, frame_track (F,) its track; theta / mean (F, K), H (F, K, n),
     target / normal (F, K, 2) in L, sqrt_info (F, K, 2, 2) (1/m), weights (F, K) (0 for
-    padding and unmatched points); gp_mu (n,) the prior mean radii."""
+    padding and unmatched points); gp_mu (n,) the prior mean radii; side (F, K) the sign of
+    the sensor's side of each point's line along its normal, None = no side bias."""
 
     frame_step: np.ndarray
     frame_track: np.ndarray
@@ -84,21 +90,36 @@ class PointSet:
     sqrt_info: np.ndarray
     weights: np.ndarray
     gp_mu: np.ndarray
+    side: np.ndarray | None = None
 
-    def rows(self, x: np.ndarray, pose: np.ndarray, b: np.ndarray | None,
+    @property
+    def n_global(self) -> int:
+        """Number of global parameters: the pose (3) and the side bias if any."""
+        return N_POSE + (self.side is not None)
+
+    def rows(self, x: np.ndarray, glob: np.ndarray, b: np.ndarray | None,
              jacobian: bool = False):
-        """:func:`factors.registration_factors.point_rows_batch` at states x (N, 26), pose
-        (3,) and offsets b (T,) (None = without)."""
-        bf = np.zeros(len(self.frame_step)) if b is None else b[self.frame_track]
-        return point_rows_batch(pose, x[self.frame_step], bf, self.theta, self.H, self.mean,
-                                self.target, self.normal, self.sqrt_info, self.weights,
-                                self.gp_mu, jacobian)
+        """Weighted residual (F, K, 2) and, with ``jacobian``, its derivatives w.r.t. the
+        global parameters (F, K, 2, G), the state (F, K, 2, 26) and the track's offset
+        (F, K, 2) at states x (N, 26), global parameters ``glob`` (G,) and offsets b (T,)
+        (None = without) (:func:`factors.registration_factors.point_rows_batch`)."""
+        off = np.zeros((len(self.frame_step), 1)) if b is None else b[self.frame_track, None]
+        if self.side is not None:
+            off = off + glob[N_POSE] * self.side
+        e, J = point_rows_batch(glob[:N_POSE], x[self.frame_step], off, self.theta, self.H,
+                                self.mean, self.target, self.normal, self.sqrt_info,
+                                self.weights, self.gp_mu, jacobian)
+        if J is None or self.side is None:
+            return e, J
+        Jp, Jx, Jb = J
+        return e, (np.concatenate([Jp, (self.side[..., None] * Jb)[..., None]], axis=-1),
+                   Jx, Jb)
 
 
 @dataclass
 class Priors:
-    """Pose prior: mean (3,) and sqrt information (3,) (diagonal, 1/sigma); offset prior
-    sqrt information (scalar, 1/m; 0 = no offsets)."""
+    """Prior of the global parameters: mean (G,) and sqrt information (G,) (diagonal,
+    1/sigma); offset prior sqrt information (scalar, 1/m; 0 = no offsets)."""
 
     pose_mean: np.ndarray
     pose_w: np.ndarray
@@ -108,9 +129,9 @@ class Priors:
 @dataclass
 class ArrowSystem:
     """Normal equations of the joint problem (module docstring) at one estimate: track
-    block D (N, 26, 26) / B (P, 26, 26), border to the pose E (N, 26, 3) and to the owning
-    track's offset e (N, 26), the pose block Hp (3, 3), offset diagonal Hb (T,), offset-pose
-    block Hbp (T, 3), gradients gx (N, 26), gp (3,), gb (T,)."""
+    block D (N, 26, 26) / B (P, 26, 26), border to the G global parameters E (N, 26, G) and
+    to the owning track's offset e (N, 26), the global block Hp (G, G), offset diagonal Hb
+    (T,), offset-global block Hbp (T, G), gradients gx (N, 26), gp (G,), gb (T,)."""
 
     D: np.ndarray
     B: np.ndarray
@@ -125,35 +146,36 @@ class ArrowSystem:
 
 
 def joint_cost(tq: TrackQuadratic, pts: PointSet, pri: Priors, x: np.ndarray,
-               pose: np.ndarray, b: np.ndarray | None) -> float:
-    """The total cost (module docstring) at (x, pose, b)."""
-    e, _ = pts.rows(x, pose, b)
-    rp = pri.pose_w * (pose - pri.pose_mean)
+               glob: np.ndarray, b: np.ndarray | None) -> float:
+    """The total cost (module docstring) at (x, global parameters, b)."""
+    e, _ = pts.rows(x, glob, b)
+    rp = pri.pose_w * (glob - pri.pose_mean)
     rb = 0.0 if b is None else pri.offset_w**2 * np.sum(b * b)
     return tq.cost(x) + 0.5 * (np.sum(e * e) + np.sum(rp * rp) + rb)
 
 
 def linearize(tq: TrackQuadratic, pts: PointSet, pri: Priors, n_tracks: int,
-              x: np.ndarray, pose: np.ndarray, b: np.ndarray | None) -> ArrowSystem:
-    """The :class:`ArrowSystem` at (x, pose, b)."""
-    e, (Jp, Jx, Jb) = pts.rows(x, pose, b, jacobian=True)
+              x: np.ndarray, glob: np.ndarray, b: np.ndarray | None) -> ArrowSystem:
+    """The :class:`ArrowSystem` at (x, global parameters, b)."""
+    e, (Jp, Jx, Jb) = pts.rows(x, glob, b, jacobian=True)
     F, K = e.shape[:2]
     e = e.reshape(F, 2 * K)
-    Jp, Jx, Jb = Jp.reshape(F, 2 * K, N_POSE), Jx.reshape(F, 2 * K, N_STATE), Jb.reshape(F, -1)
+    G = pts.n_global
+    Jp, Jx, Jb = Jp.reshape(F, 2 * K, G), Jx.reshape(F, 2 * K, N_STATE), Jb.reshape(F, -1)
     JxT = np.swapaxes(Jx, 1, 2)
     s, t = pts.frame_step, pts.frame_track
     D = tq.D.copy()
     D[s] += JxT @ Jx
     gx = tq.gradient(x)
     gx[s] += (JxT @ e[..., None])[..., 0]
-    E = np.zeros((len(x), N_STATE, N_POSE))
+    E = np.zeros((len(x), N_STATE, G))
     E[s] = JxT @ Jp
     eb = np.zeros((len(x), N_STATE))
     eb[s] = (JxT @ Jb[..., None])[..., 0]
     Hp = np.einsum("fki,fkj->ij", Jp, Jp) + np.diag(pri.pose_w**2)
-    gp = np.einsum("fki,fk->i", Jp, e) + pri.pose_w**2 * (pose - pri.pose_mean)
+    gp = np.einsum("fki,fk->i", Jp, e) + pri.pose_w**2 * (glob - pri.pose_mean)
     Hb = np.bincount(t, np.sum(Jb * Jb, axis=1), minlength=n_tracks) + pri.offset_w**2
-    Hbp = np.zeros((n_tracks, N_POSE))
+    Hbp = np.zeros((n_tracks, G))
     np.add.at(Hbp, t, np.einsum("fk,fki->fi", Jb, Jp))
     gb = np.bincount(t, np.sum(Jb * e, axis=1), minlength=n_tracks)
     if b is not None:
@@ -163,8 +185,8 @@ def linearize(tq: TrackQuadratic, pts: PointSet, pri: Priors, n_tracks: int,
 
 @dataclass
 class ArrowSolution:
-    """Step (dx (N, 26), dp (3,), db (T,)) and the pose's reduced information (3, 3) (its
-    Schur complement of everything else, of the damped system)."""
+    """Step (dx (N, 26), dp (G,), db (T,)) and the global parameters' reduced information
+    (G, G) (their Schur complement of everything else, of the damped system)."""
 
     dx: np.ndarray
     dp: np.ndarray
@@ -177,15 +199,15 @@ def solve_arrow(sys: ArrowSystem, layout: BandedLayout, owner: np.ndarray, offse
     """Solve ``(H + lambda (diag(H) + eps)) step = -g`` (module docstring); owner (N,) the
     track of each step; ``offsets`` False drops the offset variables. ``LinAlgError`` if the
     damped track block is not positive definite."""
-    n, T = len(sys.D), len(sys.Hb)
+    n, T, G = len(sys.D), len(sys.Hb), len(sys.gp)
     D = sys.D.copy()
     d = D[:, _DIAG, _DIAG]
     D[:, _DIAG, _DIAG] = d + lam * (d + _EPS)
-    rhs = np.concatenate([sys.gx.reshape(-1, 1), sys.E.reshape(-1, N_POSE),
+    rhs = np.concatenate([sys.gx.reshape(-1, 1), sys.E.reshape(-1, G),
                           sys.e.reshape(-1, 1)], axis=1)
     Y = solveh_banded(layout.fill(D, sys.B), rhs, lower=True, check_finite=False)
-    Ag, AE, Ae = Y[:, 0], Y[:, 1:4], Y[:, 4]
-    Ef, ef = sys.E.reshape(-1, N_POSE), sys.e.reshape(-1)
+    Ag, AE, Ae = Y[:, 0], Y[:, 1:G + 1], Y[:, G + 1]
+    Ef, ef = sys.E.reshape(-1, G), sys.e.reshape(-1)
     row_track = np.repeat(owner, N_STATE)
     Hp = sys.Hp + lam * np.diag(np.diag(sys.Hp) + _EPS)
     Sp = Hp - Ef.T @ AE
