@@ -2,7 +2,10 @@
 
 For every case and seed: simulate, write the scenario directory, load it back, localize with
 each method (with the sensor.toml yaw guess, and with ``--without-guess`` also without it) and
-score against the ground truth. Prints (and with ``--markdown`` writes) these tables:
+score against the ground truth. The methods of one scenario share their common stages
+(:func:`fgloc.pipeline.localize_many`: same poses as separate runs); a method's time is the sum
+of its stage times, what a separate run would spend. Prints (and with ``--markdown`` writes)
+these tables:
 
 * Table I analogue: per scenario and method |dx|, |dy|, 2D, |dyaw| (deg), |dz|, time;
 * Table II analogue: per method and case mean / worst 2D and yaw error, and, for methods that
@@ -33,7 +36,7 @@ import numpy as np
 from fgloc.config import Config, load_config
 from fgloc.evaluate import pose_error, pose_error_vector
 from fgloc.io import load_scenario, write_scenario
-from fgloc.pipeline import METHODS, localize
+from fgloc.pipeline import METHODS, SharedStages, localize_many
 from fgloc.result import LocalizationResult
 from fgloc.scenario import Scenario
 from fgloc.sim import simulate
@@ -94,13 +97,16 @@ def score(scn: Scenario, res: LocalizationResult, method: str, guess: bool, dt: 
                weak_flag(res))
 
 
-def localize_scored(scn: Scenario, method: str, cfg: Config, guess: bool, case: str, seed: int,
-                    n_traj: int | None = None) -> Run:
+def localize_scored(scn: Scenario, methods: list[str], cfg: Config, guess: bool, case: str,
+                    seed: int, n_traj: int | None = None,
+                    stages: SharedStages | None = None) -> list[Run]:
+    """``methods`` on ``scn`` (shared stages computed once, :func:`localize_many`), scored;
+    a run's time is the sum of its stage times, what a separate run would spend."""
     if n_traj is not None:
         cfg = dataclasses.replace(cfg, fine=dataclasses.replace(cfg.fine, n_trajectories=n_traj))
-    t0 = time.perf_counter()
-    res = localize(scn, method=method, config=cfg)
-    return score(scn, res, method, guess, time.perf_counter() - t0, n_traj, case, seed)
+    res = localize_many(scn, methods, cfg, stages)
+    return [score(scn, r, m, guess, sum(r.timings.values()), n_traj, case, seed)
+            for m, r in res.items()]
 
 
 def scenario_file_route(case: str, seed: int, duration: float, work: Path) -> Path:
@@ -117,9 +123,8 @@ def localization_runs(case: str, seed: int, duration: float, methods: list[str],
         scn = load_scenario(d)
         if not guess:
             scn.sensor = dataclasses.replace(scn.sensor, yaw_guess_deg=None)
-        for method in methods:
-            r = localize_scored(scn, method, cfg, guess, case, seed)
-            print(f"  {case:<13}{seed:>3} {'guess' if guess else 'none ':<6}{method:<14}"
+        for r in localize_scored(scn, methods, cfg, guess, case, seed):
+            print(f"  {case:<13}{seed:>3} {'guess' if guess else 'none ':<6}{r.method:<14}"
                   f"2D {r.err['d2d']:6.3f} m  |dyaw| {r.err['dyaw_deg']:6.3f} deg  "
                   f"{r.time_s:5.1f} s{'' if r.converged else '  NOT CONVERGED'}", flush=True)
             runs.append(r)
@@ -285,10 +290,10 @@ def main() -> int:
         for seed in args.efficiency_seeds if eff_methods else []:
             for case in ("intersection", "tjunction"):
                 scn = load_scenario(scenario_file_route(case, seed, args.duration, work))
+                stages = SharedStages(scn, cfg)
                 for n in args.efficiency_counts:
-                    for m in eff_methods:
-                        r = localize_scored(scn, m, cfg, True, case, seed, n)
-                        print(f"  {case:<13}{seed:>3} {n:>3} trajectories {m:<14}"
+                    for r in localize_scored(scn, eff_methods, cfg, True, case, seed, n, stages):
+                        print(f"  {case:<13}{seed:>3} {n:>3} trajectories {r.method:<14}"
                               f"2D {r.err['d2d']:6.3f} m  |dyaw| {r.err['dyaw_deg']:6.3f} deg",
                               flush=True)
                         eff.append(r)

@@ -1,8 +1,10 @@
 """fgloc: self-localization of roadside 4D radar sensors from the traffic they track.
 
 The library entry points: ``fgloc.load_scenario(path)`` reads a scenario directory,
-``fgloc.localize(scenario, method="icp", config=None)`` localizes its sensor and
-``fgloc.track(scenario, config=None, oracle_pose=False)`` tracks its vehicles. They are
+``fgloc.localize(scenario, method="icp", config=None)`` localizes its sensor,
+``fgloc.localize_many(scenario, methods, config=None)`` localizes it with several methods
+sharing their common stages, and ``fgloc.track(scenario, config=None, oracle_pose=False)``
+tracks its vehicles. They are
 imported on first use, so ``import fgloc.geo`` stays cheap.
 """
 
@@ -15,6 +17,7 @@ __version__ = "0.1.0"
 _LAZY = {
     "load_scenario": "fgloc.io",
     "localize": "fgloc.pipeline",
+    "localize_many": "fgloc.pipeline",
     "track": "fgloc.pipeline",
     "METHODS": "fgloc.pipeline",
 }

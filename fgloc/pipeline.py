@@ -24,6 +24,7 @@ from fgloc.tracks import TrackSet
 
 if TYPE_CHECKING:
     from fgloc.coarse import CoarseResult
+    from fgloc.map import TargetCloud
 
 MethodFn = Callable[[Scenario, Config, Timer], LocalizationResult]
 
@@ -80,7 +81,12 @@ def _run_icp(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
     baseline)."""
     from fgloc.coarse import target_and_coarse
 
-    target, coarse = target_and_coarse(scn, cfg, timer)
+    return _icp_result(scn, cfg, *target_and_coarse(scn, cfg, timer))
+
+
+def _icp_result(scn: Scenario, cfg: Config, target: TargetCloud, coarse: CoarseResult
+                ) -> LocalizationResult:
+    """The icp method's result from the shared target cloud and coarse stage."""
     src = transform_points(coarse.T_coarse, coarse.source_xyz)
     diag = {k: v for k, v in asdict(coarse).items() if k not in ("T_coarse", "source_xyz")}
     return LocalizationResult(
@@ -123,3 +129,107 @@ def localize(
     res = METHODS[method](scenario, cfg, timer)
     res.timings = dict(timer.seconds)
     return res
+
+
+class SharedStages:
+    """The stages several methods share on one scenario, each computed on first use and kept:
+    the target cloud and coarse pose, the filter's tracks (placed by T_coarse) and their
+    batch / fixed-lag smoothing. ``config`` sets them ([map], [coarse], [tracking],
+    [smoothing]); the stage seconds are kept per stage, so a method's result can report what
+    a run of its own would have spent."""
+
+    def __init__(self, scenario: Scenario, config: Config | None = None) -> None:
+        self.scenario = scenario
+        self.config = config or Config()
+        self.seconds: dict[str, float] = {}
+        self._cache: dict[str, object] = {}
+
+    def _stage(self, key: str, fn: Callable[[Timer], object]) -> object:
+        if key not in self._cache:
+            timer = Timer()
+            self._cache[key] = fn(timer)
+            self.seconds.update(timer.seconds)
+        return self._cache[key]
+
+    def coarse(self) -> tuple[TargetCloud, CoarseResult]:
+        from fgloc.coarse import target_and_coarse
+
+        return self._stage("coarse", lambda t: target_and_coarse(self.scenario, self.config, t))
+
+    def tracks(self) -> TrackSet:
+        from fgloc.tracking import track_scenario
+
+        _, coarse = self.coarse()
+
+        def run(timer: Timer) -> TrackSet:
+            with timer.stage("tracking"):
+                return track_scenario(self.scenario, coarse.T_coarse, self.config.tracking)
+        return self._stage("tracks", run)
+
+    def smoothed(self) -> TrackSet:
+        _, coarse = self.coarse()
+        name = self.config.smoothing.smoother
+
+        def run(timer: Timer) -> TrackSet:
+            with timer.stage(f"smoothing ({name})"):
+                return smooth_tracks(self.scenario, self.tracks(), coarse.T_coarse, name,
+                                     self.config)
+        return self._stage("smoothed", run)
+
+    def times(self, *stages: str) -> dict[str, float]:
+        """Seconds of the named shared stages (those that ran)."""
+        return {k: v for k, v in self.seconds.items() if k in stages}
+
+
+_SHARED = {"icp": ("target cloud", "coarse ICP"),
+           "filter-sicp": ("target cloud", "coarse ICP", "tracking")}
+_SHARED["joint"] = _SHARED["filter-sicp"]
+
+
+def localize_many(scenario: Scenario, methods: list[str], config: Config | None = None,
+                  stages: SharedStages | None = None) -> dict[str, LocalizationResult]:
+    """Localize ``scenario`` with every method in ``methods`` (names of :data:`METHODS`),
+    computing the stages they share once: the target cloud and coarse pose, the filter's
+    tracks, the smoothing, and filter-sicp's registration (joint starts from it). Results are
+    the same as separate :func:`localize` calls; each one's ``timings`` holds the shared
+    stages it depends on plus its own, i.e. what a separate run would report.
+
+    ``stages`` reuses shared stages across calls (e.g. a sweep over ``[fine]`` or ``[joint]``
+    settings: they must have been built with the same [map], [coarse], [tracking] and
+    [smoothing]; only ``config``'s other sections are read here)."""
+    from fgloc.fine import register_tracks
+    from fgloc.registration.joint import joint_from_tracks
+
+    unknown = [m for m in methods if m not in METHODS]
+    if unknown:
+        raise FglocError(f"unknown method {unknown[0]!r}; available: {', '.join(METHODS)}")
+    cfg = config or Config()
+    st = stages or SharedStages(scenario, cfg)
+    out: dict[str, LocalizationResult] = {}
+    own: dict[str, dict[str, float]] = {}
+
+    def fine(method: str, tracks: TrackSet) -> LocalizationResult:
+        timer = Timer()
+        target, coarse = st.coarse()
+        res = register_tracks(scenario, cfg, target, coarse, tracks, timer, method=method)
+        own[method] = dict(timer.seconds)
+        return res
+
+    for method in methods:
+        if method == "icp":
+            out[method], own[method] = _icp_result(scenario, cfg, *st.coarse()), {}
+        elif method == "smoother-sicp":
+            out[method] = fine(method, st.smoothed())
+        elif "filter-sicp" not in out:          # filter-sicp, or joint's start
+            out["filter-sicp"] = fine("filter-sicp", st.tracks())
+        if method == "joint":
+            timer = Timer()
+            target, coarse = st.coarse()
+            out[method] = joint_from_tracks(scenario, cfg, target, coarse, st.tracks(), timer,
+                                            start=out["filter-sicp"])
+            own[method] = {**own["filter-sicp"], **timer.seconds}
+    smoothing = f"smoothing ({cfg.smoothing.smoother})"
+    for method in methods:
+        shared = _SHARED.get(method, (*_SHARED["filter-sicp"], smoothing))
+        out[method].timings = {**st.times(*shared), **own[method]}
+    return {m: out[m] for m in methods}

@@ -1,0 +1,40 @@
+"""fgloc.pipeline.localize_many: the same poses as separate localize() calls, with shared stages
+computed once and every result reporting the stage times a separate run would."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fgloc.config import Config
+from fgloc.pipeline import METHODS, SharedStages, localize, localize_many
+from fgloc.sim import simulate
+
+
+def check_equal_to_separate_runs(methods: list[str], duration: float) -> None:
+    scn = simulate("tjunction", 4, duration=duration, vehicles=12)
+    cfg = Config()
+    stages = SharedStages(scn, cfg)
+    many = localize_many(scn, methods, cfg, stages)
+    assert list(many) == methods
+    for m in methods:
+        one = localize(scn, m, cfg)
+        np.testing.assert_allclose(many[m].T_local, one.T_local, atol=1e-9, err_msg=m)
+        assert many[m].method == m
+        assert set(many[m].timings) == set(one.timings), (m, many[m].timings, one.timings)
+    assert "tracking" not in many["icp"].timings
+    # a second call with the same stages runs no shared stage again
+    before = dict(stages.seconds)
+    again = localize_many(scn, methods[::-1], cfg, stages)
+    assert stages.seconds == before
+    for m in methods:
+        np.testing.assert_allclose(again[m].T_local, many[m].T_local, atol=1e-12)
+
+
+def test_icp_and_filter_sicp_share_their_stages() -> None:
+    check_equal_to_separate_runs(["icp", "filter-sicp"], 12.0)
+
+
+@pytest.mark.slow
+def test_every_method_equals_its_separate_run() -> None:
+    check_equal_to_separate_runs(sorted(METHODS), 20.0)
