@@ -116,14 +116,21 @@ def scenario_file_route(case: str, seed: int, duration: float, work: Path) -> Pa
 
 
 def localization_runs(case: str, seed: int, duration: float, methods: list[str], work: Path,
-                      cfg: Config, guesses: tuple[bool, ...]) -> list[Run]:
+                      cfg: Config, guesses: tuple[bool, ...],
+                      shared: dict[tuple[str, int], SharedStages | None]) -> list[Run]:
+    """Every method on one simulated scenario (written and loaded back); when ``shared`` has
+    the key ``(case, seed)``, the shared stages of the run with the yaw guess are kept there
+    (for the data-efficiency sweep)."""
     d = scenario_file_route(case, seed, duration, work)
     runs = []
     for guess in guesses:
         scn = load_scenario(d)
         if not guess:
             scn.sensor = dataclasses.replace(scn.sensor, yaw_guess_deg=None)
-        for r in localize_scored(scn, methods, cfg, guess, case, seed):
+        stages = SharedStages(scn, cfg)
+        if guess and (case, seed) in shared:
+            shared[(case, seed)] = stages
+        for r in localize_scored(scn, methods, cfg, guess, case, seed, stages=stages):
             print(f"  {case:<13}{seed:>3} {'guess' if guess else 'none ':<6}{r.method:<14}"
                   f"2D {r.err['d2d']:6.3f} m  |dyaw| {r.err['dyaw_deg']:6.3f} deg  "
                   f"{r.time_s:5.1f} s{'' if r.converged else '  NOT CONVERGED'}", flush=True)
@@ -273,6 +280,9 @@ def main() -> int:
     straight: list[Run] = []
     eff: list[Run] = []
     road_dirs: dict[int, np.ndarray] = {}
+    # the scenarios of the data-efficiency sweep keep their shared stages for it
+    shared: dict[tuple[str, int], SharedStages | None] = {
+        (c, s): None for c in ("intersection", "tjunction") for s in args.efficiency_seeds}
     guesses = (True, False) if args.without_guess else (True,)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -280,17 +290,18 @@ def main() -> int:
         for case in args.cases:
             for seed in args.seeds:
                 runs += localization_runs(case, seed, args.duration, args.methods, work, cfg,
-                                          guesses)
+                                          guesses, shared)
         for seed in args.straight_seeds:
             straight += localization_runs("straight", seed, args.duration, args.methods, work,
-                                          cfg, (True,))
+                                          cfg, (True,), shared)
             road_dirs[seed] = road_direction(load_scenario(work / f"straight-{seed}"))
         if eff_methods and args.efficiency_counts:
             print("data efficiency runs:")
         for seed in args.efficiency_seeds if eff_methods else []:
             for case in ("intersection", "tjunction"):
-                scn = load_scenario(scenario_file_route(case, seed, args.duration, work))
-                stages = SharedStages(scn, cfg)
+                stages = shared[(case, seed)] or SharedStages(load_scenario(
+                    scenario_file_route(case, seed, args.duration, work)), cfg)
+                scn = stages.scenario
                 for n in args.efficiency_counts:
                     for r in localize_scored(scn, eff_methods, cfg, True, case, seed, n, stages):
                         print(f"  {case:<13}{seed:>3} {n:>3} trajectories {r.method:<14}"
