@@ -26,20 +26,27 @@ def _moments(w: np.ndarray, dt: float | np.ndarray, kmax: int) -> list[np.ndarra
     w = np.asarray(w, dtype=float)
     T = np.broadcast_to(np.asarray(dt, dtype=float), w.shape)
     small = np.abs(w * T) < SERIES_SWITCH
-    # series: I_k = T^{k+1} sum_j (i w T)^j / (j! (j + k + 1))
-    z = 1j * np.where(small, w, 0.0) * T
-    term = np.ones_like(z)                      # (i w T)^j / j!, shared by every k
-    acc = [term / (k + 1) for k in range(kmax + 1)]
-    for j in range(1, SERIES_TERMS):
-        term = term * z / j
-        acc = [a + term / (j + k + 1) for k, a in enumerate(acc)]
-    series = [a * T ** (k + 1) for k, a in enumerate(acc)]
-    # closed form on the large-|w dt| part
-    wl = np.where(small, 1.0, w)
-    e = np.exp(1j * wl * T)
-    closed = [(e - 1.0) / (1j * wl)]
-    for k in range(1, kmax + 1):
-        closed.append((T**k * e - k * closed[-1]) / (1j * wl))
+    n_small = int(np.count_nonzero(small))
+    series = closed = None
+    if n_small:
+        # series: I_k = T^{k+1} sum_j (i w T)^j / (j! (j + k + 1)), every k at once
+        z = 1j * np.where(small, w, 0.0) * T
+        term = np.ones_like(z)                  # (i w T)^j / j!, shared by every k
+        k1 = np.arange(1, kmax + 2).reshape(-1, *([1] * z.ndim))     # k + 1
+        acc = term / k1
+        for j in range(1, SERIES_TERMS):
+            term = term * z / j
+            acc = acc + term / (j + k1)
+        series = [acc[k] * T ** (k + 1) for k in range(kmax + 1)]
+    if n_small < small.size:
+        # closed form on the large-|w dt| part
+        wl = np.where(small, 1.0, w)
+        e = np.exp(1j * wl * T)
+        closed = [(e - 1.0) / (1j * wl)]
+        for k in range(1, kmax + 1):
+            closed.append((T**k * e - k * closed[-1]) / (1j * wl))
+    if closed is None or series is None:     # arrays even when 0-d, like np.where's
+        return [np.asarray(a) for a in (series if closed is None else closed)]
     return [np.where(small, s, c) for s, c in zip(series, closed)]
 
 

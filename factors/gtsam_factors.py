@@ -100,6 +100,29 @@ def _state(values: gtsam.Values, key: int, what: str) -> np.ndarray:
     return x
 
 
+class _LastEvaluation:
+    """The last residual (and Jacobian) a factor's callback computed and the state it was
+    computed at: ISAM2 often linearizes a factor again at the very same point (about a third
+    of the fixed-lag smoother's calls), which is then served from here. The callbacks are
+    deterministic functions of the state, so this changes nothing but the time."""
+
+    def __init__(self) -> None:
+        self.x: np.ndarray | None = None
+        self.e: np.ndarray | None = None
+        self.J: np.ndarray | None = None
+
+    def get(self, x: np.ndarray, jacobian: bool) -> tuple[np.ndarray, np.ndarray | None] | None:
+        """``(e, J)`` if the last evaluation was at exactly ``x`` (and had the Jacobian when
+        ``jacobian``), else None."""
+        if (self.x is None or (jacobian and self.J is None)
+                or not np.array_equal(self.x, x)):
+            return None
+        return self.e, self.J
+
+    def put(self, x: np.ndarray, e: np.ndarray, J: np.ndarray | None) -> None:
+        self.x, self.e, self.J = x, e, J
+
+
 def _check_gp(gp: ContourGP) -> None:
     if gp.n != N_CONTOUR:
         raise ValueError(f"ContourGP has {gp.n} basis angles, the state holds {N_CONTOUR}")
@@ -183,15 +206,24 @@ def process_factor(key_k: int, key_k1: int, dt: float, gp: ContourGP, tau: float
                            contour_rw)
     noise = gtsam.noiseModel.Gaussian.Covariance(Q)
     eye = np.asfortranarray(np.eye(N_STATE))
+    memo = _LastEvaluation()
 
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list) -> np.ndarray:
         k0, k1 = this.keys()[0], this.keys()[1]
-        x0 = _state(values, k0, "process_factor")
-        x1 = _state(values, k1, "process_factor")
-        e = process_error(x0, x1, dt, gp, tau)
+        x = np.concatenate([_state(values, k0, "process_factor"),
+                            _state(values, k1, "process_factor")])
+        hit = memo.get(x, H is not None)
+        if hit is not None:
+            e, J0 = hit
+        else:
+            x0, x1 = x[:N_STATE], x[N_STATE:]
+            e = process_error(x0, x1, dt, gp, tau)
+            J0 = (None if H is None else
+                  _fortran(process_jacobian_x0(x0, dt, tau), (N_STATE, N_STATE),
+                           "process_factor"))
+            memo.put(x, e, J0)
         if H is not None:
-            H[0] = _fortran(process_jacobian_x0(x0, dt, tau), (N_STATE, N_STATE),
-                            "process_factor")
+            H[0] = J0
             H[1] = eye
         return e
 
@@ -230,6 +262,16 @@ class ConditionalTable:
         self.H = per @ gp.K_inv
         gl, gw = rectangle_radius_gradient(gp.angles, gp.mean_length, gp.mean_width)
         self.size_rows = np.stack([gp.sl**2 * gl @ gp.K_inv, gp.sw**2 * gw @ gp.K_inv])
+        self._candidates: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+
+    def candidates(self, n: int) -> tuple[np.ndarray, np.ndarray]:
+        """``(H (n, 20), prior mean (n,))`` at the ``n`` equally spaced candidate angles
+        ``2 pi k / n`` of :class:`ContourMeasurement`, computed once per ``n`` (every factor
+        of a table shares them; treat as read-only)."""
+        if n not in self._candidates:
+            H, mean, _ = self(2.0 * np.pi * np.arange(n) / n)
+            self._candidates[n] = (H, mean)
+        return self._candidates[n]
 
     def __call__(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(H (m, n), prior mean (m,), variance (m,))`` at angles ``theta`` (m,) (rad)."""
@@ -312,7 +354,10 @@ class ContourMeasurement:
             self.radar_var = (float(sigma_range) ** 2, (float(sigma_azimuth) * r2d) ** 2)
         self.cand_theta = 2.0 * np.pi * np.arange(int(n_candidates)) / int(n_candidates)
         self.table = table
-        self.cand_H, self.cand_mean, _ = self.conditional(self.cand_theta)
+        if table is None:
+            self.cand_H, self.cand_mean, _ = self.conditional(self.cand_theta)
+        else:
+            self.cand_H, self.cand_mean = table.candidates(int(n_candidates))
 
     @property
     def dim(self) -> int:
@@ -558,15 +603,24 @@ def contour_measurement_factor(key: int, detections_xy: np.ndarray, sensor_xy: n
     dim = meas.dim + (0 if ext is None else 4)
     shape = (dim, N_STATE)
 
+    memo = _LastEvaluation()
+
     def error(this: gtsam.CustomFactor, values: gtsam.Values, H: list) -> np.ndarray:
         x = _state(values, this.keys()[0], "contour_measurement_factor")
-        e, J, _ = meas.rows(x, jacobian=H is not None)
-        if ext is not None:
-            e2, J2 = ext.rows(x, jacobian=H is not None)
-            e = np.concatenate([e, e2])
-            J = None if J is None else np.vstack([J, J2])
+        hit = memo.get(x, H is not None)
+        if hit is not None:
+            e, J = hit
+        else:
+            e, J, _ = meas.rows(x, jacobian=H is not None)
+            if ext is not None:
+                e2, J2 = ext.rows(x, jacobian=H is not None)
+                e = np.concatenate([e, e2])
+                J = None if J is None else np.vstack([J, J2])
+            if J is not None:
+                J = _fortran(J, shape, "contour_measurement_factor")
+            memo.put(x, e, J)
         if H is not None:
-            H[0] = _fortran(J, shape, "contour_measurement_factor")
+            H[0] = J
         return e
 
     noise = gtsam.noiseModel.Isotropic.Sigma(dim, meas.sigma)

@@ -49,10 +49,14 @@ class SmoothingConfig:
     marginals: bool = False
     """Batch: compute each state's marginal covariance (gtsam.Marginals) into the output
     tracks; otherwise the smoothed tracks carry no covariances."""
-    relinearize_threshold: float = 0.3
-    """Fixed-lag (ISAM2): relinearize a variable whose update exceeds this."""
-    relinearize_skip: int = 3
-    """Fixed-lag (ISAM2): check for relinearization every this many updates."""
+    relinearize_threshold: float = 1.0
+    """Fixed-lag (ISAM2): relinearize a variable whose update exceeds this (any component,
+    state units). Measured on intersection seeds 1-3 (docs/benchmarks.md, "Fixed-lag
+    smoother speed"): 0.3 with a check every 3 updates let a badly born track diverge (heading
+    flipped, contour 19 m long) and cost more CPU; 1.0 checked every update did not."""
+    relinearize_skip: int = 1
+    """Fixed-lag (ISAM2): check for relinearization every this many updates (1: every
+    update, which is what stops a new track's first Gauss-Newton steps from diverging)."""
 
     def __post_init__(self) -> None:
         if self.smoother not in SMOOTHERS[1:]:

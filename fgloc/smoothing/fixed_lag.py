@@ -10,6 +10,12 @@ The output state of a step is its estimate just before it left the window (a fix
 smoothed estimate, ``lag`` s of future data), or the final estimate for the steps still in
 the window at the end.
 
+The tracks share no variable (the sensor pose is fixed here), so their joint posterior
+factorizes: every track gets its own smoother, created at its first step and dropped after
+its last. Same estimates as one smoother over all tracks, but each ISAM2 update and
+marginalization works on one short chain: one smoother holding every track re-eliminated
+large parts of all the chains at each frame (~2x the CPU time on 30 vehicles).
+
 Memory stays bounded: marginalized variables and factors leave the smoother and the ISAM2
 parameters set ``findUnusedFactorSlots`` (a custom ``ISAM2Params`` drops it otherwise), so
 the factor slots are reused (``factor_slots_max`` in the diagnostics).
@@ -18,7 +24,8 @@ the factor slots are reused (``factor_slots_max`` in the diagnostics).
 from __future__ import annotations
 
 import time
-from collections import defaultdict
+from collections import defaultdict, deque
+from dataclasses import dataclass, field
 
 import gtsam
 import numpy as np
@@ -26,9 +33,9 @@ import numpy as np
 from factors.gtsam_factors import track_key
 from fgloc.errors import FglocError
 from fgloc.smoothing.config import SmoothingConfig
-from fgloc.smoothing.graph import TrackModel, step_detections, tracks_from_values
+from fgloc.smoothing.graph import TrackModel, step_detections, tracks_from_states
 from fgloc.tracking.config import TrackingConfig
-from fgloc.tracks import TrackSet
+from fgloc.tracks import Track, TrackSet
 
 
 def isam2_params(cfg: SmoothingConfig) -> gtsam.ISAM2Params:
@@ -42,6 +49,14 @@ def isam2_params(cfg: SmoothingConfig) -> gtsam.ISAM2Params:
     return p
 
 
+@dataclass
+class _TrackWindow:
+    """The smoother of one track and its steps still in the window (oldest first)."""
+
+    smoother: gtsam.IncrementalFixedLagSmoother
+    steps: deque[int] = field(default_factory=deque)
+
+
 def smooth_fixed_lag(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                      smoothing: SmoothingConfig | None = None,
                      tracking: TrackingConfig | None = None,
@@ -53,62 +68,85 @@ def smooth_fixed_lag(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray
     det_xy (N, 2) m: all radar rows in the tracks' frame; sensor_xy (2,) m: the sensor there;
     det_trusted (N,): possible ends of the extent rows (None = all).
     Diagnostics gain ``smoother_seconds``, ``frames``, ``factor_slots_max`` (largest number
-    of factor slots the smoother held) and ``window_variables_max``.
+    of factor slots one track's smoother held) and ``window_variables_max`` (largest number
+    of state variables in all windows at once).
     """
     scfg = smoothing or SmoothingConfig()
     model = TrackModel.of(tracking, scfg)
     sensor_xy = np.asarray(sensor_xy, dtype=float)
     t0 = time.perf_counter()
-    smoother = gtsam.IncrementalFixedLagSmoother(scfg.lag, isam2_params(scfg))
+    params = isam2_params(scfg)
     frames: dict[float, list[tuple[int, int]]] = defaultdict(list)
     for i, tr in enumerate(tracks.tracks):
         for s, t in enumerate(tr.t):
             frames[float(t)].append((i, s))
     dets = [step_detections(tr) for tr in tracks.tracks]
     states = [tr.states.copy() for tr in tracks.tracks]
-    window: dict[int, tuple[int, int]] = {}
-    slots_max = window_max = 0
+    open_: dict[int, _TrackWindow] = {}
+    slots_max = window_max = n_window = 0
+
+    def close(i: int) -> None:
+        """Read the final estimates of track i's window and drop its smoother."""
+        nonlocal n_window
+        w = open_.pop(i)
+        tid = tracks.tracks[i].id
+        for s in w.steps:
+            states[i][s] = w.smoother.calculateEstimateVector(track_key(tid, s))
+        n_window -= len(w.steps)
+
     for t in sorted(frames):
-        graph, values, stamps = gtsam.NonlinearFactorGraph(), gtsam.Values(), {}
         for i, s in frames[t]:
             tr = tracks.tracks[i]
-            key = track_key(tr.id, s)
-            stamps[key] = t
-            prev = track_key(tr.id, s - 1) if s else None
-            if prev is not None and prev in window:
-                dt = float(tr.t[s] - tr.t[s - 1])
-                x_prev = states[i][s - 1]                    # its current smoothed estimate
-                graph.add(model.process(prev, key, dt, x_prev))
-                values.insert(key, model.predict(x_prev, dt))
-            else:       # first step, or the previous one already left the window
-                graph.add(model.prior(key, tr, s))
-                values.insert(key, tr.states[s])
-            if len(dets[i][s]):
-                idx = dets[i][s]
-                graph.add(model.measurement(key, det_xy[idx], sensor_xy,
-                                            None if det_trusted is None else det_trusted[idx]))
-            window[key] = (i, s)
-        try:
-            smoother.update(graph, values, stamps)
-        except RuntimeError as exc:          # the smoother is unusable afterwards
-            raise FglocError(f"fixed-lag smoother failed at t = {t:.3f} s: {exc}") from exc
-        est = smoother.calculateEstimate()
-        for key in list(window):
-            if est.exists(key):
-                i, s = window[key]
-                states[i][s] = est.atVector(key)
-            else:
-                del window[key]
-        slots_max = max(slots_max, int(smoother.getFactors().size()))
-        window_max = max(window_max, len(window))
-    values = gtsam.Values()
-    keys = []
-    for tr, st in zip(tracks.tracks, states):
-        k = np.array([track_key(tr.id, s) for s in range(len(tr))], dtype=np.int64)
-        for key, x in zip(k, st):
-            values.insert(int(key), x)
-        keys.append(k)
-    out = tracks_from_values(tracks, values, keys, tracking, smoother="fixed-lag")
+            if i in open_ and t - tr.t[open_[i].steps[-1]] >= scfg.lag:
+                close(i)                     # a gap as long as the lag: start afresh
+            w = open_.get(i)
+            if w is None:
+                w = open_[i] = _TrackWindow(gtsam.IncrementalFixedLagSmoother(scfg.lag, params))
+            graph, values, key = _step_factors(model, tr, s, w, states[i], det_xy, sensor_xy,
+                                               dets[i][s], det_trusted)
+            # the steps this update marginalizes (IFLS: stamp < newest stamp - lag): their
+            # output is the estimate just before they leave
+            while w.steps and tr.t[w.steps[0]] < t - scfg.lag:
+                s_old = w.steps.popleft()
+                states[i][s_old] = w.smoother.calculateEstimateVector(track_key(tr.id, s_old))
+                n_window -= 1
+            try:
+                w.smoother.update(graph, values, {key: t})
+            except RuntimeError as exc:          # the smoother is unusable afterwards
+                raise FglocError(f"fixed-lag smoother failed on track {tr.id} at t = "
+                                 f"{t:.3f} s: {exc}") from exc
+            w.steps.append(s)
+            n_window += 1
+            states[i][s] = w.smoother.calculateEstimateVector(key)
+            slots_max = max(slots_max, int(w.smoother.getFactors().size()))
+            if s == len(tr) - 1:
+                close(i)
+        window_max = max(window_max, n_window)
+    out = tracks_from_states(tracks, states, tracking, smoother="fixed-lag")
     out.diagnostics.update(smoother_seconds=time.perf_counter() - t0, frames=len(frames),
                            factor_slots_max=slots_max, window_variables_max=window_max)
     return out
+
+
+def _step_factors(model: TrackModel, tr: Track, s: int, w: _TrackWindow, states: np.ndarray,
+                  det_xy: np.ndarray, sensor_xy: np.ndarray, idx: np.ndarray,
+                  det_trusted: np.ndarray | None
+                  ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, int]:
+    """New factors, initial value and key of step ``s`` of ``tr``: the process factor from the
+    previous step (initialised by the process model from its current estimate in
+    ``states``) when that step is in the window, else the filter's prior; the contour factor
+    of the step's detections ``idx``."""
+    graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
+    key = track_key(tr.id, s)
+    if w.steps and w.steps[-1] == s - 1:
+        dt = float(tr.t[s] - tr.t[s - 1])
+        x_prev = states[s - 1]                           # its current smoothed estimate
+        graph.add(model.process(track_key(tr.id, s - 1), key, dt, x_prev))
+        values.insert(key, model.predict(x_prev, dt))
+    else:       # first step, or the previous one already left the window
+        graph.add(model.prior(key, tr, s))
+        values.insert(key, tr.states[s])
+    if len(idx):
+        graph.add(model.measurement(key, det_xy[idx], sensor_xy,
+                                    None if det_trusted is None else det_trusted[idx]))
+    return graph, values, key
