@@ -32,7 +32,7 @@ from factors.measurement import (
     normal_offset_jacobian,
     unit,
 )
-from factors.state import N_CONTOUR, N_KIN, N_STATE, YAW, X, Y
+from factors.state import N_CONTOUR, N_KIN, N_STATE, YAW, YAWRATE, V, X, Y
 
 # ---- keys ------------------------------------------------------------------------------------
 #: symbol character of the track-state keys and of the sensor pose key
@@ -565,6 +565,70 @@ class ExtentRows:
         return (e[0] if self.single else e), J
 
 
+class RangeRateRows:
+    """Range-rate (Doppler) rows of the detections of one track in one frame, or of a batch of
+    frames: the rigid-body velocity of the state at each detection, projected on the line of
+    sight, against the measured range rate (the tracker's Doppler measurement,
+    :func:`factors.measurement.range_rate`):
+
+        row_i = (v u(yaw) + yawrate e_z x (z_i - c)) . (z_i - s) / rng_i - doppler_i   (m/s)
+
+    (positive away from the sensor; rng the 3D range). It observes the speed, the heading and
+    the yaw rate, which the contour rows alone leave to the process model (a vehicle seen from
+    behind only: its speed then drifts and the contour grows). Rows enter scaled by
+    ``sigma_factor / sigma`` (the factor's noise model is isotropic) with Huber weights on
+    ``row / sigma`` (threshold ``huber_k``); padding rows (``valid`` False) are zero.
+    Jacobian: ``d/dv = u(yaw) . l``, ``d/dyaw = v u'(yaw) . l``, ``d/dyawrate = (e_z x (z -
+    c)) . l``, ``d/dc = yawrate (-l_y, l_x)`` with ``l = (z - s) / rng``.
+
+    detections (m, 2), doppler and rng (m,) for one frame (states (26,)), or (F, M, 2) / (F, M)
+    with ``valid`` (F, M) for a batch (states (F, 26)); sensor (2,) m.
+    """
+
+    def __init__(self, detections: np.ndarray, doppler: np.ndarray, rng: np.ndarray,
+                 sensor: np.ndarray, sigma: float, sigma_factor: float, huber_k: float,
+                 valid: np.ndarray | None = None) -> None:
+        z = np.asarray(detections, dtype=float)
+        self.single = z.ndim == 2
+        self.z = z[None] if self.single else z
+        shape = self.z.shape[:2]
+        self.doppler = np.asarray(doppler, dtype=float).reshape(shape)
+        rng = np.asarray(rng, dtype=float).reshape(shape)
+        if not sigma > 0 or not np.all(rng > 0):
+            raise ValueError("RangeRateRows needs sigma > 0 and positive ranges")
+        self.los = (self.z - np.asarray(sensor, dtype=float)) / rng[..., None]     # (F, M, 2)
+        self.valid = (np.ones(shape, dtype=bool) if valid is None
+                      else np.asarray(valid, dtype=bool).reshape(shape))
+        self.sigma, self.scale, self.huber_k = float(sigma), sigma_factor / sigma, huber_k
+
+    def rows(self, x: np.ndarray, jacobian: bool = False
+             ) -> tuple[np.ndarray, np.ndarray | None]:
+        """Scaled rows (m,) and their Jacobian (m, 26) if asked (with a leading frame axis
+        for a batch)."""
+        x = _frames(x, self.single).astype(float)
+        c, v, yaw, w = x[:, [X, Y]], x[:, V], x[:, YAW], x[:, YAWRATE]
+        h = np.stack([np.cos(yaw), np.sin(yaw)], axis=-1)[:, None, :]            # (F, 1, 2)
+        d = self.z - c[:, None, :]
+        rot = np.stack([-d[..., 1], d[..., 0]], axis=-1)                         # e_z x (z - c)
+        vel = v[:, None, None] * h + w[:, None, None] * rot
+        r = np.sum(vel * self.los, axis=-1) - self.doppler
+        wgt = np.where(self.valid, huber_weights(r / self.sigma, self.huber_k), 0.0)
+        sw = self.scale * np.sqrt(wgt)
+        e = sw * r
+        J = None
+        if jacobian:
+            lx, ly = self.los[..., 0], self.los[..., 1]
+            J = np.zeros((*r.shape, N_STATE))
+            J[..., V] = np.sum(h * self.los, axis=-1)
+            J[..., YAW] = v[:, None] * (-h[..., 1] * lx + h[..., 0] * ly)
+            J[..., YAWRATE] = np.sum(rot * self.los, axis=-1)
+            J[..., X] = -w[:, None] * ly
+            J[..., Y] = w[:, None] * lx
+            J *= sw[..., None]
+            J = J[0] if self.single else J
+        return (e[0] if self.single else e), J
+
+
 def contour_measurement_factor(key: int, detections_xy: np.ndarray, sensor_xy: np.ndarray,
                                gp: ContourGP, sigma: float = 0.3, huber_k: float = 1.345,
                                n_candidates: int = 48, sigma_range: float = 0.0,
@@ -572,7 +636,9 @@ def contour_measurement_factor(key: int, detections_xy: np.ndarray, sensor_xy: n
                                table: ConditionalTable | None = None,
                                extent: ExtentSettings | None = None,
                                extent_detections: np.ndarray | None = None,
-                               extent_trusted: np.ndarray | None = None
+                               extent_trusted: np.ndarray | None = None,
+                               range_rate: tuple[np.ndarray, np.ndarray] | None = None,
+                               sigma_doppler: float = 1.0
                                ) -> gtsam.CustomFactor:
     """One factor for all ``m`` detections (m, 2) (m, tracking frame) of one track in one
     frame, seen from ``sensor_xy`` (2,) (m): ``m`` stacked normal-offset rows of
@@ -586,8 +652,10 @@ def contour_measurement_factor(key: int, detections_xy: np.ndarray, sensor_xy: n
     ``extent``, 4 visible-extent rows (:class:`ExtentRows`) follow the ``m`` rows, from
     ``extent_detections`` (k, 2) when given (e.g. all detections of the frame when only a
     subsample enters the normal rows: the extremes need them all), else the same detections,
-    and ``extent_trusted`` their mask of possible ends (:class:`ExtentRows`). Wrong input
-    shapes raise ``ValueError`` here, before gtsam sees anything."""
+    and ``extent_trusted`` their mask of possible ends (:class:`ExtentRows`). With
+    ``range_rate = (doppler (m,) m/s, rng (m,) m)`` of the same detections, ``m`` range-rate
+    rows (:class:`RangeRateRows`, noise ``sigma_doppler`` m/s) follow. Wrong input shapes raise
+    ``ValueError`` here, before gtsam sees anything."""
     if table is not None and table.gp is not gp:
         raise ValueError("table was built for another ContourGP")
     meas = ContourMeasurement(detections_xy, sensor_xy, gp, sigma, huber_k, n_candidates,
@@ -600,7 +668,9 @@ def contour_measurement_factor(key: int, detections_xy: np.ndarray, sensor_xy: n
     ext = None if extent is None else ExtentRows(
         meas.z if extent_detections is None else extent_detections, meas.sensor, extent,
         meas.sigma, extent_trusted)
-    dim = meas.dim + (0 if ext is None else 4)
+    rr = (None if range_rate is None else
+          RangeRateRows(meas.z[0], *range_rate, meas.sensor, sigma_doppler, meas.sigma, huber_k))
+    dim = meas.dim * (1 if rr is None else 2) + (0 if ext is None else 4)
     shape = (dim, N_STATE)
 
     memo = _LastEvaluation()
@@ -612,10 +682,11 @@ def contour_measurement_factor(key: int, detections_xy: np.ndarray, sensor_xy: n
             e, J = hit
         else:
             e, J, _ = meas.rows(x, jacobian=H is not None)
-            if ext is not None:
-                e2, J2 = ext.rows(x, jacobian=H is not None)
-                e = np.concatenate([e, e2])
-                J = None if J is None else np.vstack([J, J2])
+            for extra in (ext, rr):
+                if extra is not None:
+                    e2, J2 = extra.rows(x, jacobian=H is not None)
+                    e = np.concatenate([e, e2])
+                    J = None if J is None else np.vstack([J, J2])
             if J is not None:
                 J = _fortran(J, shape, "contour_measurement_factor")
             memo.put(x, e, J)

@@ -3,13 +3,13 @@ of the whole track graph in a few vectorized numpy calls instead of one Python c
 factor.
 
 It holds exactly the factors of :mod:`factors.gtsam_factors` -- a Gaussian prior on each
-track's first state, a process factor between consecutive states, a stacked contour
-measurement factor (normal-offset rows + optional visible-extent rows) per step with
+track's first state, a process factor between consecutive states, a stacked contour measurement
+factor (normal-offset rows + optional visible-extent and range-rate rows) per step with
 detections -- with the same residuals, noise and re-association per evaluation, and its cost
 equals ``0.5 * sum of squared whitened residuals`` of the same gtsam graph (tests compare the
 two). What changes is the evaluation: every process factor of every track in one batched CTRA
-call, every measurement frame in batched association calls (frames padded to a common number
-of detections, in chunks to bound memory).
+call, every measurement frame in batched association calls (frames padded to a common number of
+detections, in chunks to bound memory).
 
 Steps of all tracks are stacked: track ``t`` owns steps ``start[t]:start[t + 1]``; state
 array ``x`` (N, 26) in the layout of :mod:`factors.state`. Because tracks share no variable and
@@ -28,6 +28,7 @@ from factors.gp import ContourGP
 from factors.gtsam_factors import (
     ContourMeasurement,
     ExtentRows,
+    RangeRateRows,
     process_error,
     process_jacobian_x0,
 )
@@ -85,8 +86,9 @@ class StackedTracks:
     the later step of each process factor (the earlier is ``proc_step - 1``), proc_dt (P,) s,
     proc_W (P, 26, 26): whitening of its noise (fixed at the reference state). meas_step
     (F,): the step of each measurement frame; meas: per chunk of frames a batched
-    :class:`ContourMeasurement` and :class:`ExtentRows` (or None), ``chunks`` their frame
-    offsets. gp / tau: the contour model and its forgetting rate (1/s).
+    :class:`ContourMeasurement`, :class:`ExtentRows` and :class:`RangeRateRows` (each of the
+    last two or None), ``chunks`` their frame offsets. gp / tau: the contour model and its
+    forgetting rate (1/s).
     """
 
     start: np.ndarray
@@ -96,7 +98,7 @@ class StackedTracks:
     proc_dt: np.ndarray
     proc_W: np.ndarray
     meas_step: np.ndarray
-    meas: list[tuple[ContourMeasurement, ExtentRows | None]]
+    meas: list[tuple[ContourMeasurement, ExtentRows | None, RangeRateRows | None]]
     chunks: np.ndarray
     gp: ContourGP
     tau: float
@@ -144,13 +146,14 @@ class StackedTracks:
         elif jacobian:
             B = np.zeros((0, N_STATE, N_STATE))
         # measurement frames, chunk by chunk
-        for (meas, ext), a, b in zip(self.meas, self.chunks[:-1], self.chunks[1:]):
+        for (meas, *extras), a, b in zip(self.meas, self.chunks[:-1], self.chunks[1:]):
             steps = self.meas_step[a:b]
             r, J, _ = meas.rows(x[steps], jacobian=jacobian)
-            if ext is not None:
-                r2, J2 = ext.rows(x[steps], jacobian=jacobian)
-                r = np.concatenate([r, r2], axis=1)
-                J = None if J is None else np.concatenate([J, J2], axis=1)
+            for extra in extras:
+                if extra is not None:
+                    r2, J2 = extra.rows(x[steps], jacobian=jacobian)
+                    r = np.concatenate([r, r2], axis=1)
+                    J = None if J is None else np.concatenate([J, J2], axis=1)
             r = r / meas.sigma
             cost[steps] += 0.5 * np.sum(r * r, axis=1)
             if jacobian:

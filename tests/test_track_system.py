@@ -9,7 +9,14 @@ import numpy as np
 from test_gtsam_factors import GP, random_state
 from test_smoothing_graph import make_track
 
-from factors.gtsam_factors import ContourMeasurement, ExtentRows, ExtentSettings
+from factors.gtsam_factors import (
+    ContourMeasurement,
+    ExtentRows,
+    ExtentSettings,
+    RangeRateRows,
+    contour_measurement_factor,
+)
+from factors.measurement import range_rate
 from fgloc.smoothing import SmoothingConfig
 from fgloc.smoothing.banded_lm import BandedLayout, damped_step, levenberg_marquardt
 from fgloc.smoothing.graph import build_track_graph, pad_ragged, stack_tracks
@@ -38,10 +45,13 @@ def values_of(keys: list[np.ndarray], x: np.ndarray) -> gtsam.Values:
 
 def test_stacked_cost_and_normal_equations_equal_the_gtsam_graph() -> None:
     tracks, det, sensor = three_tracks(1)
-    trusted = np.random.default_rng(2).random(len(det)) > 0.2
+    rng = np.random.default_rng(2)
+    trusted = rng.random(len(det)) > 0.2
+    rr = np.column_stack([rng.normal(8.0, 2.0, len(det)), rng.uniform(5.0, 60.0, len(det))])
     cfg = SmoothingConfig(max_detections=6)
-    tg = build_track_graph(tracks, det, sensor, cfg, det_trusted=trusted)
-    st = stack_tracks(tracks, det, sensor, cfg, det_trusted=trusted, chunk=7)
+    tg = build_track_graph(tracks, det, sensor, cfg, det_trusted=trusted, det_range_rate=rr)
+    st = stack_tracks(tracks, det, sensor, cfg, det_trusted=trusted, det_range_rate=rr,
+                      chunk=7)
     x0 = np.concatenate([tr.states for tr in tracks.tracks])
     rng = np.random.default_rng(3)
     order = gtsam.Ordering()
@@ -142,3 +152,35 @@ def test_banded_lm_smooths_towards_the_truth() -> None:
                   for x in (x0, res.states))
     yaw0, yaw1 = (np.mean(np.abs(x[:, 4] - truth[:, 4])) for x in (x0, res.states))
     assert err1 < 0.5 * err0 and yaw1 < 0.5 * yaw0, (err0, err1, yaw0, yaw1)
+
+
+def test_range_rate_rows_jacobian_batch_and_model() -> None:
+    rng = np.random.default_rng(9)
+    sensor = np.array([2.0, -25.0])
+    for w in (0.0, 0.3, -1e-9):
+        x = random_state(rng, w)
+        z = x[:2] + rng.normal(0, 1.5, (7, 2))
+        r3 = np.linalg.norm(z - sensor, axis=1) + 0.5
+        dop = range_rate(z, r3, x[:2], x[2], x[4], x[5], sensor) + rng.normal(0, 0.3, 7)
+        rows = RangeRateRows(z, dop, r3, sensor, 1.0, 0.3, np.inf)
+        e, J = rows.rows(x, jacobian=True)
+        pred = range_rate(z, r3, x[:2], x[2], x[4], x[5], sensor)
+        np.testing.assert_allclose(e, 0.3 * (pred - dop), atol=1e-12)
+        h = 1e-6
+        Jn = np.array([(rows.rows(x + h * d)[0] - rows.rows(x - h * d)[0]) / (2 * h)
+                       for d in np.eye(26)]).T
+        np.testing.assert_allclose(J, Jn, atol=1e-6)
+    # a batch of two frames (the second padded) equals the frames alone
+    zp, valid = pad_ragged(np.vstack([z, z[:3]]), np.array([7, 3]))
+    dp, _ = pad_ragged(np.concatenate([dop, dop[:3]])[:, None], np.array([7, 3]))
+    rp, _ = pad_ragged(np.concatenate([r3, r3[:3]])[:, None], np.array([7, 3]))
+    batch = RangeRateRows(zp, dp[..., 0], rp[..., 0], sensor, 1.0, 0.3, 2.0, valid)
+    xs = np.stack([x, x + 0.1])
+    eb, Jb = batch.rows(xs, jacobian=True)
+    e1, J1 = RangeRateRows(z[:3], dop[:3], r3[:3], sensor, 1.0, 0.3, 2.0).rows(xs[1], True)
+    np.testing.assert_allclose(eb[1, :3], e1, atol=1e-12)
+    np.testing.assert_allclose(Jb[1, :3], J1, atol=1e-12)
+    assert np.all(eb[1, 3:] == 0) and np.all(Jb[1, 3:] == 0)
+    # in the factor: 2 m rows (contour, then range rate), Jacobian of the whole stack
+    fac = contour_measurement_factor(1, z, sensor, GP, range_rate=(dop, r3), sigma_doppler=1.0)
+    assert fac.dim() == 14

@@ -304,13 +304,17 @@ def _add_time(timing: dict[str, float], key: str, t0: float) -> None:
 
 
 def track_quadratic(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray, cfg: Config,
-                    x_lin: np.ndarray) -> tuple[TrackQuadratic, ContourGP]:
+                    x_lin: np.ndarray, det_trusted: np.ndarray | None = None,
+                    det_range_rate: np.ndarray | None = None
+                    ) -> tuple[TrackQuadratic, ContourGP]:
     """The track factors' quadratic model about ``x_lin`` (the stacked states) and the contour
-    model; without ``refine_tracks`` a tight hold (information 1e8 per state unit) instead."""
+    model; without ``refine_tracks`` a tight hold (information 1e8 per state unit) instead.
+    det_trusted / det_range_rate: as in :func:`fgloc.smoothing.graph.stack_tracks`."""
     from fgloc.smoothing.graph import TrackModel, stack_tracks
 
     if cfg.joint.refine_tracks:
-        system = stack_tracks(tracks, det_xy, sensor_xy, cfg.smoothing, cfg.tracking)
+        system = stack_tracks(tracks, det_xy, sensor_xy, cfg.smoothing, cfg.tracking,
+                              det_trusted, det_range_rate)
         ne = system.evaluate(x_lin)
         return (TrackQuadratic(x_lin, float(ne.cost.sum()), ne.g, ne.D, ne.B,
                                system.proc_step), system.gp)
@@ -449,13 +453,17 @@ def noise_levels(fp: FramePoints, states0: np.ndarray, T: np.ndarray, index: np.
 
 
 def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
-                 lines: LaneLines, T0: np.ndarray, cfg: Config) -> JointResult:
+                 lines: LaneLines, T0: np.ndarray, cfg: Config,
+                 det_trusted: np.ndarray | None = None,
+                 det_range_rate: np.ndarray | None = None) -> JointResult:
     """The joint optimization of the module docstring.
 
     tracks: the filter's tracks in C (their ``det_index`` into ``det_xy``). det_xy (N, 2): all
     radar rows placed in C; sensor_xy (2,): the sensor in C. lines: the target lines in L
     (lane centres for ``lateral_model = "contour"``, shifted ones for "visible-side"). T0: 3x3
-    start of T (C -> L); the pose prior is at the identity (the coarse pose). Raises
+    start of T (C -> L); the pose prior is at the identity (the coarse pose). det_trusted
+    (N,) / det_range_rate (N, 2): the detections that may mark a vehicle's end and their
+    Doppler and 3D range, for the track factors (None = all / no range-rate rows). Raises
     ValueError on an invalid ``cfg.joint`` or when no track is long enough.
     """
     jc: JointConfig = cfg.joint
@@ -469,7 +477,7 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     start = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
     owner = np.repeat(np.arange(len(lengths)), lengths)
     x = np.concatenate([tr.states for tr in dec.tracks])
-    tq, gp = track_quadratic(dec, det_xy, sensor_xy, cfg, x)
+    tq, gp = track_quadratic(dec, det_xy, sensor_xy, cfg, x, det_trusted, det_range_rate)
     _add_time(timing, "build", t0)
     fp = frame_points(dec, start, det_xy, sensor_xy, gp, jc.max_points_per_frame)
     pad = fp.padded(max(1, int(np.max(np.diff(fp.start), initial=1))))
@@ -492,7 +500,8 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     for rounds in range(1, jc.max_rounds + 1):
         t0 = time.perf_counter()
         if jc.relinearize_tracks and rounds > 1 and jc.refine_tracks:
-            tq, gp = track_quadratic(dec, det_xy, sensor_xy, cfg, x)
+            tq, gp = track_quadratic(dec, det_xy, sensor_xy, cfg, x, det_trusted,
+                                     det_range_rate)
         _add_time(timing, "linearize_tracks", t0)
         t0 = time.perf_counter()
         index, compat, target, normal = _correspondences(fp, x, pose, lines, gp, jc)
@@ -628,7 +637,7 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
     :func:`joint_refine` on the same trajectory subset, the covariance mapped to the sensor's
     (x, y, yaw) in L and the degeneracy report."""
     from fgloc.fine import register_tracks, sensor_covariance
-    from fgloc.smoothing.graph import placed_detections
+    from fgloc.smoothing.graph import detection_range_rates, extent_trusted, placed_detections
     from fgloc.source import choose_tracks
 
     check_joint_config(cfg.joint)
@@ -642,7 +651,9 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
         used = choose_tracks(len(tracks), cfg.fine, np.random.default_rng(cfg.seed))
         subset = dataclasses.replace(tracks, tracks=[tracks.tracks[i] for i in used])
         T0 = start.tracks.T_frame_to_L if cfg.joint.start == "sicp" else np.eye(3)
-        jr = joint_refine(subset, det_xy, sensor_c, lines, T0, cfg)
+        trusted = extent_trusted(scn, coarse.T_coarse, det_xy, cfg.tracking)
+        jr = joint_refine(subset, det_xy, sensor_c, lines, T0, cfg, trusted,
+                          detection_range_rates(scn))
     cov = sensor_covariance(jr.covariance, jr.T, sensor_c)
     degen = degeneracy_report(jr.covariance, jr.T, jr.matched, cfg.joint.weak_sigma)
     warnings = list(start.warnings)

@@ -47,12 +47,15 @@ def lm_params(cfg: SmoothingConfig) -> gtsam.LevenbergMarquardtParams:
 def smooth_batch(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                  smoothing: SmoothingConfig | None = None,
                  tracking: TrackingConfig | None = None,
-                 det_trusted: np.ndarray | None = None) -> TrackSet:
+                 det_trusted: np.ndarray | None = None,
+                 det_range_rate: np.ndarray | None = None) -> TrackSet:
     """Smooth every track of ``tracks`` (frame C, the filter's output) as a whole.
 
     det_xy (N, 2) m: all radar rows in the tracks' frame; sensor_xy (2,) m: the sensor there
     (:func:`fgloc.smoothing.graph.placed_detections`); det_trusted (N,): possible ends of
-    the extent rows (:func:`fgloc.smoothing.graph.extent_trusted`, None = all). Returns the
+    the extent rows (:func:`fgloc.smoothing.graph.extent_trusted`, None = all);
+    det_range_rate (N, 2): Doppler and 3D range of every row for the range-rate rows
+    (:func:`fgloc.smoothing.graph.detection_range_rates`, None = none). Returns the
     same tracks (ids, times, detections, frame) with smoothed states, labels from kappa and --
     with ``smoothing.marginals`` -- marginal covariances (``gtsam.Marginals`` of each track's
     graph at the smoothed states); diagnostics gain ``smoother_seconds``,
@@ -61,7 +64,8 @@ def smooth_batch(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     """
     scfg = smoothing or SmoothingConfig()
     t0 = time.perf_counter()
-    system = stack_tracks(tracks, det_xy, sensor_xy, scfg, tracking, det_trusted)
+    system = stack_tracks(tracks, det_xy, sensor_xy, scfg, tracking, det_trusted,
+                          det_range_rate)
     x0 = np.concatenate([tr.states for tr in tracks.tracks] or [np.zeros((0, 26))])
     res = levenberg_marquardt(system, x0, scfg.max_iterations, scfg.relative_tolerance)
     states = np.split(res.states, system.start[1:-1])
@@ -70,7 +74,7 @@ def smooth_batch(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
         smoothed = []
         for filtered, tr in zip(tracks.tracks, out.tracks):
             tg = build_track_graph(TrackSet([filtered]), det_xy, sensor_xy, scfg, tracking,
-                                   det_trusted)
+                                   det_trusted, det_range_rate)
             for key, x in zip(tg.keys[0], tr.states):
                 tg.values.update(int(key), x)
             marg = gtsam.Marginals(tg.graph, tg.values)

@@ -39,6 +39,11 @@ class SmoothingConfig:
     along a seen face mark its ends, from all detections of the frame, ends next to the FOV's
     edge excluded; selection re-done per linearization) to each measurement factor. Without
     them the normal-offset rows leave the length free and the smoothed contour shrinks."""
+    use_doppler: bool = True
+    """Add range-rate rows to each measurement factor (the tracker's Doppler measurement,
+    ``tracking.sigma_doppler``): they observe speed, heading and yaw rate, which the contour
+    rows leave to the process model (without them the speed of a vehicle seen only from
+    behind drifts and its contour grows)."""
     radar_noise: bool = True
     """Per-row measurement noise as in the tracker: range / azimuth noise along the row's
     normal and the GP interpolation variance on top of ``tracking.sigma_contour``."""

@@ -60,13 +60,15 @@ class _TrackWindow:
 def smooth_fixed_lag(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                      smoothing: SmoothingConfig | None = None,
                      tracking: TrackingConfig | None = None,
-                     det_trusted: np.ndarray | None = None) -> TrackSet:
+                     det_trusted: np.ndarray | None = None,
+                     det_range_rate: np.ndarray | None = None) -> TrackSet:
     """Run the fixed-lag smoother over ``tracks`` (frame C, the filter's output and
     association) in time order; returns the same tracks with the lagged smoothed states and
     labels from kappa (no covariances).
 
     det_xy (N, 2) m: all radar rows in the tracks' frame; sensor_xy (2,) m: the sensor there;
-    det_trusted (N,): possible ends of the extent rows (None = all).
+    det_trusted (N,): possible ends of the extent rows (None = all); det_range_rate (N, 2):
+    Doppler and 3D range of every row for the range-rate rows (None = none).
     Diagnostics gain ``smoother_seconds``, ``frames``, ``factor_slots_max`` (largest number
     of factor slots one track's smoother held) and ``window_variables_max`` (largest number
     of state variables in all windows at once).
@@ -103,7 +105,7 @@ def smooth_fixed_lag(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray
             if w is None:
                 w = open_[i] = _TrackWindow(gtsam.IncrementalFixedLagSmoother(scfg.lag, params))
             graph, values, key = _step_factors(model, tr, s, w, states[i], det_xy, sensor_xy,
-                                               dets[i][s], det_trusted)
+                                               dets[i][s], det_trusted, det_range_rate)
             # the steps this update marginalizes (IFLS: stamp < newest stamp - lag): their
             # output is the estimate just before they leave
             while w.steps and tr.t[w.steps[0]] < t - scfg.lag:
@@ -130,7 +132,7 @@ def smooth_fixed_lag(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray
 
 def _step_factors(model: TrackModel, tr: Track, s: int, w: _TrackWindow, states: np.ndarray,
                   det_xy: np.ndarray, sensor_xy: np.ndarray, idx: np.ndarray,
-                  det_trusted: np.ndarray | None
+                  det_trusted: np.ndarray | None, det_range_rate: np.ndarray | None
                   ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, int]:
     """New factors, initial value and key of step ``s`` of ``tr``: the process factor from the
     previous step (initialised by the process model from its current estimate in
@@ -148,5 +150,6 @@ def _step_factors(model: TrackModel, tr: Track, s: int, w: _TrackWindow, states:
         values.insert(key, tr.states[s])
     if len(idx):
         graph.add(model.measurement(key, det_xy[idx], sensor_xy,
-                                    None if det_trusted is None else det_trusted[idx]))
+                                    None if det_trusted is None else det_trusted[idx],
+                                    None if det_range_rate is None else det_range_rate[idx]))
     return graph, values, key

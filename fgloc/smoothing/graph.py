@@ -42,6 +42,7 @@ from factors.gtsam_factors import (
     ContourMeasurement,
     ExtentRows,
     ExtentSettings,
+    RangeRateRows,
     contour_measurement_factor,
     prior_factor,
     process_covariance,
@@ -74,6 +75,13 @@ def placed_detections(scn: Scenario, T_placement: np.ndarray) -> tuple[np.ndarra
     T = np.asarray(T_placement, dtype=float)
     xy = scn.radar.xyz @ T[:2, :3].T + T[:2, 3]
     return xy, T[:2, 3].copy()
+
+
+def detection_range_rates(scn: Scenario) -> np.ndarray:
+    """(N, 2) Doppler (m/s) and 3D range (m, > 0) of every radar row of ``scn`` (the inputs
+    of the range-rate rows; a rigid placement keeps the range)."""
+    rng = np.maximum(np.linalg.norm(scn.radar.xyz, axis=1), 1e-3)
+    return np.column_stack([np.asarray(scn.radar.doppler, dtype=float), rng])
 
 
 def extent_trusted(scn: Scenario, T_placement: np.ndarray, det_xy: np.ndarray,
@@ -145,25 +153,34 @@ class TrackModel:
                 if self.smoothing.radar_noise else (0.0, 0.0))
 
     def measurement(self, key: int, z: np.ndarray, sensor_xy: np.ndarray,
-                    trusted: np.ndarray | None = None) -> gtsam.CustomFactor:
+                    trusted: np.ndarray | None = None,
+                    range_rate: np.ndarray | None = None) -> gtsam.CustomFactor:
         """Contour factor of detections ``z`` (m, 2): normal rows of a regular subsample of
         ``max_detections``, extent rows (``extent_rows``) from all of them, ends only at the
-        ``trusted`` (m,) ones (all when None; :func:`extent_trusted`)."""
+        ``trusted`` (m,) ones (all when None; :func:`extent_trusted`), and with ``use_doppler``
+        range-rate rows of the subsample from ``range_rate`` (m, 2): Doppler (m/s) and 3D
+        range (m) of each detection (None = no range-rate rows)."""
         c, s = self.tracking, self.smoothing
         z_all = np.asarray(z, dtype=float)
-        z = z_all[regular_subsample(len(z_all), s.max_detections)]
-        return contour_measurement_factor(key, z, sensor_xy, self.gp, c.sigma_contour,
+        sub = regular_subsample(len(z_all), s.max_detections)
+        rr = (None if range_rate is None or not s.use_doppler else
+              (range_rate[sub, 0], range_rate[sub, 1]))
+        return contour_measurement_factor(key, z_all[sub], sensor_xy, self.gp, c.sigma_contour,
                                           s.huber_k, c.n_candidates, *self._radar_noise(),
                                           gp_variance=s.radar_noise, table=self.table,
                                           extent=self.extent, extent_detections=z_all,
-                                          extent_trusted=trusted)
+                                          extent_trusted=trusted, range_rate=rr,
+                                          sigma_doppler=c.sigma_doppler)
 
     def measurement_batch(self, z: np.ndarray, valid: np.ndarray, z_all: np.ndarray,
-                          valid_all: np.ndarray, trusted: np.ndarray, sensor_xy: np.ndarray
-                          ) -> tuple[ContourMeasurement, ExtentRows | None]:
+                          valid_all: np.ndarray, trusted: np.ndarray, sensor_xy: np.ndarray,
+                          range_rate: np.ndarray | None = None
+                          ) -> tuple[ContourMeasurement, ExtentRows | None,
+                                     RangeRateRows | None]:
         """The rows of :meth:`measurement` for F frames at once: the subsampled detections
-        ``z`` (F, M, 2) / ``valid`` (F, M), all of them ``z_all`` (F, K, 2) / ``valid_all``
-        with ``trusted`` (F, K) for the extent rows (padding finite, not valid)."""
+        ``z`` (F, M, 2) / ``valid`` (F, M) with their ``range_rate`` (F, M, 2) (Doppler, 3D
+        range; None = none), all of them ``z_all`` (F, K, 2) / ``valid_all`` with ``trusted``
+        (F, K) for the extent rows (padding finite, not valid; padded ranges > 0)."""
         c, s = self.tracking, self.smoothing
         meas = ContourMeasurement(z, sensor_xy, self.gp, c.sigma_contour, s.huber_k,
                                   c.n_candidates, *self._radar_noise(),
@@ -171,7 +188,10 @@ class TrackModel:
         ext = (None if self.extent is None else
                ExtentRows(z_all, sensor_xy, self.extent, meas.sigma, trusted & valid_all,
                           valid_all))
-        return meas, ext
+        rr = (None if range_rate is None or not s.use_doppler else
+              RangeRateRows(z, range_rate[..., 0], range_rate[..., 1], sensor_xy,
+                            c.sigma_doppler, meas.sigma, s.huber_k, valid))
+        return meas, ext, rr
 
     def initial_covariance(self) -> np.ndarray:
         """(26, 26) P0 of a new track from the ``[tracking]`` init sigmas and the GP kernel."""
@@ -220,7 +240,8 @@ class TrackGraph:
 def build_track_graph(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                       smoothing: SmoothingConfig | None = None,
                       tracking: TrackingConfig | None = None,
-                      det_trusted: np.ndarray | None = None) -> TrackGraph:
+                      det_trusted: np.ndarray | None = None,
+                      det_range_rate: np.ndarray | None = None) -> TrackGraph:
     """Prior, process and measurement factors of every track step, initialised from the
     filter's states (module docstring).
 
@@ -228,7 +249,9 @@ def build_track_graph(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarra
     det_xy (N, 2): all radar rows in the same frame (:func:`placed_detections`).
     sensor_xy (2,): the sensor position in that frame. smoothing / tracking: configs
     (defaults when None). det_trusted (N,) bool: detections that may mark an end in the
-    extent rows (``smoothing.extent_rows``; :func:`extent_trusted`; None = all). Raises
+    extent rows (``smoothing.extent_rows``; :func:`extent_trusted`; None = all).
+    det_range_rate (N, 2): Doppler (m/s) and 3D range (m) of every row for the range-rate
+    rows (``smoothing.use_doppler``; :func:`detection_range_rates`; None = none). Raises
     ``ValueError`` on a wrong shape or a track id beyond
     ``factors.gtsam_factors.MAX_TRACK_ID``.
     """
@@ -256,8 +279,10 @@ def build_track_graph(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarra
                 graph.add(model.process(int(k[s - 1]), int(k[s]), float(tr.t[s] - tr.t[s - 1]),
                                         tr.states[s - 1]))
             if len(idx):
-                graph.add(model.measurement(int(k[s]), det_xy[idx], sensor_xy,
-                                            None if det_trusted is None else det_trusted[idx]))
+                graph.add(model.measurement(
+                    int(k[s]), det_xy[idx], sensor_xy,
+                    None if det_trusted is None else det_trusted[idx],
+                    None if det_range_rate is None else det_range_rate[idx]))
     return TrackGraph(graph, values, keys, model)
 
 
@@ -281,6 +306,7 @@ def stack_tracks(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                  smoothing: SmoothingConfig | None = None,
                  tracking: TrackingConfig | None = None,
                  det_trusted: np.ndarray | None = None,
+                 det_range_rate: np.ndarray | None = None,
                  chunk: int = 1024) -> StackedTracks:
     """The factors of :func:`build_track_graph` (same arguments, same residuals and noise)
     as one :class:`factors.track_system.StackedTracks` over the steps of all tracks, in
@@ -315,13 +341,16 @@ def stack_tracks(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     meas, bounds = [], [0]
     for a in range(0, len(frames), chunk):
         sub, full = subs[a:a + chunk], alls[a:a + chunk]
-        z, valid = pad_ragged(det_xy[np.concatenate(sub)], np.array([len(i) for i in sub]))
+        sub_idx, sub_counts = np.concatenate(sub), np.array([len(i) for i in sub])
+        z, valid = pad_ragged(det_xy[sub_idx], sub_counts)
+        rr = None if det_range_rate is None else pad_ragged(det_range_rate[sub_idx],
+                                                            sub_counts)[0]
         counts = np.array([len(i) for i in full])
         idx = np.concatenate(full)
         z_all, valid_all = pad_ragged(det_xy[idx], counts)
         tr_all, _ = pad_ragged(trusted[idx][:, None], counts)
         meas.append(model.measurement_batch(z, valid, z_all, valid_all, tr_all[..., 0],
-                                            sensor_xy))
+                                            sensor_xy, rr))
         bounds.append(bounds[-1] + len(sub))
     return StackedTracks(start, first_states, prior_W, proc_step, dt, proc_W, meas_step, meas,
                          np.array(bounds, dtype=np.int64), model.gp, model.tracking.tau)

@@ -29,7 +29,7 @@ def smooth_tracks(scn: Scenario, tracks: TrackSet, T_placement: np.ndarray, smoo
     ``config.smoothing`` and the tracker's models ``config.tracking``."""
     from fgloc.smoothing.batch import smooth_batch
     from fgloc.smoothing.fixed_lag import smooth_fixed_lag
-    from fgloc.smoothing.graph import extent_trusted, placed_detections
+    from fgloc.smoothing.graph import detection_range_rates, extent_trusted, placed_detections
 
     if smoother not in SMOOTHERS:
         raise FglocError(f"unknown smoother {smoother!r}; available: {', '.join(SMOOTHERS)}")
@@ -38,7 +38,8 @@ def smooth_tracks(scn: Scenario, tracks: TrackSet, T_placement: np.ndarray, smoo
     det_xy, sensor_xy = placed_detections(scn, T_placement)
     trusted = extent_trusted(scn, T_placement, det_xy, config.tracking)
     fn = smooth_batch if smoother == "batch" else smooth_fixed_lag
-    return fn(tracks, det_xy, sensor_xy, config.smoothing, config.tracking, trusted)
+    return fn(tracks, det_xy, sensor_xy, config.smoothing, config.tracking, trusted,
+              detection_range_rates(scn))
 
 
 def run_smoother_sicp(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
