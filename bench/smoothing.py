@@ -9,7 +9,7 @@ seeds. With ``--localize``, also filter-sicp and smoother-sicp on the same scena
 (coarse stage included) with their 2D and yaw errors::
 
     OMP_NUM_THREADS=1 python -m bench.smoothing --case intersection --seeds 1 2 3 4 5 \\
-        --duration 60 --vehicles 50 [--localize] [--no-tracking]
+        --duration 60 --vehicles 50 [--localize] [--no-tracking] [--config C.toml]
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ import time
 
 import numpy as np
 
-from fgloc.config import Config
+from fgloc.config import load_config
 from fgloc.evaluate import pose_error
 from fgloc.pipeline import localize
 from fgloc.sim import CASES, simulate
@@ -37,10 +37,11 @@ def main() -> None:
     ap.add_argument("--vehicles", type=int, default=50)
     ap.add_argument("--localize", action="store_true",
                     help="also localize with filter-sicp and smoother-sicp")
+    ap.add_argument("--config", default=None, help="fgloc config TOML (default: all defaults)")
     ap.add_argument("--no-tracking", action="store_true",
                     help="skip the tracker comparison (with --localize: localization only)")
     args = ap.parse_args()
-    cfg = Config()
+    cfg = load_config(args.config)
     rows: dict[str, list[list[float]]] = {}
     for seed in args.seeds:
         scn = simulate(args.case, seed, duration=args.duration, vehicles=args.vehicles)

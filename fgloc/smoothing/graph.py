@@ -8,7 +8,8 @@ track and step, key :func:`factors.gtsam_factors.track_key` ``(track.id, step)``
 * a prior on step 0: the filter's state and covariance there (its birth state and P0; without
   stored covariances, P0 rebuilt from the ``[tracking]`` init sigmas and the GP kernel);
 * a process factor between consecutive steps: CTRA + contour decay + the length / width random
-  walk, the tracker's process noise (``[tracking]`` sigma_jerk, sigma_yaw_acc, sigma_pos, tau,
+  walk, the tracker's process noise (``[tracking]`` sigma_jerk, sigma_yaw_acc, sigma_pos, the
+  contour forgetting rate ``[smoothing] contour_tau`` (default: the tracker's tau),
   sigma_length_rw, sigma_width_rw), evaluated around the filter's state at the earlier step;
 * a stacked contour measurement factor per step with detections (``Track.det_index`` /
   ``det_step``: the filter's association), sensor-aware normal offsets with the association
@@ -128,23 +129,28 @@ class TrackModel:
                               tcfg.extent_min_incidence) if scfg.extent_rows else None)
         return TrackModel(tcfg, scfg, gp, rw, ConditionalTable(gp), ext)
 
+    @property
+    def tau(self) -> float:
+        """Contour forgetting rate (1/s) of the process factors (``smoothing.contour_tau``)."""
+        return float(self.smoothing.contour_tau)
+
     def process(self, key0: int, key1: int, dt: float, x_ref: np.ndarray) -> gtsam.CustomFactor:
         """Process factor between ``key0`` and ``key1``, ``dt`` s apart, noise at ``x_ref``."""
         c = self.tracking
-        return process_factor(key0, key1, dt, self.gp, c.tau, c.sigma_jerk, c.sigma_yaw_acc,
+        return process_factor(key0, key1, dt, self.gp, self.tau, c.sigma_jerk, c.sigma_yaw_acc,
                               c.sigma_pos, x_ref=x_ref, contour_rw=self.contour_rw)
 
     def process_noise(self, x_ref: np.ndarray, dt: np.ndarray) -> np.ndarray:
         """(..., 26, 26) noise of the process factors at ``x_ref`` (..., 26), ``dt`` (...) s
         (the covariance :meth:`process` uses)."""
         c = self.tracking
-        return process_covariance(x_ref, dt, self.gp, c.tau, c.sigma_jerk, c.sigma_yaw_acc,
+        return process_covariance(x_ref, dt, self.gp, self.tau, c.sigma_jerk, c.sigma_yaw_acc,
                                   c.sigma_pos, contour_rw=self.contour_rw)
 
     def predict(self, x: np.ndarray, dt: float) -> np.ndarray:
         """State (26,) after ``dt`` s of the process model's mean motion from ``x`` (26,)."""
         out = ctra_predict(np.asarray(x, dtype=float), dt)
-        out[N_KIN:], _ = self.gp.decay(out[N_KIN:], self.tracking.tau, dt)
+        out[N_KIN:], _ = self.gp.decay(out[N_KIN:], self.tau, dt)
         return out
 
     def _radar_noise(self) -> tuple[float, float]:
@@ -353,7 +359,7 @@ def stack_tracks(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                                             sensor_xy, rr))
         bounds.append(bounds[-1] + len(sub))
     return StackedTracks(start, first_states, prior_W, proc_step, dt, proc_W, meas_step, meas,
-                         np.array(bounds, dtype=np.int64), model.gp, model.tracking.tau)
+                         np.array(bounds, dtype=np.int64), model.gp, model.tau)
 
 
 def tracks_from_states(tracks: TrackSet, states: list[np.ndarray],
