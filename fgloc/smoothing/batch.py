@@ -34,16 +34,6 @@ from fgloc.tracking.config import TrackingConfig
 from fgloc.tracks import TrackSet
 
 
-def lm_params(cfg: SmoothingConfig) -> gtsam.LevenbergMarquardtParams:
-    """gtsam Levenberg-Marquardt settings of the same stopping rule (``max_iterations``,
-    ``relative_tolerance``), for optimizing a :func:`build_track_graph` graph in gtsam."""
-    p = gtsam.LevenbergMarquardtParams()
-    p.setMaxIterations(cfg.max_iterations)
-    p.setRelativeErrorTol(cfg.relative_tolerance)
-    p.setAbsoluteErrorTol(0.0)
-    return p
-
-
 def smooth_batch(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                  smoothing: SmoothingConfig | None = None,
                  tracking: TrackingConfig | None = None,
