@@ -217,16 +217,13 @@ class FramePoints:
     def point_frame(self) -> np.ndarray:
         return np.repeat(np.arange(len(self.frame_state)), np.diff(self.start))
 
-    def padded(self, width: int) -> tuple[np.ndarray, np.ndarray]:
+    def padded(self, width: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``(index (F, width), valid (F, width))``: each frame's points as indices into the
-        P points (padding repeats the frame's first point and is not valid)."""
-        pf = self.point_frame
-        pos = np.arange(len(pf)) - self.start[pf]
-        index = np.repeat(self.start[:-1, None], width, axis=1)
-        index[pf, pos] = np.arange(len(pf))
-        valid = np.zeros(index.shape, dtype=bool)
-        valid[pf, pos] = True
-        return index, valid
+        P points (padding repeats the frame's first point and is not valid; width: the
+        largest frame by default)."""
+        from fgloc.smoothing.graph import ragged_index
+
+        return ragged_index(np.diff(self.start), width)
 
     def points(self, states: np.ndarray, gp_mu: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -480,7 +477,7 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     tq, gp = track_quadratic(dec, det_xy, sensor_xy, cfg, x, det_trusted, det_range_rate)
     _add_time(timing, "build", t0)
     fp = frame_points(dec, start, det_xy, sensor_xy, gp, jc.max_points_per_frame)
-    pad = fp.padded(max(1, int(np.max(np.diff(fp.start), initial=1))))
+    pad = fp.padded()
     states0 = x[fp.frame_state]
     layout = BandedLayout(len(x), tq.below)
     offsets = jc.offset_sigma > 0.0

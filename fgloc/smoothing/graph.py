@@ -292,20 +292,30 @@ def build_track_graph(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarra
     return TrackGraph(graph, values, keys, model)
 
 
-def pad_ragged(values: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Groups of consecutive rows of ``values`` (K, d) with sizes ``counts`` (F,) (each >= 1)
-    as ``(padded (F, max count, d), valid (F, max count))``; padding repeats each group's
-    first row (finite wherever the values are)."""
+def ragged_index(counts: np.ndarray, width: int | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """``(index (F, width), valid (F, width))``: groups of consecutive items with sizes
+    ``counts`` (F,) (each >= 1) as indices into the items, one row per group, padded to
+    ``width`` (default: the largest group) by repeating the group's first item."""
     counts = np.asarray(counts, dtype=np.int64)
     off = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
     grp = np.repeat(np.arange(len(counts)), counts)
-    pos = np.arange(len(values)) - off[grp]
-    width = int(counts.max()) if len(counts) else 1
-    out = np.repeat(values[off][:, None, :], width, axis=1)
-    out[grp, pos] = values
-    valid = np.zeros((len(counts), width), dtype=bool)
+    pos = np.arange(len(grp)) - off[grp]
+    if width is None:
+        width = int(counts.max()) if len(counts) else 1
+    index = np.repeat(off[:, None], width, axis=1)
+    index[grp, pos] = np.arange(len(grp))
+    valid = np.zeros(index.shape, dtype=bool)
     valid[grp, pos] = True
-    return out, valid
+    return index, valid
+
+
+def pad_ragged(values: np.ndarray, counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Groups of consecutive rows of ``values`` (K, ...) with sizes ``counts`` (F,) (each
+    >= 1) as ``(padded (F, max count, ...), valid (F, max count))``; padding repeats each
+    group's first row (finite wherever the values are)."""
+    index, valid = ragged_index(counts)
+    return np.asarray(values)[index], valid
 
 
 def stack_tracks(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
@@ -347,16 +357,13 @@ def stack_tracks(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     meas, bounds = [], [0]
     for a in range(0, len(frames), chunk):
         sub, full = subs[a:a + chunk], alls[a:a + chunk]
-        sub_idx, sub_counts = np.concatenate(sub), np.array([len(i) for i in sub])
-        z, valid = pad_ragged(det_xy[sub_idx], sub_counts)
-        rr = None if det_range_rate is None else pad_ragged(det_range_rate[sub_idx],
-                                                            sub_counts)[0]
-        counts = np.array([len(i) for i in full])
-        idx = np.concatenate(full)
-        z_all, valid_all = pad_ragged(det_xy[idx], counts)
-        tr_all, _ = pad_ragged(trusted[idx][:, None], counts)
-        meas.append(model.measurement_batch(z, valid, z_all, valid_all, tr_all[..., 0],
-                                            sensor_xy, rr))
+        pos, valid = ragged_index([len(i) for i in sub])
+        rows = np.concatenate(sub)[pos]                       # (F, M) radar rows, padded
+        pos_all, valid_all = ragged_index([len(i) for i in full])
+        rows_all = np.concatenate(full)[pos_all]
+        rr = None if det_range_rate is None else det_range_rate[rows]
+        meas.append(model.measurement_batch(det_xy[rows], valid, det_xy[rows_all], valid_all,
+                                            trusted[rows_all], sensor_xy, rr))
         bounds.append(bounds[-1] + len(sub))
     return StackedTracks(start, first_states, prior_W, proc_step, dt, proc_W, meas_step, meas,
                          np.array(bounds, dtype=np.int64), model.gp, model.tau)
