@@ -284,12 +284,32 @@ class ConditionalTable:
         return H, self.gp.mean(theta), self.var[i] * (1.0 - fr) + self.var[i + 1] * fr
 
 
-def _frames(a: np.ndarray | float, single: bool) -> np.ndarray:
-    """``a`` as an array, with a leading frame axis added when the object holds one frame."""
-    return np.asarray(a)[None] if single else np.asarray(a)
+class _FrameRows:
+    """Rows of the detections of one frame, or of a batch of frames padded to a common
+    length: ``detections`` (m, 2) or (F, M, 2) with ``valid`` (F, M) marking the real ones
+    (None = all). Stored with the frame axis (``z`` (F, M, 2), ``valid`` (F, M)); ``_in`` adds
+    it to an argument and ``_out`` removes it from a result when the object holds one frame,
+    so every method takes and returns arrays shaped like the detections it was given."""
+
+    def __init__(self, detections: np.ndarray, valid: np.ndarray | None) -> None:
+        z = np.asarray(detections, dtype=float)
+        self.single = z.ndim == 2
+        self.z = z[None] if self.single else z
+        if self.z.ndim != 3 or self.z.shape[2] != 2 or self.z.shape[1] < 1:
+            raise ValueError(f"detections shape {z.shape}, expected (m >= 1, 2) or "
+                             "(F, M >= 1, 2)")
+        shape = self.z.shape[:2]
+        self.valid = (np.ones(shape, dtype=bool) if valid is None
+                      else np.asarray(valid, dtype=bool).reshape(shape))
+
+    def _in(self, a: np.ndarray | float) -> np.ndarray:
+        return np.asarray(a)[None] if self.single else np.asarray(a)
+
+    def _out(self, a: np.ndarray) -> np.ndarray:
+        return a[0] if self.single else a
 
 
-class ContourMeasurement:
+class ContourMeasurement(_FrameRows):
     """Sensor-aware normal-offset rows of all detections of one track in one frame, or of a
     batch of frames (one track-step each) at once.
 
@@ -327,22 +347,16 @@ class ContourMeasurement:
                  gp_variance: bool = False, table: ConditionalTable | None = None,
                  valid: np.ndarray | None = None) -> None:
         _check_gp(gp)
-        z = np.asarray(detections, dtype=float)
+        super().__init__(detections, valid)
+        z = self.z
         s = np.asarray(sensor, dtype=float)
-        self.single = z.ndim == 2
-        z = z[None] if self.single else z
-        if z.ndim != 3 or z.shape[2] != 2 or z.shape[1] < 1:
-            raise ValueError(f"detections shape {z.shape[self.single:]}, expected (m >= 1, 2) "
-                             "or (F, M >= 1, 2)")
-        self.valid = (np.ones(z.shape[:2], dtype=bool) if valid is None
-                      else np.asarray(valid, dtype=bool).reshape(z.shape[:2]))
         if s.shape != (2,):
             raise ValueError(f"sensor shape {s.shape}, expected (2,)")
         if not sigma > 0:
             raise ValueError(f"sigma must be > 0, got {sigma}")
         if not np.all(np.isfinite(z)) or not np.all(np.isfinite(s)):
             raise ValueError("non-finite detections or sensor position")
-        self.z, self.sensor, self.gp = z, s, gp
+        self.sensor, self.gp = s, gp
         self.sigma, self.huber_k = float(sigma), float(huber_k)
         self.gp_variance = bool(gp_variance)
         self.radar_var = None
@@ -369,10 +383,8 @@ class ContourMeasurement:
         want = (N_STATE,) if self.single else (len(self.z), N_STATE)
         if x.shape != want:
             raise ValueError(f"state shape {x.shape}, expected {want}")
-        return x[None] if self.single else x
+        return self._in(x)
 
-    def _out(self, a: np.ndarray) -> np.ndarray:
-        return a[0] if self.single else a
 
     def associate(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(theta* (m,), normal (m, 2))`` of the detections for state ``x`` (26,) (with a
@@ -404,7 +416,7 @@ class ContourMeasurement:
         """(m,) std. dev. (m) of each row (class doc) for yaw, theta (m,), normal (m, 2),
         var_f (m,) (each with a leading frame axis for a batch); ``sigma`` everywhere without
         per-row noise."""
-        yaw, theta, normal, var_f = (_frames(a, self.single) for a in (yaw, theta, normal, var_f))
+        yaw, theta, normal, var_f = (self._in(a) for a in (yaw, theta, normal, var_f))
         return self._out(self._row_sigma(yaw, theta, normal, var_f))
 
     def _row_sigma(self, yaw: np.ndarray, theta: np.ndarray, normal: np.ndarray,
@@ -429,7 +441,7 @@ class ContourMeasurement:
         if assoc is None:
             theta, normal = self._associate(x)
         else:
-            theta, normal = (_frames(a, self.single) for a in assoc)
+            theta, normal = (self._in(a) for a in assoc)
         H, mean, var_f = self.conditional(theta)
         radius = mean + np.einsum("fmn,fn->fm", H, x[:, N_KIN:] - self.gp.mu)
         e = normal_offset(self.z, x[:, [X, Y]], x[:, YAW], radius, theta, normal)
@@ -438,7 +450,7 @@ class ContourMeasurement:
             weights = huber_weights(e / (self.sigma * scale), self.huber_k) / scale**2
             weights = np.where(self.valid, weights, 0.0)
         else:
-            weights = _frames(weights, self.single)
+            weights = self._in(weights)
         sw = np.sqrt(weights)
         J = None
         if jacobian:
@@ -464,7 +476,7 @@ class ExtentSettings:
     min_incidence: float = 0.25
 
 
-class ExtentRows:
+class ExtentRows(_FrameRows):
     """Visible-extent rows of one track in one frame, or of a batch of frames (the tracker's
     extent measurement).
 
@@ -491,17 +503,13 @@ class ExtentRows:
                  valid: np.ndarray | None = None) -> None:
         if N_CONTOUR % 4:
             raise ValueError("the contour basis must hold the four axis angles")
-        z = np.asarray(detections, dtype=float)
-        self.single = z.ndim == 2
-        self.z = z[None] if self.single else z
+        super().__init__(detections, valid)
         shape = self.z.shape[:2]
         trusted = (np.ones(shape[self.single:], dtype=bool) if trusted is None
                    else np.asarray(trusted, dtype=bool))
         if trusted.shape != shape[self.single:]:
             raise ValueError(f"trusted shape {trusted.shape}, expected {shape[self.single:]}")
         self.trusted = trusted.reshape(shape)
-        self.valid = (np.ones(shape, dtype=bool) if valid is None
-                      else np.asarray(valid, dtype=bool).reshape(shape))
         self.sensor = np.asarray(sensor, dtype=float)
         self.cfg = settings
         self.scale = float(sigma_factor) / float(settings.sigma)
@@ -519,8 +527,8 @@ class ExtentRows:
     def select(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(j (4,), use (4,))``: index of the extreme detection along each axis and which
         rows apply, for state ``x`` (26,) (each with a leading frame axis for a batch)."""
-        j, use = self._select(_frames(x, self.single))
-        return (j[0], use[0]) if self.single else (j, use)
+        j, use = self._select(self._in(x))
+        return self._out(j), self._out(use)
 
     def _select(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         cfg = self.cfg
@@ -548,8 +556,8 @@ class ExtentRows:
              jacobian: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
         """Scaled rows (4,) and their Jacobian (4, 26) if asked (each with a leading frame axis
         for a batch); ``sel`` from :meth:`select` (recomputed from ``x`` unless given)."""
-        x = _frames(x, self.single).astype(float)
-        j, use = self._select(x) if sel is None else (_frames(a, self.single) for a in sel)
+        x = self._in(x).astype(float)
+        j, use = self._select(x) if sel is None else (self._in(a) for a in sel)
         ax, dax = self.axes(x[:, YAW])
         d = np.take_along_axis(self.z, j[..., None], axis=1) - x[:, None, [X, Y]]   # (F, 4, 2)
         w = use * self.scale
@@ -560,12 +568,11 @@ class ExtentRows:
             J[..., [X, Y]] = -ax
             J[..., YAW] = np.sum(dax * d, axis=-1)
             J[:, np.arange(4), self.axis_idx] = -1.0
-            J *= w[..., None]
-            J = J[0] if self.single else J
-        return (e[0] if self.single else e), J
+            J = self._out(J * w[..., None])
+        return self._out(e), J
 
 
-class RangeRateRows:
+class RangeRateRows(_FrameRows):
     """Range-rate (Doppler) rows of the detections of one track in one frame, or of a batch of
     frames: the rigid-body velocity of the state at each detection, projected on the line of
     sight, against the measured range rate (the tracker's Doppler measurement,
@@ -588,24 +595,20 @@ class RangeRateRows:
     def __init__(self, detections: np.ndarray, doppler: np.ndarray, rng: np.ndarray,
                  sensor: np.ndarray, sigma: float, sigma_factor: float, huber_k: float,
                  valid: np.ndarray | None = None) -> None:
-        z = np.asarray(detections, dtype=float)
-        self.single = z.ndim == 2
-        self.z = z[None] if self.single else z
+        super().__init__(detections, valid)
         shape = self.z.shape[:2]
         self.doppler = np.asarray(doppler, dtype=float).reshape(shape)
         rng = np.asarray(rng, dtype=float).reshape(shape)
         if not sigma > 0 or not np.all(rng > 0):
             raise ValueError("RangeRateRows needs sigma > 0 and positive ranges")
         self.los = (self.z - np.asarray(sensor, dtype=float)) / rng[..., None]     # (F, M, 2)
-        self.valid = (np.ones(shape, dtype=bool) if valid is None
-                      else np.asarray(valid, dtype=bool).reshape(shape))
         self.sigma, self.scale, self.huber_k = float(sigma), sigma_factor / sigma, huber_k
 
     def rows(self, x: np.ndarray, jacobian: bool = False
              ) -> tuple[np.ndarray, np.ndarray | None]:
         """Scaled rows (m,) and their Jacobian (m, 26) if asked (with a leading frame axis
         for a batch)."""
-        x = _frames(x, self.single).astype(float)
+        x = self._in(x).astype(float)
         c, v, yaw, w = x[:, [X, Y]], x[:, V], x[:, YAW], x[:, YAWRATE]
         h = np.stack([np.cos(yaw), np.sin(yaw)], axis=-1)[:, None, :]            # (F, 1, 2)
         d = self.z - c[:, None, :]
@@ -624,9 +627,23 @@ class RangeRateRows:
             J[..., YAWRATE] = np.sum(rot * self.los, axis=-1)
             J[..., X] = -w[:, None] * ly
             J[..., Y] = w[:, None] * lx
-            J *= sw[..., None]
-            J = J[0] if self.single else J
-        return (e[0] if self.single else e), J
+            J = self._out(J * sw[..., None])
+        return self._out(e), J
+
+
+def measurement_rows(meas: ContourMeasurement,
+                     extras: tuple[ExtentRows | RangeRateRows | None, ...], x: np.ndarray,
+                     jacobian: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """The normal-offset rows of ``meas`` followed by each block of ``extras`` (None ones
+    skipped) at state(s) ``x``, and their Jacobian if asked: rows (m',) / (F, M') and Jacobian
+    (m', 26) / (F, M', 26), the frame axis as the detections had it."""
+    e, J, _ = meas.rows(x, jacobian=jacobian)
+    for extra in extras:
+        if extra is not None:
+            e2, J2 = extra.rows(x, jacobian=jacobian)
+            e = np.concatenate([e, e2], axis=-1)
+            J = None if J is None else np.concatenate([J, J2], axis=-2)
+    return e, J
 
 
 def contour_measurement_factor(key: int, detections_xy: np.ndarray, sensor_xy: np.ndarray,
@@ -681,12 +698,7 @@ def contour_measurement_factor(key: int, detections_xy: np.ndarray, sensor_xy: n
         if hit is not None:
             e, J = hit
         else:
-            e, J, _ = meas.rows(x, jacobian=H is not None)
-            for extra in (ext, rr):
-                if extra is not None:
-                    e2, J2 = extra.rows(x, jacobian=H is not None)
-                    e = np.concatenate([e, e2])
-                    J = None if J is None else np.vstack([J, J2])
+            e, J = measurement_rows(meas, (ext, rr), x, H is not None)
             if J is not None:
                 J = _fortran(J, shape, "contour_measurement_factor")
             memo.put(x, e, J)

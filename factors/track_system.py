@@ -29,6 +29,7 @@ from factors.gtsam_factors import (
     ContourMeasurement,
     ExtentRows,
     RangeRateRows,
+    measurement_rows,
     process_error,
     process_jacobian_x0,
 )
@@ -148,12 +149,7 @@ class StackedTracks:
         # measurement frames, chunk by chunk
         for (meas, *extras), a, b in zip(self.meas, self.chunks[:-1], self.chunks[1:]):
             steps = self.meas_step[a:b]
-            r, J, _ = meas.rows(x[steps], jacobian=jacobian)
-            for extra in extras:
-                if extra is not None:
-                    r2, J2 = extra.rows(x[steps], jacobian=jacobian)
-                    r = np.concatenate([r, r2], axis=1)
-                    J = None if J is None else np.concatenate([J, J2], axis=1)
+            r, J = measurement_rows(meas, tuple(extras), x[steps], jacobian)
             r = r / meas.sigma
             cost[steps] += 0.5 * np.sum(r * r, axis=1)
             if jacobian:
