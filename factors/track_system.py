@@ -113,47 +113,40 @@ class StackedTracks:
         """(N,) index of the track owning each step."""
         return np.repeat(np.arange(len(self.start) - 1), np.diff(self.start))
 
-    def evaluate(self, x: np.ndarray, jacobian: bool = True) -> NormalEquations:
-        """Cost per step and, with ``jacobian``, the normal equations at states ``x`` (N, 26)
-        (D, B, g are None without)."""
+    def evaluate(self, x: np.ndarray) -> NormalEquations:
+        """Cost per step and the normal equations at states ``x`` (N, 26)."""
         x = np.asarray(x, dtype=float)
         if x.shape != (self.n, N_STATE):
             raise ValueError(f"states shape {x.shape}, expected ({self.n}, {N_STATE})")
         cost = np.zeros(self.n)
-        D = np.zeros((self.n, N_STATE, N_STATE)) if jacobian else None
-        g = np.zeros((self.n, N_STATE)) if jacobian else None
+        D = np.zeros((self.n, N_STATE, N_STATE))
+        g = np.zeros((self.n, N_STATE))
         # priors
         first = self.start[:-1]
         r = _apply(self.prior_W, x[first] - self.prior_mean)
         cost[first] += 0.5 * np.sum(r * r, axis=1)
-        if jacobian:
-            D[first] += _gram(self.prior_W)
-            g[first] += _apply_t(self.prior_W, r)
+        D[first] += _gram(self.prior_W)
+        g[first] += _apply_t(self.prior_W, r)
         # process factors
         p1 = self.proc_step
         p0 = p1 - 1
-        B = None
+        B = np.zeros((0, N_STATE, N_STATE))
         if len(p1):
             r = _apply(self.proc_W, process_error(x[p0], x[p1], self.proc_dt, self.gp,
                                                   self.tau))
             cost[p1] += 0.5 * np.sum(r * r, axis=1)
-            if jacobian:
-                J0 = self.proc_W @ process_jacobian_x0(x[p0], self.proc_dt, self.tau)
-                D[p0] += _gram(J0)
-                D[p1] += _gram(self.proc_W)
-                B = np.swapaxes(self.proc_W, 1, 2) @ J0
-                g[p0] += _apply_t(J0, r)
-                g[p1] += _apply_t(self.proc_W, r)
-        elif jacobian:
-            B = np.zeros((0, N_STATE, N_STATE))
+            J0 = self.proc_W @ process_jacobian_x0(x[p0], self.proc_dt, self.tau)
+            D[p0] += _gram(J0)
+            D[p1] += _gram(self.proc_W)
+            B = np.swapaxes(self.proc_W, 1, 2) @ J0
+            g[p0] += _apply_t(J0, r)
+            g[p1] += _apply_t(self.proc_W, r)
         # measurement frames, chunk by chunk
         for (meas, *extras), a, b in zip(self.meas, self.chunks[:-1], self.chunks[1:]):
             steps = self.meas_step[a:b]
-            r, J = measurement_rows(meas, tuple(extras), x[steps], jacobian)
-            r = r / meas.sigma
+            r, J = measurement_rows(meas, tuple(extras), x[steps], True)
+            r, J = r / meas.sigma, J / meas.sigma
             cost[steps] += 0.5 * np.sum(r * r, axis=1)
-            if jacobian:
-                J = J / meas.sigma
-                D[steps] += _gram(J)
-                g[steps] += _apply_t(J, r)
+            D[steps] += _gram(J)
+            g[steps] += _apply_t(J, r)
         return NormalEquations(cost, D, B, g)

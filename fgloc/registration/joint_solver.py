@@ -36,11 +36,7 @@ from scipy.linalg import solveh_banded
 
 from factors.registration_factors import N_POSE, point_rows_batch
 from factors.state import N_STATE
-from fgloc.smoothing.banded_lm import BandedLayout
-
-_DIAG = np.arange(N_STATE)
-#: damping floor added with lambda to each diagonal entry (a direction no row observes)
-_EPS = 1e-9
+from fgloc.smoothing.banded_lm import BandedLayout, damp_diagonal
 
 
 @dataclass
@@ -196,24 +192,22 @@ class ArrowSolution:
 
 def solve_arrow(sys: ArrowSystem, layout: BandedLayout, owner: np.ndarray, offsets: bool,
                 lam: float = 0.0) -> ArrowSolution:
-    """Solve ``(H + lambda (diag(H) + eps)) step = -g`` (module docstring); owner (N,) the
+    """Solve ``(H + lambda (diag(H) + DAMPING_FLOOR)) step = -g`` (module docstring,
+    :func:`fgloc.smoothing.banded_lm.damp_diagonal`); owner (N,) the
     track of each step; ``offsets`` False drops the offset variables. ``LinAlgError`` if the
     damped track block is not positive definite."""
     n, T, G = len(sys.D), len(sys.Hb), len(sys.gp)
-    D = sys.D.copy()
-    d = D[:, _DIAG, _DIAG]
-    D[:, _DIAG, _DIAG] = d + lam * (d + _EPS)
     rhs = np.concatenate([sys.gx.reshape(-1, 1), sys.E.reshape(-1, G),
                           sys.e.reshape(-1, 1)], axis=1)
-    Y = solveh_banded(layout.fill(D, sys.B), rhs, lower=True, check_finite=False)
+    Y = solveh_banded(layout.fill(damp_diagonal(sys.D, lam), sys.B), rhs, lower=True,
+                      check_finite=False)
     Ag, AE, Ae = Y[:, 0], Y[:, 1:G + 1], Y[:, G + 1]
     Ef, ef = sys.E.reshape(-1, G), sys.e.reshape(-1)
     row_track = np.repeat(owner, N_STATE)
-    Hp = sys.Hp + lam * np.diag(np.diag(sys.Hp) + _EPS)
-    Sp = Hp - Ef.T @ AE
+    Sp = damp_diagonal(sys.Hp, lam) - Ef.T @ AE
     rp = -sys.gp + Ef.T @ Ag
     if offsets and T:
-        Hb = sys.Hb * (1.0 + lam) + lam * _EPS
+        Hb = damp_diagonal(sys.Hb[:, None, None], lam)[:, 0, 0]
         Sb = Hb - np.bincount(row_track, ef * Ae, minlength=T)
         Sbp = sys.Hbp - _track_sums(row_track, ef[:, None] * AE, T)
         rb = -sys.gb + np.bincount(row_track, ef * Ag, minlength=T)

@@ -10,7 +10,7 @@ exactly as a separate optimizer per track would (gtsam's Levenberg-Marquardt on 
 graph, the previous implementation), while the work is done for all of them together.
 
 Damping (Marquardt): the diagonal of a track's system is scaled by ``1 + lambda`` (plus
-``lambda * 1e-9`` so a direction no factor observes still has a finite step). On simulated
+``lambda * DAMPING_FLOOR`` so a direction no factor observes still has a finite step). On simulated
 intersections this scale-invariant damping ended at a lower centre error than a damping of
 ``lambda * I`` (gtsam's default) at the same final cost (seeds 1-3, 30 s: pooled centre RMS
 0.280 / 0.731 / 0.401 m against 0.303 / 0.788 / 0.498 m; docs/benchmarks.md).
@@ -27,7 +27,9 @@ from factors.state import N_STATE
 from factors.track_system import NormalEquations, StackedTracks
 
 _LOWER_A, _LOWER_B = np.tril_indices(N_STATE)
-_DIAG = np.arange(N_STATE)
+#: added, times lambda, to each damped diagonal entry: a direction no factor observes (a zero
+#: diagonal) still gets a finite step
+DAMPING_FLOOR = 1e-9
 
 
 class BandedLayout:
@@ -58,14 +60,12 @@ class BandedLayout:
 @dataclass
 class LMResult:
     """Outcome of :func:`levenberg_marquardt`: states (N, 26), iterations (loop passes),
-    per-track cost before / after (T,) (``0.5 |whitened residual|^2``), and the normal
-    equations at the returned states (for covariances)."""
+    per-track cost before / after (T,) (``0.5 |whitened residual|^2``)."""
 
     states: np.ndarray
     iterations: int
     cost_initial: np.ndarray
     cost_final: np.ndarray
-    normal: NormalEquations
 
 
 def _merge(old: NormalEquations, new: NormalEquations, step_ok: np.ndarray,
@@ -78,15 +78,22 @@ def _merge(old: NormalEquations, new: NormalEquations, step_ok: np.ndarray,
                            np.where(step_ok[:, None], new.g, old.g))
 
 
+def damp_diagonal(M: np.ndarray, lam: np.ndarray | float) -> np.ndarray:
+    """A copy of the matrices ``M`` (..., d, d) with the Marquardt damping ``lam`` (..., or a
+    scalar) on their diagonals: ``m_ii + lam (m_ii + DAMPING_FLOOR)``."""
+    out = np.array(M, dtype=float)
+    i = np.arange(out.shape[-1])
+    d = out[..., i, i]
+    out[..., i, i] = d + np.asarray(lam, dtype=float)[..., None] * (d + DAMPING_FLOOR)
+    return out
+
+
 def damped_step(layout: BandedLayout, ne: NormalEquations, lam: np.ndarray) -> np.ndarray:
-    """(N, 26) solution of ``(H + lambda (diag(H) + 1e-9)) step = -g`` for the normal
+    """(N, 26) solution of ``(H + lambda (diag(H) + DAMPING_FLOOR)) step = -g`` for the normal
     equations ``ne`` (H from D and B), with ``lam`` (N,) the damping of each step (0 = the
     Gauss-Newton step). ``LinAlgError`` if the damped matrix is not positive definite."""
-    D = ne.D.copy()
-    d = D[:, _DIAG, _DIAG]
-    D[:, _DIAG, _DIAG] = d + lam[:, None] * (d + 1e-9)
-    return solveh_banded(layout.fill(D, ne.B), -ne.g.ravel(), lower=True,
-                         check_finite=False).reshape(ne.g.shape)
+    return solveh_banded(layout.fill(damp_diagonal(ne.D, lam), ne.B), -ne.g.ravel(),
+                         lower=True, check_finite=False).reshape(ne.g.shape)
 
 
 def levenberg_marquardt(system: StackedTracks, x0: np.ndarray, max_iterations: int = 10,
@@ -130,4 +137,4 @@ def levenberg_marquardt(system: StackedTracks, x0: np.ndarray, max_iterations: i
         rejected = np.where(ok, 0, rejected + 1)
         active &= (~(ok & (rel < relative_tolerance)) & (lam <= lambda_max)
                    & (rejected < max_rejections))
-    return LMResult(x, it, cost0, cost, ne)
+    return LMResult(x, it, cost0, cost)
