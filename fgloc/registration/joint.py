@@ -475,7 +475,6 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     owner = np.repeat(np.arange(len(lengths)), lengths)
     x = np.concatenate([tr.states for tr in dec.tracks])
     tq, gp = track_quadratic(dec, det_xy, sensor_xy, cfg, x, det_trusted, det_range_rate)
-    _add_time(timing, "build", t0)
     fp = frame_points(dec, start, det_xy, sensor_xy, gp, jc.max_points_per_frame)
     pad = fp.padded()
     states0 = x[fp.frame_state]
