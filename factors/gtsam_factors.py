@@ -129,15 +129,20 @@ def _check_gp(gp: ContourGP) -> None:
 
 
 # ---- process ---------------------------------------------------------------------------------
-def process_error(x0: np.ndarray, x1: np.ndarray, dt: float | np.ndarray, gp: ContourGP,
-                  tau: float) -> np.ndarray:
+def process_error(x0: np.ndarray, x1: np.ndarray, dt: float | np.ndarray,
+                  gp: ContourGP | None, tau: float, mean: np.ndarray | None = None
+                  ) -> np.ndarray:
     """Process residual (..., 26) ``x1 - f(x0, dt)``: CTRA for the kinematics (yaw difference
     wrapped to ``[-pi, pi)``), decay ``mu + exp(-tau dt) (f - mu)`` for the radii. Units of
-    the state; ``dt`` (...) in s, ``tau`` in 1/s; leading axes are a batch."""
+    the state; ``dt`` (...) in s, ``tau`` in 1/s; leading axes are a batch. ``mean``
+    (..., 20) m: the decay target ``mu`` per factor (a batch of tracks with different
+    contour models), else ``gp.mu``."""
     x0 = np.asarray(x0, dtype=float)
     x1 = np.asarray(x1, dtype=float)
     pred_k = ctra_predict(x0[..., :N_KIN], dt)
-    pred_f, _ = gp.decay(x0[..., N_KIN:], tau, dt)
+    mu = np.asarray(gp.mu if mean is None else mean, dtype=float)
+    e_dt = np.exp(-tau * np.asarray(dt, dtype=float))[..., None]
+    pred_f = mu + e_dt * (x0[..., N_KIN:] - mu)
     e = np.concatenate([x1[..., :N_KIN] - pred_k, x1[..., N_KIN:] - pred_f], axis=-1)
     e[..., YAW] = wrap_angle(e[..., YAW])
     return e

@@ -24,7 +24,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from factors.gp import ContourGP
 from factors.gtsam_factors import (
     ContourMeasurement,
     ExtentRows,
@@ -88,8 +87,9 @@ class StackedTracks:
     proc_W (P, 26, 26): whitening of its noise (fixed at the reference state). meas_step
     (F,): the step of each measurement frame; meas: per chunk of frames a batched
     :class:`ContourMeasurement`, :class:`ExtentRows` and :class:`RangeRateRows` (each of the
-    last two or None), ``chunks`` their frame offsets. gp / tau: the contour model and its
-    forgetting rate (1/s).
+    last two or None), ``chunks`` their frame offsets. proc_mean (P, 20) m: the decay target
+    of each process factor (its track's GP prior mean: tracks may have different contour
+    models); tau: the contour forgetting rate (1/s).
     """
 
     start: np.ndarray
@@ -101,7 +101,7 @@ class StackedTracks:
     meas_step: np.ndarray
     meas: list[tuple[ContourMeasurement, ExtentRows | None, RangeRateRows | None]]
     chunks: np.ndarray
-    gp: ContourGP
+    proc_mean: np.ndarray
     tau: float
 
     @property
@@ -132,8 +132,8 @@ class StackedTracks:
         p0 = p1 - 1
         B = np.zeros((0, N_STATE, N_STATE))
         if len(p1):
-            r = _apply(self.proc_W, process_error(x[p0], x[p1], self.proc_dt, self.gp,
-                                                  self.tau))
+            r = _apply(self.proc_W, process_error(x[p0], x[p1], self.proc_dt, None, self.tau,
+                                                  self.proc_mean))
             cost[p1] += 0.5 * np.sum(r * r, axis=1)
             J0 = self.proc_W @ process_jacobian_x0(x[p0], self.proc_dt, self.tau)
             D[p0] += _gram(J0)

@@ -6,9 +6,11 @@ from __future__ import annotations
 
 import gtsam
 import numpy as np
+import pytest
 from test_gtsam_factors import GP, random_state
 from test_smoothing_graph import make_track
 
+from factors.gp import rectangle_radius
 from factors.gtsam_factors import (
     ContourMeasurement,
     ExtentRows,
@@ -19,8 +21,15 @@ from factors.gtsam_factors import (
 from factors.measurement import range_rate
 from fgloc.smoothing import SmoothingConfig
 from fgloc.smoothing.banded_lm import BandedLayout, damped_step, levenberg_marquardt
-from fgloc.smoothing.graph import build_track_graph, pad_ragged, stack_tracks
-from fgloc.tracks import TrackSet
+from fgloc.smoothing.graph import (
+    TrackModel,
+    TrackModels,
+    build_track_graph,
+    pad_ragged,
+    stack_tracks,
+)
+from fgloc.tracking.config import TrackingConfig
+from fgloc.tracks import N_KIN, Track, TrackSet, contour_angles
 
 
 def three_tracks(seed: int) -> tuple[TrackSet, np.ndarray, np.ndarray]:
@@ -43,15 +52,28 @@ def values_of(keys: list[np.ndarray], x: np.ndarray) -> gtsam.Values:
     return v
 
 
-def test_stacked_cost_and_normal_equations_equal_the_gtsam_graph() -> None:
+@pytest.mark.parametrize("truck", [False, True])
+def test_stacked_cost_and_normal_equations_equal_the_gtsam_graph(truck: bool) -> None:
     tracks, det, sensor = three_tracks(1)
+    cfg = SmoothingConfig(max_detections=6)
+    tcfg = TrackingConfig()
+    if truck:       # the second track's filter contour a 10.5 m truck: the long-vehicle model
+        tr = tracks.tracks[1]
+        tr.states[:, N_KIN:] = rectangle_radius(contour_angles(), 10.5, 2.5)
+        tr.states[0, N_KIN:] = TrackModel.of(tcfg, cfg).gp.mu      # born car-sized
     rng = np.random.default_rng(2)
     trusted = rng.random(len(det)) > 0.2
     rr = np.column_stack([rng.normal(8.0, 2.0, len(det)), rng.uniform(5.0, 60.0, len(det))])
-    cfg = SmoothingConfig(max_detections=6)
     tg = build_track_graph(tracks, det, sensor, cfg, det_trusted=trusted, det_range_rate=rr)
     st = stack_tracks(tracks, det, sensor, cfg, det_trusted=trusted, det_range_rate=rr,
                       chunk=7)
+    long_mu = TrackModel.of(tcfg, cfg, long=True).gp.mu
+    is_truck = np.all(np.isclose(st.proc_mean, long_mu), axis=1)
+    owner = st.track_of_step()[st.proc_step]
+    np.testing.assert_array_equal(is_truck, truck & (owner == 1))
+    # the truck's first state gets the long GP's contour prior, not its car-sized birth
+    np.testing.assert_allclose(st.prior_mean[1, N_KIN:],
+                               long_mu if truck else tracks.tracks[1].states[0, N_KIN:])
     x0 = np.concatenate([tr.states for tr in tracks.tracks])
     rng = np.random.default_rng(3)
     order = gtsam.Ordering()
@@ -184,3 +206,25 @@ def test_range_rate_rows_jacobian_batch_and_model() -> None:
     # in the factor: 2 m rows (contour, then range rate), Jacobian of the whole stack
     fac = contour_measurement_factor(1, z, sensor, GP, range_rate=(dop, r3), sigma_doppler=1.0)
     assert fac.dim() == 14
+
+
+def _track_of_lengths(lengths: np.ndarray, dt: float = 0.05) -> Track:
+    """A track whose filtered contours are rectangles of ``lengths`` (m) x 2 m, steps dt s."""
+    n = len(lengths)
+    states = np.zeros((n, 26))
+    states[:, N_KIN:] = [rectangle_radius(contour_angles(), L, 2.0) for L in lengths]
+    return Track(1, np.arange(n) * dt, states, np.zeros(n, dtype=np.int8))
+
+
+def test_long_vehicle_choice_offline_and_online() -> None:
+    models = TrackModels.of(TrackingConfig(), SmoothingConfig(long_vehicle_length=9.0))
+    truck = _track_of_lengths(np.r_[np.full(10, 4.6), np.full(40, 10.0)])
+    blip = _track_of_lengths(np.r_[np.full(10, 4.6), np.full(8, 9.5), np.full(40, 4.8)])
+    assert models.is_long(truck) and models.for_track(truck) is models.long
+    assert not models.is_long(blip) and models.for_track(blip) is models.car
+    # online: long once the contour has stayed >= 9 m for the hold time (1 s = 20 steps)
+    assert models.long_from(truck, 1.0) == 30
+    assert models.long_from(blip, 1.0) == len(blip)
+    assert models.long_from(blip, 0.3) == 16
+    off = TrackModels.of(TrackingConfig(), SmoothingConfig(long_vehicle_length=0.0))
+    assert off.long is None and not off.is_long(truck) and off.long_from(truck, 1.0) == 50

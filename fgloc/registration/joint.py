@@ -309,17 +309,19 @@ def track_quadratic(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     det_trusted / det_range_rate: as in :func:`fgloc.smoothing.graph.stack_tracks`."""
     from fgloc.smoothing.graph import TrackModel, stack_tracks
 
+    # one contour model for all tracks: the point rows take one (no long-vehicle model)
+    scfg = dataclasses.replace(cfg.smoothing, long_vehicle_length=0.0)
+    gp = TrackModel.of(cfg.tracking, scfg).gp
     if cfg.joint.refine_tracks:
-        system = stack_tracks(tracks, det_xy, sensor_xy, cfg.smoothing, cfg.tracking,
-                              det_trusted, det_range_rate)
+        system = stack_tracks(tracks, det_xy, sensor_xy, scfg, cfg.tracking, det_trusted,
+                              det_range_rate)
         ne = system.evaluate(x_lin)
         return (TrackQuadratic(x_lin, float(ne.cost.sum()), ne.g, ne.D, ne.B,
-                               system.proc_step), system.gp)
+                               system.proc_step), gp)
     n = len(x_lin)
     return (TrackQuadratic(x_lin, 0.0, np.zeros_like(x_lin),
                            np.broadcast_to(1e8 * np.eye(N_STATE), (n, N_STATE, N_STATE)).copy(),
-                           np.zeros((0, N_STATE, N_STATE)), np.zeros(0, np.int64)),
-            TrackModel.of(cfg.tracking, cfg.smoothing).gp)
+                           np.zeros((0, N_STATE, N_STATE)), np.zeros(0, np.int64)), gp)
 
 
 def _point_set(fp: FramePoints, pad: tuple[np.ndarray, np.ndarray], index: np.ndarray,

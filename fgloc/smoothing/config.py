@@ -44,6 +44,16 @@ class SmoothingConfig:
     along a seen face mark its ends, from all detections of the frame, ends next to the FOV's
     edge excluded; selection re-done per linearization) to each measurement factor. Without
     them the normal-offset rows leave the length free and the smoothed contour shrinks."""
+    long_vehicle_length: float = 9.0
+    """A track whose filtered contour reaches this length (m, front + rear radius) and keeps
+    it on at least half of its remaining steps is a long vehicle (truck, bus; the tracker
+    promoted it or saw it long): the batch smoother gives it the tracker's long-vehicle
+    contour model for the whole track -- GP mean the ``[tracking] long_length`` x
+    ``long_width`` rectangle (contour prior, decay target, size modes) and that GP's prior
+    on its first contour instead of the filter's car-sized birth contour; the fixed-lag
+    smoother switches to it online once the filter's contour has stayed that long for 1 s.
+    The joint registration keeps the car model for every track (its point rows take one
+    contour model). 0 = off."""
     use_doppler: bool = True
     """Add range-rate rows to each measurement factor (the tracker's Doppler measurement,
     ``tracking.sigma_doppler``): they observe speed, heading and yaw rate, which the contour
@@ -74,6 +84,9 @@ class SmoothingConfig:
                              f"got {self.smoother!r}")
         if not self.contour_tau > 0:
             raise ValueError(f"contour_tau must be > 0 1/s, got {self.contour_tau}")
+        if self.long_vehicle_length < 0:
+            raise ValueError(f"long_vehicle_length must be >= 0 m, got "
+                             f"{self.long_vehicle_length}")
         if not self.lag > 0:
             raise ValueError(f"lag must be > 0 s, got {self.lag}")
         if self.max_detections < 0 or self.max_iterations < 1 or self.relinearize_skip < 1:

@@ -10,6 +10,13 @@ The output state of a step is its estimate just before it left the window (a fix
 smoothed estimate, ``lag`` s of future data), or the final estimate for the steps still in
 the window at the end.
 
+Long vehicles (trucks, buses) switch to the long-vehicle contour model online: once the
+filter's contour of a track has been at least ``[smoothing] long_vehicle_length`` long for
+``LONG_HOLD_S`` without a break (the filter has promoted it or sees it long), the track's
+window starts afresh from the filter's state and covariance there, and its later factors use
+the long model (:class:`fgloc.smoothing.graph.TrackModels`; the batch smoother decides with
+hindsight instead and uses it for the whole track).
+
 The tracks share no variable (the sensor pose is fixed here), so their joint posterior
 factorizes: every track gets its own smoother, created at its first step and dropped after
 its last. Same estimates as one smoother over all tracks, but each ISAM2 update and
@@ -33,9 +40,13 @@ import numpy as np
 from factors.gtsam_factors import track_key
 from fgloc.errors import FglocError
 from fgloc.smoothing.config import SmoothingConfig
-from fgloc.smoothing.graph import TrackModel, step_detections, tracks_from_states
+from fgloc.smoothing.graph import TrackModel, TrackModels, step_detections, tracks_from_states
 from fgloc.tracking.config import TrackingConfig
 from fgloc.tracks import Track, TrackSet
+
+#: s a filtered contour must stay long before the fixed-lag smoother takes a track for a long
+#: vehicle (a car's contour grows past the threshold for a few frames now and then)
+LONG_HOLD_S = 1.0
 
 
 def isam2_params(cfg: SmoothingConfig) -> gtsam.ISAM2Params:
@@ -74,7 +85,8 @@ def smooth_fixed_lag(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray
     of state variables in all windows at once).
     """
     scfg = smoothing or SmoothingConfig()
-    model = TrackModel.of(tracking, scfg)
+    models = TrackModels.of(tracking, scfg)
+    long_from = [models.long_from(tr, LONG_HOLD_S) for tr in tracks.tracks]
     sensor_xy = np.asarray(sensor_xy, dtype=float)
     t0 = time.perf_counter()
     params = isam2_params(scfg)
@@ -99,8 +111,9 @@ def smooth_fixed_lag(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray
     for t in sorted(frames):
         for i, s in frames[t]:
             tr = tracks.tracks[i]
-            if i in open_ and t - tr.t[open_[i].steps[-1]] >= scfg.lag:
-                close(i)                     # a gap as long as the lag: start afresh
+            if i in open_ and (t - tr.t[open_[i].steps[-1]] >= scfg.lag or s == long_from[i]):
+                close(i)            # a gap as long as the lag, or now a long vehicle: afresh
+            model = models.long if s >= long_from[i] else models.car
             w = open_.get(i)
             if w is None:
                 w = open_[i] = _TrackWindow(gtsam.IncrementalFixedLagSmoother(scfg.lag, params))

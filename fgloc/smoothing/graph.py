@@ -56,17 +56,29 @@ from fgloc.smoothing.config import SmoothingConfig
 from fgloc.tracking.birth import FieldOfView
 from fgloc.tracking.config import TrackingConfig
 from fgloc.tracking.tracker import kappa_labels
-from fgloc.tracks import N_KIN, N_STATE, YAWRATE, A, Track, TrackSet, V, contour_angles
+from fgloc.tracks import (
+    N_CONTOUR,
+    N_KIN,
+    N_STATE,
+    YAWRATE,
+    A,
+    Track,
+    TrackSet,
+    V,
+    contour_angles,
+)
 
 #: added to the diagonal of a prior covariance taken from the filter (state units squared)
 _PRIOR_JITTER = 1e-9
 
 
-def contour_gp(tcfg: TrackingConfig) -> ContourGP:
-    """The tracker's GP contour model (same kernel, mean shape and basis angles)."""
+def contour_gp(tcfg: TrackingConfig, long: bool = False) -> ContourGP:
+    """The tracker's GP contour model (same kernel, mean shape and basis angles); ``long``:
+    its long-vehicle variant, mean shape the ``long_length`` x ``long_width`` rectangle."""
+    length, width = ((tcfg.long_length, tcfg.long_width) if long
+                     else (tcfg.mean_length, tcfg.mean_width))
     return ContourGP(contour_angles(), tcfg.gp_sf, tcfg.gp_length_rad, tcfg.gp_sr,
-                     tcfg.gp_symmetry, tcfg.mean_length, tcfg.mean_width, tcfg.gp_sl,
-                     tcfg.gp_sw)
+                     tcfg.gp_symmetry, length, width, tcfg.gp_sl, tcfg.gp_sw)
 
 
 def placed_detections(scn: Scenario, T_placement: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -107,7 +119,9 @@ def regular_subsample(n: int, m: int) -> np.ndarray:
 
 @dataclass(frozen=True)
 class TrackModel:
-    """The factors of one track model: tracker noise (``[tracking]``) + smoother settings."""
+    """The factors of one track model: tracker noise (``[tracking]``) + smoother settings.
+    ``long``: the long-vehicle contour model (:func:`contour_gp`), whose first state's
+    contour prior is that GP's prior (:meth:`prior_covariance`)."""
 
     tracking: TrackingConfig
     smoothing: SmoothingConfig
@@ -115,19 +129,20 @@ class TrackModel:
     contour_rw: np.ndarray
     table: ConditionalTable
     extent: ExtentSettings | None
+    long: bool = False
 
     @staticmethod
     def of(tracking: TrackingConfig | None = None,
-           smoothing: SmoothingConfig | None = None) -> TrackModel:
+           smoothing: SmoothingConfig | None = None, long: bool = False) -> TrackModel:
         tcfg = tracking or TrackingConfig()
-        gl, gw = rectangle_radius_gradient(contour_angles(), tcfg.mean_length, tcfg.mean_width)
+        gp = contour_gp(tcfg, long)
+        gl, gw = rectangle_radius_gradient(gp.angles, gp.mean_length, gp.mean_width)
         scfg = smoothing or SmoothingConfig()
         rw = scfg.size_walk_scale * (tcfg.sigma_length_rw**2 * np.outer(gl, gl)
                                      + tcfg.sigma_width_rw**2 * np.outer(gw, gw))
-        gp = contour_gp(tcfg)
         ext = (ExtentSettings(tcfg.sigma_extent, tcfg.extent_min_points, tcfg.extent_min_cover,
                               tcfg.extent_min_incidence) if scfg.extent_rows else None)
-        return TrackModel(tcfg, scfg, gp, rw, ConditionalTable(gp), ext)
+        return TrackModel(tcfg, scfg, gp, rw, ConditionalTable(gp), ext, long)
 
     @property
     def tau(self) -> float:
@@ -209,15 +224,81 @@ class TrackModel:
         P0[N_KIN:, N_KIN:] = self.gp.K
         return P0
 
+    def prior_mean(self, track: Track, step: int = 0) -> np.ndarray:
+        """(26,) mean of the prior on ``track`` at ``step``: the filter's state; for the long
+        model at step 0 with the GP's mean contour (the filter was born car-sized)."""
+        x = track.states[step].copy()
+        if self.long and step == 0:
+            x[N_KIN:] = self.gp.mu
+        return x
+
     def prior_covariance(self, track: Track, step: int = 0) -> np.ndarray:
-        """(26, 26) covariance of the prior on ``track`` at ``step``: the filter's (or P0)."""
-        P = (track.covariances[step] if track.covariances is not None
+        """(26, 26) covariance of the prior on ``track`` at ``step``: the filter's (or P0);
+        for the long model at step 0 the contour block is the GP's K (no cross terms)."""
+        P = (track.covariances[step].copy() if track.covariances is not None
              else self.initial_covariance())
+        if self.long and step == 0:
+            P[N_KIN:, :] = 0.0
+            P[:, N_KIN:] = 0.0
+            P[N_KIN:, N_KIN:] = self.gp.K
         return P + _PRIOR_JITTER * np.eye(N_STATE)
 
     def prior(self, key: int, track: Track, step: int = 0) -> gtsam.PriorFactorVector:
-        """Prior on ``key``: the filter's state and covariance of ``track`` at ``step``."""
-        return prior_factor(key, track.states[step], self.prior_covariance(track, step))
+        """Prior on ``key``: :meth:`prior_mean` and :meth:`prior_covariance`."""
+        return prior_factor(key, self.prior_mean(track, step),
+                            self.prior_covariance(track, step))
+
+
+@dataclass(frozen=True)
+class TrackModels:
+    """The car and the long-vehicle track model and which track gets which.
+
+    Seen head-on or from behind, a truck's length is unobservable and the car-sized GP prior
+    places its centre metres off; the tracker then switches the track to a long-vehicle
+    contour (``[tracking] long_*``). The batch smoother gives every track whose filtered
+    contour reaches ``[smoothing] long_vehicle_length`` and keeps it (:meth:`is_long`:
+    trucks and buses, promoted by the filter or seen long) the long model for the whole track
+    (``long`` None: off).
+    """
+
+    car: TrackModel
+    long: TrackModel | None
+
+    @staticmethod
+    def of(tracking: TrackingConfig | None = None,
+           smoothing: SmoothingConfig | None = None) -> TrackModels:
+        scfg = smoothing or SmoothingConfig()
+        return TrackModels(TrackModel.of(tracking, scfg),
+                           (TrackModel.of(tracking, scfg, long=True)
+                            if scfg.long_vehicle_length > 0 else None))
+
+    def is_long(self, track: Track) -> bool:
+        """Whether ``track``'s filtered contour (front + rear radius) reaches
+        ``long_vehicle_length`` (m) and stays that long on at least half of the steps from
+        then on (a car whose contour grows for a moment is not a truck)."""
+        if self.long is None or not len(track):
+            return False
+        length = track.states[:, N_KIN] + track.states[:, N_KIN + N_CONTOUR // 2]
+        reached = length >= self.car.smoothing.long_vehicle_length
+        if not reached.any():
+            return False
+        return bool(reached[np.argmax(reached):].mean() >= 0.5)
+
+    def long_from(self, track: Track, hold: float) -> int:
+        """Online (causal) variant of :meth:`is_long`: the first step at which ``track``'s
+        filtered contour has been at least ``long_vehicle_length`` (m) for ``hold`` s without
+        a break (``len(track)``: never, or the long model is off)."""
+        if self.long is None:
+            return len(track)
+        length = track.states[:, N_KIN] + track.states[:, N_KIN + N_CONTOUR // 2]
+        reached = length >= self.car.smoothing.long_vehicle_length
+        run_start = np.maximum.accumulate(np.where(~reached, np.arange(len(track)) + 1, 0))
+        ok = reached & (track.t - track.t[np.minimum(run_start, len(track) - 1)] >= hold)
+        return int(np.argmax(ok)) if ok.any() else len(track)
+
+    def for_track(self, track: Track) -> TrackModel:
+        """The model of ``track`` (:meth:`is_long`)."""
+        return self.long if self.is_long(track) else self.car
 
 
 def step_detections(track: Track) -> list[np.ndarray]:
@@ -234,13 +315,13 @@ class TrackGraph:
 
     graph: the factors (prior, process, measurement of every track). values: the initial
     estimate (the filter's states). keys: per track (in ``tracks.tracks`` order) the (n,)
-    int64 array of its state keys, one per step. model: the factor maker used.
+    int64 array of its state keys, one per step. models: the factor makers used.
     """
 
     graph: gtsam.NonlinearFactorGraph
     values: gtsam.Values
     keys: list[np.ndarray]
-    model: TrackModel
+    models: TrackModels
 
 
 def build_track_graph(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
@@ -267,9 +348,10 @@ def build_track_graph(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarra
         raise ValueError(f"det_xy shape {det_xy.shape}, expected (N, 2)")
     if sensor_xy.shape != (2,):
         raise ValueError(f"sensor_xy shape {sensor_xy.shape}, expected (2,)")
-    model = TrackModel.of(tracking, smoothing)
+    models = TrackModels.of(tracking, smoothing)
     graph, values, keys = gtsam.NonlinearFactorGraph(), gtsam.Values(), []
     for tr in tracks.tracks:
+        model = models.for_track(tr)
         if tr.states.shape != (len(tr), N_STATE):
             raise ValueError(f"track {tr.id}: states shape {tr.states.shape}, expected "
                              f"({len(tr)}, {N_STATE})")
@@ -289,7 +371,7 @@ def build_track_graph(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarra
                     int(k[s]), det_xy[idx], sensor_xy,
                     None if det_trusted is None else det_trusted[idx],
                     None if det_range_rate is None else det_range_rate[idx]))
-    return TrackGraph(graph, values, keys, model)
+    return TrackGraph(graph, values, keys, models)
 
 
 def ragged_index(counts: np.ndarray, width: int | None = None
@@ -324,19 +406,21 @@ def stack_tracks(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                  det_trusted: np.ndarray | None = None,
                  det_range_rate: np.ndarray | None = None,
                  chunk: int = 1024) -> StackedTracks:
-    """The factors of :func:`build_track_graph` (same arguments, same residuals and noise)
-    as one :class:`factors.track_system.StackedTracks` over the steps of all tracks, in
-    ``tracks.tracks`` order; measurement frames in chunks of ``chunk`` (bounds the memory
-    of an evaluation)."""
+    """The factors of :func:`build_track_graph` (same arguments, same residuals and noise,
+    same model per track) as one :class:`factors.track_system.StackedTracks` over the steps
+    of all tracks, in ``tracks.tracks`` order; measurement frames in chunks of at most
+    ``chunk`` frames of one model (bounds the memory of an evaluation)."""
     det_xy = np.asarray(det_xy, dtype=float)
     sensor_xy = np.asarray(sensor_xy, dtype=float)
-    model = TrackModel.of(tracking, smoothing)
+    models = TrackModels.of(tracking, smoothing)
+    per_track = [models.for_track(tr) for tr in tracks.tracks]
     trusted = (np.ones(len(det_xy), dtype=bool) if det_trusted is None
                else np.asarray(det_trusted, dtype=bool))
     lengths = np.array([len(tr) for tr in tracks.tracks], dtype=np.int64)
     start = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
-    first_states = np.array([tr.states[0] for tr in tracks.tracks]).reshape(-1, N_STATE)
-    prior_cov = np.array([model.prior_covariance(tr) for tr in tracks.tracks])
+    prior_mean = np.array([m.prior_mean(tr) for m, tr in zip(per_track, tracks.tracks)]
+                          ).reshape(-1, N_STATE)
+    prior_cov = np.array([m.prior_covariance(tr) for m, tr in zip(per_track, tracks.tracks)])
     prior_W = (sqrt_information(prior_cov) if len(prior_cov)
                else np.zeros((0, N_STATE, N_STATE)))
     x_ref = np.concatenate([tr.states[:-1] for tr in tracks.tracks] or [np.zeros((0, 26))])
@@ -345,28 +429,39 @@ def stack_tracks(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
         raise ValueError("track times must increase")
     proc_step = np.concatenate([start[i] + np.arange(1, n) for i, n in enumerate(lengths)]
                                or [np.zeros(0, np.int64)]).astype(np.int64)
-    proc_W = (sqrt_information(model.process_noise(x_ref, dt)) if len(dt)
-              else np.zeros((0, N_STATE, N_STATE)))
-    # measurement frames: the steps with detections
-    frames = [(start[i] + s, idx) for i, tr in enumerate(tracks.tracks)
-              for s, idx in enumerate(step_detections(tr)) if len(idx)]
-    meas_step = np.array([f[0] for f in frames], dtype=np.int64)
-    m = model.smoothing.max_detections
-    subs = [idx[regular_subsample(len(idx), m)] for _, idx in frames]
-    alls = [idx for _, idx in frames]
-    meas, bounds = [], [0]
-    for a in range(0, len(frames), chunk):
-        sub, full = subs[a:a + chunk], alls[a:a + chunk]
-        pos, valid = ragged_index([len(i) for i in sub])
-        rows = np.concatenate(sub)[pos]                       # (F, M) radar rows, padded
-        pos_all, valid_all = ragged_index([len(i) for i in full])
-        rows_all = np.concatenate(full)[pos_all]
-        rr = None if det_range_rate is None else det_range_rate[rows]
-        meas.append(model.measurement_batch(det_xy[rows], valid, det_xy[rows_all], valid_all,
-                                            trusted[rows_all], sensor_xy, rr))
-        bounds.append(bounds[-1] + len(sub))
-    return StackedTracks(start, first_states, prior_W, proc_step, dt, proc_W, meas_step, meas,
-                         np.array(bounds, dtype=np.int64), model.gp, model.tau)
+    proc_model = np.repeat(np.array([m.long for m in per_track], dtype=bool),
+                           np.maximum(lengths - 1, 0))
+    proc_W = np.zeros((len(dt), N_STATE, N_STATE))
+    proc_mean = np.zeros((len(dt), N_CONTOUR))
+    meas_step, meas, bounds = [], [], [0]
+    m_max = models.car.smoothing.max_detections
+    for model in (models.car, models.long):
+        if model is None:
+            continue
+        sel = proc_model == model.long
+        if sel.any():
+            proc_W[sel] = sqrt_information(model.process_noise(x_ref[sel], dt[sel]))
+        proc_mean[sel] = model.gp.mu
+        # measurement frames: the steps with detections of this model's tracks
+        frames = [(start[i] + s, idx) for i, tr in enumerate(tracks.tracks)
+                  if per_track[i] is model
+                  for s, idx in enumerate(step_detections(tr)) if len(idx)]
+        for a in range(0, len(frames), chunk):
+            part = frames[a:a + chunk]
+            sub = [idx[regular_subsample(len(idx), m_max)] for _, idx in part]
+            full = [idx for _, idx in part]
+            pos, valid = ragged_index([len(i) for i in sub])
+            rows = np.concatenate(sub)[pos]                       # (F, M) radar rows, padded
+            pos_all, valid_all = ragged_index([len(i) for i in full])
+            rows_all = np.concatenate(full)[pos_all]
+            rr = None if det_range_rate is None else det_range_rate[rows]
+            meas.append(model.measurement_batch(det_xy[rows], valid, det_xy[rows_all],
+                                                valid_all, trusted[rows_all], sensor_xy, rr))
+            meas_step += [f[0] for f in part]
+            bounds.append(bounds[-1] + len(part))
+    return StackedTracks(start, prior_mean, prior_W, proc_step, dt, proc_W,
+                         np.array(meas_step, dtype=np.int64), meas,
+                         np.array(bounds, dtype=np.int64), proc_mean, models.car.tau)
 
 
 def tracks_from_states(tracks: TrackSet, states: list[np.ndarray],
