@@ -66,7 +66,8 @@ def main() -> None:
                       f"{time.perf_counter() - w0:.0f} s wall")
                 rows.setdefault(method, []).append([err.d2d, err.dyaw_deg])
     print(f"\n== mean over seeds {args.seeds}")
-    print(f"{'tracker':>9} " + " ".join(f"{k:>22}" for k in (*METRICS, "cpu_s")))
+    if rows.get("filter"):
+        print(f"{'tracker':>9} " + " ".join(f"{k:>22}" for k in (*METRICS, "cpu_s")))
     for name in ("filter", "fixed-lag", "batch") if rows.get("filter") else ():
         mean = np.nanmean(np.array(rows[name], dtype=float), axis=0)
         print(f"{name:>9} " + " ".join(f"{v:22.3f}" for v in mean))
