@@ -10,6 +10,7 @@ import pytest
 from factors.ctra import ctra_predict
 from factors.gp import rectangle_radius
 from factors.gtsam_factors import decode_track_key
+from fgloc.evaluate_tracking import contour_polygons
 from fgloc.smoothing import SmoothingConfig
 from fgloc.smoothing.graph import (
     TrackModel,
@@ -17,9 +18,10 @@ from fgloc.smoothing.graph import (
     regular_subsample,
     step_detections,
     tracks_from_values,
+    turn_round,
 )
 from fgloc.tracking import TrackingConfig
-from fgloc.tracks import N_KIN, N_STATE, YAW, Track, TrackSet
+from fgloc.tracks import N_KIN, N_STATE, YAW, Track, TrackSet, contour_angles
 
 DT = 0.05
 
@@ -135,3 +137,26 @@ def test_optimized_graph_beats_the_noisy_states(seed: int) -> None:
     (r0, y0), (r1, y1) = errors(tr.states), errors(out)
     assert r1 < 0.5 * r0 and y1 < 0.5 * y0, (r0, r1, y0, y1)
     assert r1 < 0.35          # a contour offset remains where only two faces are seen
+
+
+def test_turn_round_keeps_the_motion_and_the_contour() -> None:
+    rng = np.random.default_rng(11)
+    x = np.zeros((4, N_STATE))
+    x[:, :2] = rng.normal(0, 20, (4, 2))
+    x[:, 2] = [-6.0, -0.3, 4.0, -12.0]                               # speed
+    x[:, 3] = rng.normal(0, 1, 4)                                    # acceleration
+    x[:, YAW] = rng.uniform(-np.pi, np.pi, 4)
+    x[:, 5] = rng.normal(0, 0.2, 4)                                  # yaw rate
+    x[:, N_KIN:] = rectangle_radius(contour_angles(), 4.6, 1.9) + rng.normal(0, 0.2, (4, 20))
+    mask = x[:, 2] < -1.0
+    y = turn_round(x, mask)
+    np.testing.assert_array_equal(y[~mask], x[~mask])
+    assert np.all(y[mask, 2] > 0)
+    # same contour polygon (as a point set), same positions after any motion
+    px, py = contour_polygons(x), contour_polygons(y)
+    for k in range(4):
+        d = np.linalg.norm(px[k][:, None] - py[k][None], axis=-1)
+        assert d.min(axis=1).max() < 1e-9
+    for dt in (0.05, 1.0):
+        np.testing.assert_allclose(ctra_predict(y[:, :N_KIN], dt)[:, :2],
+                                   ctra_predict(x[:, :N_KIN], dt)[:, :2], atol=1e-9)

@@ -51,6 +51,7 @@ from factors.gtsam_factors import (
     track_key,
 )
 from factors.track_system import StackedTracks, sqrt_information
+from fgloc.geo import wrap_angle
 from fgloc.scenario import Scenario
 from fgloc.smoothing.config import SmoothingConfig
 from fgloc.tracking.birth import FieldOfView
@@ -60,6 +61,7 @@ from fgloc.tracks import (
     N_CONTOUR,
     N_KIN,
     N_STATE,
+    YAW,
     YAWRATE,
     A,
     Track,
@@ -468,16 +470,18 @@ def tracks_from_states(tracks: TrackSet, states: list[np.ndarray],
                        tracking: TrackingConfig | None = None,
                        covariances: list[np.ndarray] | None = None,
                        smoother: str = "smoother") -> TrackSet:
-    """The same tracks with new ``states`` (one (n, 26) array per track, in order), clipped
-    to the tracker's road-vehicle limits (0 <= v <= max_speed, |a| <= max_accel, |yaw rate|
-    <= max_yawrate, radii >= min_radius), labels recomputed from kappa = yawrate / v
-    (``tracking.eta``, ``label_min_speed``) and ``covariances`` ((n, 26, 26) per track, None
-    = without). Same frame, T_frame_to_L, ids, times and detections; diagnostics gain
-    ``smoother``."""
+    """The same tracks with new ``states`` (one (n, 26) array per track, in order), states
+    driving backwards faster than ``label_min_speed`` turned round (:func:`turn_round`: the
+    same motion, heading the way the vehicle moves), then clipped to the tracker's
+    road-vehicle limits (0 <= v <= max_speed, |a| <= max_accel, |yaw rate| <= max_yawrate,
+    radii >= min_radius), labels recomputed from kappa = yawrate / v (``tracking.eta``,
+    ``label_min_speed``) and ``covariances`` ((n, 26, 26) per track, None = without). Same
+    frame, T_frame_to_L, ids, times and detections; diagnostics gain ``smoother``."""
     c = tracking or TrackingConfig()
     out = []
     for i, (tr, s) in enumerate(zip(tracks.tracks, states)):
         s = np.array(s, dtype=float).reshape(-1, N_STATE)
+        s = turn_round(s, s[:, V] < -c.label_min_speed)
         s[:, V] = np.clip(s[:, V], 0.0, c.max_speed)
         s[:, A] = np.clip(s[:, A], -c.max_accel, c.max_accel)
         s[:, YAWRATE] = np.clip(s[:, YAWRATE], -c.max_yawrate, c.max_yawrate)
@@ -489,6 +493,21 @@ def tracks_from_states(tracks: TrackSet, states: list[np.ndarray],
             det_index=tr.det_index.copy(), det_step=tr.det_step.copy()))
     return dataclasses.replace(tracks, tracks=out,
                                diagnostics={**tracks.diagnostics, "smoother": smoother})
+
+
+def turn_round(states: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """States (n, 26) with the ``mask`` (n,) rows turned round: heading + pi, speed and
+    acceleration negated, contour radii rolled by half the basis (radius at object angle
+    theta + pi). The same vehicle in the same motion: a smoother can reach the mirrored
+    solution (heading against the motion, negative speed) of a track whose filter heading was
+    wrong, which clipping the speed to 0 would turn into a parked vehicle facing backwards."""
+    out = np.array(states, dtype=float)
+    m = np.asarray(mask, dtype=bool)
+    out[m, YAW] = wrap_angle(out[m, YAW] + np.pi)
+    out[m, V] *= -1.0
+    out[m, A] *= -1.0
+    out[m, N_KIN:] = np.roll(out[m, N_KIN:], N_CONTOUR // 2, axis=1)
+    return out
 
 
 def tracks_from_values(tracks: TrackSet, values: gtsam.Values, keys: list[np.ndarray],
