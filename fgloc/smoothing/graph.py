@@ -16,6 +16,11 @@ track and step, key :func:`factors.gtsam_factors.track_key` ``(track.id, step)``
   re-done at every linearization, per-row radar noise and Huber IRLS weights
   (:func:`factors.gtsam_factors.contour_measurement_factor`).
 
+Long vehicles (trucks, buses; :class:`TrackModels`) get the tracker's long-vehicle contour
+model -- GP mean the ``long_length`` x ``long_width`` rectangle -- and, on their first step,
+that GP's contour prior instead of the filter's car-sized birth contour. Smoothed states that
+drive backwards are turned round (:func:`turn_round`).
+
 Usage::
 
     det_xy, sensor_xy = placed_detections(scn, T_placement)     # all radar rows in C
