@@ -70,6 +70,16 @@ def rectangle_radius(theta: np.ndarray, length: float, width: float) -> np.ndarr
                           np.where(s > 0, 0.5 * width / np.maximum(s, 1e-300), np.inf))
 
 
+def decay_mean(f: np.ndarray, mean: np.ndarray, tau: float, dt: float | np.ndarray
+               ) -> np.ndarray:
+    """Mean of the contour process (:meth:`ContourGP.decay`): ``mean + exp(-tau dt) (f -
+    mean)`` for radii ``f`` (..., n), decay target ``mean`` (n,) or (..., n) m, ``dt`` (...)
+    s, ``tau`` 1/s."""
+    e = np.exp(-tau * np.asarray(dt, dtype=float))[..., None]
+    mean = np.asarray(mean, dtype=float)
+    return mean + e * (np.asarray(f) - mean)
+
+
 @dataclass(frozen=True)
 class ContourGP:
     """The GP contour model at fixed basis angles.
@@ -140,4 +150,4 @@ class ContourGP:
         mu instead of 0). ``f`` (..., n) and ``dt`` (...) may carry a batch shape. Returns
         ``(f' (..., n), Q (..., n, n))``."""
         e = np.exp(-tau * np.asarray(dt, dtype=float))[..., None]
-        return self.mu + e * (np.asarray(f) - self.mu), (1.0 - e * e)[..., None] * self.K
+        return decay_mean(f, self.mu, tau, dt), (1.0 - e * e)[..., None] * self.K

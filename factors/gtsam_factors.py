@@ -23,7 +23,7 @@ import gtsam
 import numpy as np
 
 from factors.ctra import ctra_jacobian, ctra_predict, ctra_process_noise
-from factors.gp import ContourGP, periodic_kernel, rectangle_radius_gradient
+from factors.gp import ContourGP, decay_mean, periodic_kernel, rectangle_radius_gradient
 from factors.measurement import (
     closest_on_chain,
     contour_candidates,
@@ -140,9 +140,7 @@ def process_error(x0: np.ndarray, x1: np.ndarray, dt: float | np.ndarray,
     x0 = np.asarray(x0, dtype=float)
     x1 = np.asarray(x1, dtype=float)
     pred_k = ctra_predict(x0[..., :N_KIN], dt)
-    mu = np.asarray(gp.mu if mean is None else mean, dtype=float)
-    e_dt = np.exp(-tau * np.asarray(dt, dtype=float))[..., None]
-    pred_f = mu + e_dt * (x0[..., N_KIN:] - mu)
+    pred_f = decay_mean(x0[..., N_KIN:], gp.mu if mean is None else mean, tau, dt)
     e = np.concatenate([x1[..., :N_KIN] - pred_k, x1[..., N_KIN:] - pred_f], axis=-1)
     e[..., YAW] = wrap_angle(e[..., YAW])
     return e
