@@ -307,11 +307,11 @@ def track_quadratic(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     """The track factors' quadratic model about ``x_lin`` (the stacked states) and the contour
     model; without ``refine_tracks`` a tight hold (information 1e8 per state unit) instead.
     det_trusted / det_range_rate: as in :func:`fgloc.smoothing.graph.stack_tracks`."""
-    from fgloc.smoothing.graph import TrackModel, stack_tracks
+    from fgloc.smoothing.graph import contour_gp, stack_tracks
 
     # one contour model for all tracks: the point rows take one (no long-vehicle model)
     scfg = dataclasses.replace(cfg.smoothing, long_vehicle_length=0.0)
-    gp = TrackModel.of(cfg.tracking, scfg).gp
+    gp = contour_gp(cfg.tracking)
     if cfg.joint.refine_tracks:
         system = stack_tracks(tracks, det_xy, sensor_xy, scfg, cfg.tracking, det_trusted,
                               det_range_rate)

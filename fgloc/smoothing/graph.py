@@ -279,14 +279,19 @@ class TrackModels:
                            (TrackModel.of(tracking, scfg, long=True)
                             if scfg.long_vehicle_length > 0 else None))
 
+    def _reached(self, track: Track) -> np.ndarray:
+        """(n,) steps at which ``track``'s filtered contour (front + rear radius) is at least
+        ``long_vehicle_length`` (m) long."""
+        length = track.states[:, N_KIN] + track.states[:, N_KIN + N_CONTOUR // 2]
+        return length >= self.car.smoothing.long_vehicle_length
+
     def is_long(self, track: Track) -> bool:
-        """Whether ``track``'s filtered contour (front + rear radius) reaches
-        ``long_vehicle_length`` (m) and stays that long on at least half of the steps from
-        then on (a car whose contour grows for a moment is not a truck)."""
+        """Whether ``track``'s filtered contour reaches ``long_vehicle_length`` and stays that
+        long on at least half of the steps from then on (a car whose contour grows for a
+        moment is not a truck)."""
         if self.long is None or not len(track):
             return False
-        length = track.states[:, N_KIN] + track.states[:, N_KIN + N_CONTOUR // 2]
-        reached = length >= self.car.smoothing.long_vehicle_length
+        reached = self._reached(track)
         if not reached.any():
             return False
         return bool(reached[np.argmax(reached):].mean() >= 0.5)
@@ -297,8 +302,7 @@ class TrackModels:
         a break (``len(track)``: never, or the long model is off)."""
         if self.long is None:
             return len(track)
-        length = track.states[:, N_KIN] + track.states[:, N_KIN + N_CONTOUR // 2]
-        reached = length >= self.car.smoothing.long_vehicle_length
+        reached = self._reached(track)
         run_start = np.maximum.accumulate(np.where(~reached, np.arange(len(track)) + 1, 0))
         ok = reached & (track.t - track.t[np.minimum(run_start, len(track) - 1)] >= hold)
         return int(np.argmax(ok)) if ok.any() else len(track)
