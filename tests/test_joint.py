@@ -4,6 +4,7 @@ the covariance; on a straight road the along-road direction is flagged as weakly
 from __future__ import annotations
 
 import dataclasses
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -50,10 +51,12 @@ def _visible_points(centre: np.ndarray, yaw: float, sensor: np.ndarray,
 
 
 def _scene(crossing: bool, T_true: np.ndarray, sensor_l: np.ndarray, seed: int,
-           per_lane: int = 4, offset: float = 0.0):
+           per_lane: int = 4, offset: float = 0.0, range_bias: float = 0.0):
     """Tracks in C = T_true^-1 L of vehicles on the lanes (each with its own lateral offset
     from the lane centre), their detections in C, the sensor in C and the target lines in L
-    (lane centres, shifted ``offset`` m towards the sensor)."""
+    (lane centres, shifted ``offset`` m towards the sensor). ``range_bias`` (m per 100 m):
+    every vehicle, its states and its detections, lies that far per 100 m of its range
+    towards the sensor's side of its lane (a tracker's range-growing bias)."""
     rng = np.random.default_rng(seed)
     Tinv = np.linalg.inv(T_true)
     yaw_c = se2_params(Tinv)[2]
@@ -70,6 +73,9 @@ def _scene(crossing: bool, T_true: np.ndarray, sensor_l: np.ndarray, seed: int,
             s0 = rng.uniform(2.0, 30.0)
             n = 16                                   # 5 Hz, 3.2 s, 10 m/s
             centres = start + (s0 + 2.0 * np.arange(n))[:, None] * d + lateral * left
+            towards = np.sign(left @ (sensor_l - start)) * left
+            centres = centres + (range_bias / 100.0 * np.linalg.norm(centres - sensor_l,
+                                                                     axis=1))[:, None] * towards
             states = np.zeros((n, N_STATE))
             states[:, :2] = transform_points(Tinv, centres)
             states[:, 2] = 10.0
@@ -135,6 +141,28 @@ def test_straight_road_flags_the_along_road_direction():
     assert np.sqrt(res.covariance[0, 0]) > 1.0 and np.sqrt(res.covariance[1, 1]) < 0.2
 
 
+def test_range_bias_is_estimated_with_the_pose():
+    """Vehicles placed towards the sensor by 0.6 m per 100 m of range (the tracker's bias
+    the joint models, ``range_bias_sigma``): with the bias parameter (prior 0.5 m / 100 m)
+    the pose is found and covered and the bias comes out towards the sensor; without it the
+    bias is read as a confident pose error twice as large."""
+    T_true = se2(0.3, -0.2, np.deg2rad(0.4))
+    tracks, det, sensor_c, lines = _scene(True, T_true, np.array([30.0, -30.0]), 4,
+                                          per_lane=6, range_bias=0.6)
+    out = {}
+    for sd in (0.5, 0.0):
+        res = joint_refine(tracks, det, sensor_c, lines, np.eye(3), _cfg(range_bias_sigma=sd))
+        e = np.array(se2_params(res.T)) - np.array(se2_params(T_true))
+        e[2] = wrap_angle(e[2])
+        out[sd] = (float(np.hypot(e[0], e[1])), float(np.rad2deg(abs(e[2]))),
+                   float(e @ np.linalg.solve(res.covariance, e)), res.history[-1]["side_bias_m"])
+        assert res.converged
+    with_bias, without = out[0.5], out[0.0]
+    assert with_bias[0] < 0.25 and with_bias[1] < 0.1 and with_bias[2] < 16.3, out
+    assert 0.3 < with_bias[3][0] < 0.8, out
+    assert without[0] > 2 * with_bias[0] and without[2] > 16.3, out
+
+
 def test_config_fields_are_checked():
     check_joint_config(JointConfig())
     for field, value in [("start", "x"), ("step_stride", 0), ("along_weight", 2.0),
@@ -143,23 +171,16 @@ def test_config_fields_are_checked():
             check_joint_config(dataclasses.replace(JointConfig(), **{field: value}))
 
 
-def test_arrow_solve_and_covariance_match_gtsam():
-    """One Gauss-Newton step and the pose's marginal covariance of the vectorized joint
-    problem equal gtsam's on the equivalent factor graph (the track graph, one
-    point_to_point_factor per frame, the pose and offset priors)."""
-    import gtsam
-
-    from factors.gtsam_factors import sensor_key
-    from factors.registration_factors import PointRows, offset_key, point_to_point_factor
+def _small_round(cfg: Config, glob: np.ndarray, sensor_l: np.ndarray) -> SimpleNamespace:
+    """One round's problem on a small crossing scene (4 tracks of 6 steps, states perturbed):
+    tracks, stacked states x, track quadratic tq, contour GP gp, frame points fp, the
+    round's PointSet pts at global parameters ``glob`` (pose, then the side-bias ones) with the
+    sensor at ``sensor_l`` in L, track offsets b, lengths, owner, det, sensor_c."""
     from fgloc.registration import joint as J
-    from fgloc.registration.joint_solver import Priors, linearize, solve_arrow
-    from fgloc.smoothing.banded_lm import BandedLayout
-    from fgloc.smoothing.graph import build_track_graph
 
     T_true = se2(0.3, -0.2, np.deg2rad(0.4))
     tracks, det, sensor_c, lines = _scene(True, T_true, np.array([12.0, -12.0]), 5,
                                           per_lane=1)
-    cfg = _cfg()
     tracks = dataclasses.replace(tracks, tracks=[dataclasses.replace(
         t, t=t.t[:6], states=t.states[:6], labels=t.labels[:6],
         det_index=t.det_index[t.det_step < 6], det_step=t.det_step[t.det_step < 6])
@@ -171,17 +192,55 @@ def test_arrow_solve_and_covariance_match_gtsam():
     x = x + np.random.default_rng(1).normal(0, 0.02, x.shape)
     tq, gp = J.track_quadratic(tracks, det, sensor_c, cfg, x)
     fp = J.frame_points(tracks, start, det, sensor_c, gp, 6)
-    pad = fp.padded(6)
-    pose, b = np.array([0.25, -0.1, 0.005]), np.array([0.05, -0.02, 0.0, 0.03])
-    index, compat, target, normal = J._correspondences(fp, x, pose, lines, gp, cfg.joint)
+    b = np.array([0.05, -0.02, 0.0, 0.03])
+    index, compat, target, normal = J._correspondences(fp, x, glob[:3], lines, gp, cfg.joint)
     sigma = np.full(len(index), 0.2)
-    pts = J._point_set(fp, pad, index, compat, target, normal, sigma, x, pose, b, 0.2, gp,
-                       cfg.joint, np.zeros(2))
+    pts = J._point_set(fp, fp.padded(6), index, compat, target, normal, sigma, x, glob, b,
+                       0.2, gp, cfg.joint, sensor_l)
+    return SimpleNamespace(tracks=tracks, x=x, tq=tq, gp=gp, fp=fp, pts=pts, pose=glob, b=b,
+                           lengths=lengths, owner=owner, det=det, sensor_c=sensor_c)
+
+
+def test_side_bias_jacobians_match_central_differences():
+    """The point rows' derivatives w.r.t. the global parameters -- the pose, the constant
+    and the range-proportional side bias -- equal central differences."""
+    cfg = _cfg(side_bias_sigma=0.1, range_bias_sigma=0.2)
+    glob = np.array([0.25, -0.1, 0.005, 0.05, 0.1])
+    r = _small_round(cfg, glob, np.array([12.0, -12.0]))
+    assert r.pts.n_global == 5 and r.pts.side.shape[-1] == 2
+    _, (Jp, _, _) = r.pts.rows(r.x, glob, r.b, jacobian=True)
+    num = np.zeros_like(Jp)
+    for i in range(5):
+        d = np.zeros(5)
+        d[i] = 1e-6
+        num[..., i] = (r.pts.rows(r.x, glob + d, r.b)[0]
+                       - r.pts.rows(r.x, glob - d, r.b)[0]) / 2e-6
+    np.testing.assert_allclose(Jp, num, atol=1e-6 * max(1.0, np.abs(num).max()))
+    assert np.abs(Jp[..., 3:]).max() > 0.1          # the bias columns are not empty
+
+
+def test_arrow_solve_and_covariance_match_gtsam():
+    """One Gauss-Newton step and the pose's marginal covariance of the vectorized joint
+    problem equal gtsam's on the equivalent factor graph (the track graph, one
+    point_to_point_factor per frame, the pose and offset priors)."""
+    import gtsam
+
+    from factors.gtsam_factors import sensor_key
+    from factors.registration_factors import PointRows, offset_key, point_to_point_factor
+    from fgloc.registration.joint_solver import Priors, linearize, solve_arrow
+    from fgloc.smoothing.banded_lm import BandedLayout
+    from fgloc.smoothing.graph import build_track_graph
+
+    cfg = _cfg(range_bias_sigma=0.0, extent_rows=True)
+    r = _small_round(cfg, np.array([0.25, -0.1, 0.005]), np.zeros(2))
+    tracks, x, tq, gp, fp, pts, pose, b = r.tracks, r.x, r.tq, r.gp, r.fp, r.pts, r.pose, r.b
+    lengths, owner, det, sensor_c = r.lengths, r.owner, r.det, r.sensor_c
     pri = Priors(np.zeros(3), np.array([1 / 20, 1 / 20, 1 / 0.03]), 1 / 0.3)
     sol = solve_arrow(linearize(tq, pts, pri, len(lengths), x, pose, b),
                       BandedLayout(len(x), tq.below), owner, True)
 
-    tg = build_track_graph(tracks, det, sensor_c, cfg.smoothing, cfg.tracking)
+    scfg = dataclasses.replace(cfg.smoothing, extent_rows=cfg.joint.extent_rows)
+    tg = build_track_graph(tracks, det, sensor_c, scfg, cfg.tracking)
     values = gtsam.Values()
     for k, v in zip(np.concatenate(tg.keys), x):
         values.update(int(k), v) if values.exists(int(k)) else values.insert(int(k), v)

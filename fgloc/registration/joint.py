@@ -85,6 +85,7 @@ from fgloc.registration.joint_solver import (
     joint_cost,
     linearize,
     solve_arrow,
+    track_robust_covariance,
 )
 from fgloc.registration.sicp import _degeneracy
 from fgloc.result import LocalizationResult, json_ready
@@ -270,7 +271,8 @@ def frame_points(tracks: TrackSet, start: np.ndarray, det_xy: np.ndarray,
 class JointResult:
     """Outcome of :func:`joint_refine`.
 
-    T: 3x3 SE(2) C -> L. covariance: 3x3 of (tx, ty, phi) of T (m^2, m rad, rad^2) or None.
+    T: 3x3 SE(2) C -> L. covariance: 3x3 of (tx, ty, phi) of T (m^2, m rad, rad^2) or None,
+    as ``[joint] covariance`` asks; covariance_model: the model one (inverse information).
     tracks: the refined tracks (decimated, frame C, ``T_frame_to_L = T``). rounds: rounds run;
     converged: the pose (and the noise levels) settled before ``max_rounds``. noise: the final
     :class:`NoiseLevels` (summary). offsets: track id -> lateral offset (m).
@@ -282,6 +284,7 @@ class JointResult:
 
     T: np.ndarray
     covariance: np.ndarray | None
+    covariance_model: np.ndarray | None
     tracks: TrackSet
     rounds: int
     converged: bool
@@ -310,7 +313,8 @@ def track_quadratic(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     from fgloc.smoothing.graph import contour_gp, stack_tracks
 
     # one contour model for all tracks: the point rows take one (no long-vehicle model)
-    scfg = dataclasses.replace(cfg.smoothing, long_vehicle_length=0.0)
+    scfg = dataclasses.replace(cfg.smoothing, long_vehicle_length=0.0,
+                               extent_rows=cfg.joint.extent_rows)
     gp = contour_gp(cfg.tracking)
     if cfg.joint.refine_tracks:
         system = stack_tracks(tracks, det_xy, sensor_xy, scfg, cfg.tracking, det_trusted,
@@ -322,6 +326,27 @@ def track_quadratic(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     return (TrackQuadratic(x_lin, 0.0, np.zeros_like(x_lin),
                            np.broadcast_to(1e8 * np.eye(N_STATE), (n, N_STATE, N_STATE)).copy(),
                            np.zeros((0, N_STATE, N_STATE)), np.zeros(0, np.int64)), gp)
+
+
+def bias_sigmas(jc: JointConfig) -> np.ndarray:
+    """Prior std. devs. of the side-bias parameters in use: the constant one (m) with
+    ``side_bias_sigma``, then the range-proportional one (m per 100 m) with
+    ``range_bias_sigma``."""
+    return np.array([sd for sd in (jc.side_bias_sigma, jc.range_bias_sigma) if sd > 0.0])
+
+
+def side_basis(target: np.ndarray, normal: np.ndarray, sensor_l: np.ndarray,
+               jc: JointConfig) -> np.ndarray | None:
+    """(P, nb) each point's coefficients of the side-bias parameters (:func:`bias_sigmas`):
+    the sign of the sensor's side of its line along ``normal`` (so a positive bias moves the
+    point towards the sensor), times 1 and / or the target's range from ``sensor_l`` in hm;
+    target, normal (P, 2) and sensor_l (2,) in L. None without side-bias parameters."""
+    if not bias_sigmas(jc).size:
+        return None
+    sign = np.where(np.einsum("pi,pi->p", sensor_l - target, normal) >= 0.0, 1.0, -1.0)
+    hm = np.linalg.norm(target - sensor_l, axis=1) / 100.0
+    return np.stack([c for c, sd in ((sign, jc.side_bias_sigma),
+                                     (sign * hm, jc.range_bias_sigma)) if sd > 0.0], axis=-1)
 
 
 def _point_set(fp: FramePoints, pad: tuple[np.ndarray, np.ndarray], index: np.ndarray,
@@ -339,8 +364,8 @@ def _point_set(fp: FramePoints, pad: tuple[np.ndarray, np.ndarray], index: np.nd
     sig_t = sigma / np.sqrt(jc.along_weight) if jc.along_weight > 0 else np.inf
     n = np.where(ok[:, None], normal, np.array([1.0, 0.0]))
     info = line_sqrt_info(n, np.where(ok, sigma, 1.0), sig_t)
-    side = (np.where(np.einsum("pi,pi->p", sensor_l - target, n) >= 0.0, 1.0, -1.0)[pi]
-            if jc.side_bias_sigma > 0.0 else None)
+    basis = side_basis(target, n, sensor_l, jc)
+    side = None if basis is None else basis[pi]
     pts = PointSet(fp.frame_state, fp.frame_track, fp.theta[pi], fp.H[pi], fp.mean[pi],
                    target[pi], n[pi], info[pi], (valid & ok[pi]).astype(float), gp.mu, side)
     e, _ = pts.rows(x, glob, b)
@@ -418,17 +443,20 @@ class NoiseLevels:
 
 def noise_levels(fp: FramePoints, states0: np.ndarray, T: np.ndarray, index: np.ndarray,
                  target: np.ndarray, normal: np.ndarray, gp: ContourGP, n_tracks: int,
-                 floor: float) -> NoiseLevels:
+                 floor: float, shift: np.ndarray | None = None) -> NoiseLevels:
     """Moment estimates of the :class:`NoiseLevels` at the pose T from the filter's states
     ``states0`` (F, 26), not the refined ones (which the point factors pull towards the
     lines). Each track's mean across-line residual is its raw offset (their RMS with
     ``n_tracks - 3`` degrees of freedom, the pose takes up three, is the offset level);
     about it, the per-frame means give the frame level (MAD) and the lag-1 correlation of
     consecutive frames of one track (clipped to [0, 0.95]); the points about their frame
-    mean the within level (MAD). Levels are at least ``floor`` m."""
+    mean the within level (MAD). Levels are at least ``floor`` m. shift (P,): the points'
+    side bias along ``normal`` (m; None = 0), taken off the residuals."""
     ok = index >= 0
     q = transform_points(T, fp.points(states0, gp.mu)[0])[ok]
     res = np.einsum("pi,pi->p", q - target[ok], normal[ok])
+    if shift is not None:
+        res = res - shift[ok]
     frame = fp.point_frame[ok]
     track = fp.frame_track[frame]
     count = np.bincount(track, minlength=n_tracks)
@@ -482,12 +510,11 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     states0 = x[fp.frame_state]
     layout = BandedLayout(len(x), tq.below)
     offsets = jc.offset_sigma > 0.0
-    bias = jc.side_bias_sigma > 0.0
-    pose = np.array([*se2_params(T0), *([0.0] if bias else [])], dtype=float)
+    bias_sd = bias_sigmas(jc)
+    pose = np.concatenate([se2_params(T0), np.zeros(len(bias_sd))])
     b = np.zeros(len(dec.tracks)) if offsets else None
     prior_sd = np.array([jc.pose_prior_sigma, jc.pose_prior_sigma,
-                         np.deg2rad(jc.pose_prior_sigma_yaw_deg),
-                         *([jc.side_bias_sigma] if bias else [])])
+                         np.deg2rad(jc.pose_prior_sigma_yaw_deg), *bias_sd])
     _add_time(timing, "build", t0)
 
     fixed = NoiseLevels(jc.sigma_line, jc.sigma_line, 0.0, jc.offset_sigma)
@@ -542,7 +569,7 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
         step_yaw = float(abs(wrap_angle(pose[2] - before[2])))
         history.append({"round": rounds, "tx": float(pose[0]), "ty": float(pose[1]),
                         "yaw_deg": float(np.rad2deg(pose[2])), "step_m": step_xy,
-                        "side_bias_m": float(pose[3]) if bias else None,
+                        "side_bias_m": pose[3:].tolist(),
                         "step_yaw_deg": float(np.rad2deg(step_yaw)), "noise": noise.summary(),
                         "matched": int(ok.sum()), "error": float(cost)})
         if step_xy >= jc.tol_position or step_yaw >= np.deg2rad(jc.tol_yaw_deg):
@@ -551,18 +578,24 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
             converged = True
             break
         # the pose settled: re-estimate the noise levels; done when they settled too
+        basis = side_basis(target, normal, sensor_l, jc)
         again = noise_levels(fp, states0, se2(*pose[:3]), index, target, normal, gp,
-                             len(dec.tracks), jc.min_sigma)
+                             len(dec.tracks), jc.min_sigma,
+                             None if basis is None else basis @ pose[3:])
         settled, noise = again.settled(noise), again
         if settled:
             converged = True
             break
 
     t0 = time.perf_counter()
-    sol = solve_arrow(linearize(tq, pts, pri, len(dec.tracks), x, pose, b), layout, owner,
-                      offsets)
+    arrow_final = linearize(tq, pts, pri, len(dec.tracks), x, pose, b)
+    sol = solve_arrow(arrow_final, layout, owner, offsets)
     info = sol.pose_information
-    cov = np.linalg.inv(info)[:3, :3] if np.linalg.cond(info) < 1e12 else None
+    cov = cov_model = None
+    if np.linalg.cond(info) < 1e12:
+        cov_model = np.linalg.inv(info)[:3, :3]
+        cov = cov_model if jc.covariance == "model" else track_robust_covariance(
+            info, arrow_final.gp_track, pri.pose_w**2)[:3, :3]
     _add_time(timing, "marginals", t0)
 
     from fgloc.smoothing.graph import tracks_from_states
@@ -574,7 +607,7 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     matched = transform_points(T, fp.points(x[fp.frame_state], gp.mu)[0])[ok]
     offs = ({} if b is None else
             {int(tr.id): float(v) for tr, v in zip(dec.tracks, b)})
-    return JointResult(T, cov, refined, rounds, converged, noise.summary(), offs,
+    return JointResult(T, cov, cov_model, refined, rounds, converged, noise.summary(), offs,
                        matched, fp.label[ok], int(ok.sum()), len(dec.tracks), len(x),
                        history, timing)
 
@@ -609,6 +642,14 @@ def degeneracy_report(cov_T: np.ndarray | None, T: np.ndarray, matched: np.ndarr
         "weakly_observed": bool(weak),
         "weak_directions": weak,
     }
+
+
+def _sensor_std(cov: np.ndarray | None) -> dict[str, float] | None:
+    """JSON-ready std. devs. of the sensor's x, y (m) and yaw (deg) from their 3x3 covariance."""
+    if cov is None:
+        return None
+    return {"x_m": float(np.sqrt(cov[0, 0])), "y_m": float(np.sqrt(cov[1, 1])),
+            "yaw_deg": float(np.rad2deg(np.sqrt(cov[2, 2])))}
 
 
 # ---- the method ----------------------------------------------------------------------------
@@ -653,6 +694,7 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
         jr = joint_refine(subset, det_xy, sensor_c, lines, T0, cfg, trusted,
                           detection_range_rates(scn))
     cov = sensor_covariance(jr.covariance, jr.T, sensor_c)
+    cov_model = sensor_covariance(jr.covariance_model, jr.T, sensor_c)
     degen = degeneracy_report(jr.covariance, jr.T, jr.matched, cfg.joint.weak_sigma)
     warnings = list(start.warnings)
     if not jr.converged:
@@ -673,9 +715,10 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
         "n_states": jr.n_states,
         "n_points": jr.n_points,
         "noise": jr.noise,
-        "sensor_std": None if cov is None else {
-            "x_m": float(np.sqrt(cov[0, 0])), "y_m": float(np.sqrt(cov[1, 1])),
-            "yaw_deg": float(np.rad2deg(np.sqrt(cov[2, 2])))},
+        "covariance": cfg.joint.covariance,
+        "sensor_std": _sensor_std(cov),
+        "sensor_std_model": _sensor_std(cov_model),
+        "sensor_covariance_model": cov_model,
         "degeneracy": degen,
         "history": jr.history,
         "timing_s": jr.timing,

@@ -10,6 +10,8 @@ STARTS: tuple[str, ...] = ("sicp", "coarse")
 LATERAL_MODELS: tuple[str, ...] = ("contour", "visible-side")
 #: Nonlinear optimizers of one round.
 OPTIMIZERS: tuple[str, ...] = ("gauss-newton", "levenberg-marquardt")
+#: How the pose covariance is computed (:mod:`fgloc.registration.joint`).
+COVARIANCES: tuple[str, ...] = ("track-robust", "model")
 
 
 @dataclass
@@ -17,9 +19,10 @@ class JointConfig:
     """Joint refinement: one SE(2) sensor-pose correction shared by semantic point-to-point
     factors, optimized together with every track state (:mod:`fgloc.registration.joint`).
     Distances in metres, angles in degrees. The track factors (process, contour measurement,
-    prior) are the smoother's (``[smoothing]``, ``[tracking]``); the target lines are
-    ``[fine]``'s lanelet centre lines shifted by ``coarse.visible_side_offset``; the trajectory
-    subset is ``fine.n_trajectories`` / ``fine.trajectory_share``."""
+    prior) are the smoother's (``[smoothing]``, ``[tracking]``) but for ``extent_rows``; the
+    target lines are ``[fine]``'s lanelet centre lines shifted by
+    ``coarse.visible_side_offset``; the trajectory subset is ``fine.n_trajectories`` /
+    ``fine.trajectory_share``."""
 
     start: str = "sicp"
     """Initial pose: "sicp" = filter-sicp's result, "coarse" = the coarse pose."""
@@ -28,6 +31,11 @@ class JointConfig:
     point's lateral place in its vehicle (r sin theta: a vehicle drives centred in its lane);
     "visible-side" = the lane centre lines shifted ``coarse.visible_side_offset`` towards the
     sensor (filter-sicp's target), the same for every point."""
+    extent_rows: bool = False
+    """Extent rows (the measured ends of a vehicle, docs/method.md 5.4) in the joint's track
+    factors; the other track-factor settings are ``[smoothing]``'s. Off by default: on the
+    simulated intersections and T-junctions (seeds 1-5) the joint came out closer without
+    them (docs/benchmarks.md, joint section)."""
     relinearize_tracks: bool = False
     """Relinearize the track factors (process, contour measurement) at every round; False =
     linearize them once at the filter's states (they are nearly linear there; the rounds then
@@ -70,6 +78,11 @@ class JointConfig:
     unseen far side with the mean width places every centre, and so the matched lateral
     places, a little towards the sensor; unmodelled, that bias is read as a pose shift).
     0 = no side-bias variable."""
+    range_bias_sigma: float = 0.2
+    """Prior standard deviation (m per 100 m of range) of a range-proportional side bias: an
+    offset of every contour point towards the sensor that grows with its distance from the
+    sensor (the tracker's centre of a far vehicle, seen head-on through a widening azimuth
+    scatter, lies towards the sensor). 0 = none."""
     estimate_noise: bool = True
     """Estimate the noise levels from the data (``fgloc.registration.joint.NoiseLevels``:
     point scatter, frame scatter, the correlation of consecutive frames, the tracks' offset
@@ -99,6 +112,12 @@ class JointConfig:
     """Stop when a round moves the pose by less than this (m) ..."""
     tol_yaw_deg: float = 0.002
     """... and turns it by less than this (deg)."""
+    covariance: str = "track-robust"
+    """Pose covariance: "model" = the inverse of the pose's reduced information (the factors'
+    noise model taken as true); "track-robust" = the cluster-robust sandwich over tracks
+    (:func:`fgloc.registration.joint_solver.track_robust_covariance`), never below the model
+    one: errors a whole track shares (its shape, its driver's line) and that the noise model
+    misses widen it by as much as the tracks disagree."""
     weak_sigma: float = 0.3
     """A direction of the pose (metric coordinates: translation of the matched points'
     centroid, rotation as arc length at their RMS radius) whose standard deviation exceeds
@@ -121,6 +140,7 @@ def check_joint_config(cfg: JointConfig) -> None:
         "huber_k": cfg.huber_k < 0.0,
         "offset_sigma": cfg.offset_sigma < 0.0,
         "side_bias_sigma": cfg.side_bias_sigma < 0.0,
+        "range_bias_sigma": cfg.range_bias_sigma < 0.0,
         "min_sigma": not cfg.min_sigma > 0.0,
         "pose_prior_sigma": not cfg.pose_prior_sigma > 0.0,
         "pose_prior_sigma_yaw_deg": not cfg.pose_prior_sigma_yaw_deg > 0.0,
@@ -129,6 +149,7 @@ def check_joint_config(cfg: JointConfig) -> None:
         "iterations": cfg.iterations < 1,
         "tol_position": cfg.tol_position < 0.0,
         "tol_yaw_deg": cfg.tol_yaw_deg < 0.0,
+        "covariance": cfg.covariance not in COVARIANCES,
         "weak_sigma": not cfg.weak_sigma > 0.0,
     }
     bad = [k for k, v in problems.items() if v]

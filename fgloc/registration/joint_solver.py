@@ -73,8 +73,9 @@ class PointSet:
     """The matched contour points of a round, padded per frame: frame_step (F,) the global
     step of each frame's state, frame_track (F,) its track; theta / mean (F, K), H (F, K, n),
     target / normal (F, K, 2) in L, sqrt_info (F, K, 2, 2) (1/m), weights (F, K) (0 for
-    padding and unmatched points); gp_mu (n,) the prior mean radii; side (F, K) the sign of
-    the sensor's side of each point's line along its normal, None = no side bias."""
+    padding and unmatched points); gp_mu (n,) the prior mean radii; side (F, K, nb) each
+    point's coefficients of the nb side-bias parameters (the sign of the sensor's side of its
+    line along the normal, times 1 or its range in hm), None = no side bias."""
 
     frame_step: np.ndarray
     frame_track: np.ndarray
@@ -90,8 +91,8 @@ class PointSet:
 
     @property
     def n_global(self) -> int:
-        """Number of global parameters: the pose (3) and the side bias if any."""
-        return N_POSE + (self.side is not None)
+        """Number of global parameters: the pose (3) and the side-bias parameters."""
+        return N_POSE + (0 if self.side is None else self.side.shape[-1])
 
     def rows(self, x: np.ndarray, glob: np.ndarray, b: np.ndarray | None,
              jacobian: bool = False):
@@ -101,14 +102,14 @@ class PointSet:
         (None = without) (:func:`factors.registration_factors.point_rows_batch`)."""
         off = np.zeros((len(self.frame_step), 1)) if b is None else b[self.frame_track, None]
         if self.side is not None:
-            off = off + glob[N_POSE] * self.side
+            off = off + self.side @ glob[N_POSE:]
         e, J = point_rows_batch(glob[:N_POSE], x[self.frame_step], off, self.theta, self.H,
                                 self.mean, self.target, self.normal, self.sqrt_info,
                                 self.weights, self.gp_mu, jacobian)
         if J is None or self.side is None:
             return e, J
         Jp, Jx, Jb = J
-        return e, (np.concatenate([Jp, (self.side[..., None] * Jb)[..., None]], axis=-1),
+        return e, (np.concatenate([Jp, self.side[..., None, :] * Jb[..., None]], axis=-1),
                    Jx, Jb)
 
 
@@ -127,7 +128,8 @@ class ArrowSystem:
     """Normal equations of the joint problem (module docstring) at one estimate: track
     block D (N, 26, 26) / B (P, 26, 26), border to the G global parameters E (N, 26, G) and
     to the owning track's offset e (N, 26), the global block Hp (G, G), offset diagonal Hb
-    (T,), offset-global block Hbp (T, G), gradients gx (N, 26), gp (G,), gb (T,)."""
+    (T,), offset-global block Hbp (T, G), gradients gx (N, 26), gp (G,), gb (T,), and each
+    track's point rows' share of the global gradient gp_track (T, G) (without the prior)."""
 
     D: np.ndarray
     B: np.ndarray
@@ -139,6 +141,7 @@ class ArrowSystem:
     gx: np.ndarray
     gp: np.ndarray
     gb: np.ndarray
+    gp_track: np.ndarray
 
 
 def joint_cost(tq: TrackQuadratic, pts: PointSet, pri: Priors, x: np.ndarray,
@@ -169,14 +172,17 @@ def linearize(tq: TrackQuadratic, pts: PointSet, pri: Priors, n_tracks: int,
     eb = np.zeros((len(x), N_STATE))
     eb[s] = (JxT @ Jb[..., None])[..., 0]
     Hp = np.einsum("fki,fkj->ij", Jp, Jp) + np.diag(pri.pose_w**2)
-    gp = np.einsum("fki,fk->i", Jp, e) + pri.pose_w**2 * (glob - pri.pose_mean)
+    gp_frame = np.einsum("fki,fk->fi", Jp, e)
+    gp_track = np.zeros((n_tracks, G))
+    np.add.at(gp_track, t, gp_frame)
+    gp = gp_frame.sum(axis=0) + pri.pose_w**2 * (glob - pri.pose_mean)
     Hb = np.bincount(t, np.sum(Jb * Jb, axis=1), minlength=n_tracks) + pri.offset_w**2
     Hbp = np.zeros((n_tracks, G))
     np.add.at(Hbp, t, np.einsum("fk,fki->fi", Jb, Jp))
     gb = np.bincount(t, np.sum(Jb * e, axis=1), minlength=n_tracks)
     if b is not None:
         gb = gb + pri.offset_w**2 * b
-    return ArrowSystem(D, tq.B, E, eb, Hp, Hb, Hbp, gx, gp, gb)
+    return ArrowSystem(D, tq.B, E, eb, Hp, Hb, Hbp, gx, gp, gb, gp_track)
 
 
 @dataclass
@@ -229,3 +235,28 @@ def _track_sums(row_track: np.ndarray, values: np.ndarray, T: int) -> np.ndarray
     out = np.zeros((T, values.shape[1]))
     np.add.at(out, row_track, values)
     return out
+
+
+def track_robust_covariance(info: np.ndarray, scores: np.ndarray,
+                            prior_info: np.ndarray) -> np.ndarray:
+    """Covariance (G, G) of the global parameters robust to errors shared within a track.
+
+    info (G, G): their reduced information at the solution (``S``, the model covariance is
+    ``S^-1``); scores (T, G): each track's point rows' share of their gradient there
+    (:attr:`ArrowSystem.gp_track`; a track's own variables are stationary, so this is the
+    track's whole influence); prior_info (G,): the prior's diagonal information. The
+    cluster-robust sandwich ``S^-1 (c/(c-G) sum_t g_t g_t^T + P) S^-1`` over the c tracks
+    with points counts how far the tracks actually disagree, whatever their points' noise
+    and correlation; it is clipped from below at the model covariance (generalized
+    eigenvalues at least 1), so it never claims more than the factors' noise model."""
+    G = len(info)
+    model = np.linalg.inv(0.5 * (info + info.T))
+    used = scores[np.any(scores != 0.0, axis=1)]
+    c = len(used)
+    meat = used.T @ used * (c / max(c - G, 1)) + np.diag(prior_info)
+    sandwich = model @ meat @ model
+    L = np.linalg.cholesky(model)
+    A = np.linalg.solve(L, np.linalg.solve(L, sandwich).T)
+    w, V = np.linalg.eigh(0.5 * (A + A.T))
+    LV = L @ V
+    return (LV * np.maximum(w, 1.0)) @ LV.T
