@@ -48,10 +48,14 @@ but tell the pose only as much as one line measurement of std. dev. ``offset_sig
 and errors of the track shape are shared through its states. ``sigma_line`` (the residual
 scatter about the offset line, a robust MAD estimate) and ``offset_sigma`` (RMS of the
 estimated offsets) are re-estimated from the data each round, so the covariance follows the
-data rather than a tuned constant. The covariance is the marginal covariance of ``T`` at the
-solution (the inverse of its Schur complement, equal to ``gtsam.Marginals`` on the
-equivalent graph), mapped to the sensor's (x, y, yaw) in L. Its calibration (NEES) is measured in
-docs/benchmarks.md.
+data rather than a tuned constant. The tracker places far vehicles towards the sensor by an
+amount that grows with range; a range-proportional side bias (``range_bias_sigma``, a global
+parameter beside ``T``) takes it up instead of a rotation. The model covariance is the
+marginal covariance of ``T`` at the solution (the inverse of its Schur complement, equal to
+``gtsam.Marginals`` on the equivalent graph); the reported one (``covariance =
+"track-robust"``) is the cluster-robust sandwich over tracks, never below the model one
+(:func:`fgloc.registration.joint_solver.track_robust_covariance`), mapped to the sensor's
+(x, y, yaw) in L. Its calibration (NEES) is measured in docs/benchmarks.md.
 
 Degeneracy report: the information of ``T`` (inverse marginal covariance) re-expressed in
 metric coordinates about the matched points' centroid (translation, and rotation as arc length
