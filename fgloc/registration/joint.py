@@ -332,11 +332,19 @@ def track_quadratic(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                            np.zeros((0, N_STATE, N_STATE)), np.zeros(0, np.int64)), gp)
 
 
+def _bias_terms(jc: JointConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Prior std. devs. of both side-bias terms (constant m, range-proportional m per 100 m)
+    and which of them are in use (std. dev. > 0)."""
+    sd = np.array([jc.side_bias_sigma, jc.range_bias_sigma])
+    return sd, sd > 0.0
+
+
 def bias_sigmas(jc: JointConfig) -> np.ndarray:
     """Prior std. devs. of the side-bias parameters in use: the constant one (m) with
     ``side_bias_sigma``, then the range-proportional one (m per 100 m) with
     ``range_bias_sigma``."""
-    return np.array([sd for sd in (jc.side_bias_sigma, jc.range_bias_sigma) if sd > 0.0])
+    sd, used = _bias_terms(jc)
+    return sd[used]
 
 
 def side_basis(target: np.ndarray, normal: np.ndarray, sensor_l: np.ndarray,
@@ -345,12 +353,12 @@ def side_basis(target: np.ndarray, normal: np.ndarray, sensor_l: np.ndarray,
     the sign of the sensor's side of its line along ``normal`` (so a positive bias moves the
     point towards the sensor), times 1 and / or the target's range from ``sensor_l`` in hm;
     target, normal (P, 2) and sensor_l (2,) in L. None without side-bias parameters."""
-    if not bias_sigmas(jc).size:
+    _, used = _bias_terms(jc)
+    if not used.any():
         return None
     sign = np.where(np.einsum("pi,pi->p", sensor_l - target, normal) >= 0.0, 1.0, -1.0)
     hm = np.linalg.norm(target - sensor_l, axis=1) / 100.0
-    return np.stack([c for c, sd in ((sign, jc.side_bias_sigma),
-                                     (sign * hm, jc.range_bias_sigma)) if sd > 0.0], axis=-1)
+    return np.column_stack([sign, sign * hm])[:, used]
 
 
 def _point_set(fp: FramePoints, pad: tuple[np.ndarray, np.ndarray], index: np.ndarray,

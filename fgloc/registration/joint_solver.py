@@ -173,12 +173,10 @@ def linearize(tq: TrackQuadratic, pts: PointSet, pri: Priors, n_tracks: int,
     eb[s] = (JxT @ Jb[..., None])[..., 0]
     Hp = np.einsum("fki,fkj->ij", Jp, Jp) + np.diag(pri.pose_w**2)
     gp_frame = np.einsum("fki,fk->fi", Jp, e)
-    gp_track = np.zeros((n_tracks, G))
-    np.add.at(gp_track, t, gp_frame)
+    gp_track = _track_sums(t, gp_frame, n_tracks)
     gp = gp_frame.sum(axis=0) + pri.pose_w**2 * (glob - pri.pose_mean)
     Hb = np.bincount(t, np.sum(Jb * Jb, axis=1), minlength=n_tracks) + pri.offset_w**2
-    Hbp = np.zeros((n_tracks, G))
-    np.add.at(Hbp, t, np.einsum("fk,fki->fi", Jb, Jp))
+    Hbp = _track_sums(t, np.einsum("fk,fki->fi", Jb, Jp), n_tracks)
     gb = np.bincount(t, np.sum(Jb * e, axis=1), minlength=n_tracks)
     if b is not None:
         gb = gb + pri.offset_w**2 * b
@@ -231,7 +229,7 @@ def solve_arrow(sys: ArrowSystem, layout: BandedLayout, owner: np.ndarray, offse
 
 
 def _track_sums(row_track: np.ndarray, values: np.ndarray, T: int) -> np.ndarray:
-    """(T, k) sums of the rows of ``values`` (R, k) per track."""
+    """(T, k) sums of the rows of ``values`` (R, k) per track (``row_track`` (R,))."""
     out = np.zeros((T, values.shape[1]))
     np.add.at(out, row_track, values)
     return out
