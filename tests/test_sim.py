@@ -336,6 +336,30 @@ def test_truth_states_are_ctra_consistent(case: str, seed: int, variant: str) ->
             assert v[turning].max() <= 8.0 + 1e-6
 
 
+@pytest.mark.parametrize("case,seed,variant", GEOMETRY_PARAMS)
+def test_vehicles_keep_to_their_lane_centre_lines(case: str, seed: int, variant: str) -> None:
+    """Truth centres lie on the centre line of a lanelet running their way: the curvature
+    ramps cut a junction turn's corner by a few decimetres, and the vehicle is back on the
+    exit lane's centre line within a few tens of metres (not off it for the rest of its way)."""
+    scn = sim(case, seed, variant=variant).scenario
+    points, headings = [], []
+    for ll in scn.lanelets.lanelets:
+        c = ll.centerline(400)
+        d = np.diff(c, axis=0)
+        points.append(0.5 * (c[1:] + c[:-1]))
+        headings.append(np.arctan2(d[:, 1], d[:, 0]))
+    p, h = np.vstack(points), np.concatenate(headings)
+    tree = cKDTree(np.column_stack([p, 4 * np.cos(h), 4 * np.sin(h)]))
+    lateral = []
+    for tr in scn.truth.tracks:
+        _, x, y, yaw, _, _ = tr.states.T
+        _, i = tree.query(np.column_stack([x, y, 4 * np.cos(yaw), 4 * np.sin(yaw)]))
+        lateral.append((x - p[i, 0]) * -np.sin(h[i]) + (y - p[i, 1]) * np.cos(h[i]))
+    lateral = np.abs(np.concatenate(lateral))
+    assert lateral.max() < 0.25
+    assert lateral.mean() < 0.03
+
+
 def _overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Separating-axis test of (n, 4, 2) rectangle pairs; True where they overlap."""
     sep = np.zeros(len(a), dtype=bool)
