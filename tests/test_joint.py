@@ -145,13 +145,15 @@ def test_range_bias_is_estimated_with_the_pose():
     """Vehicles placed towards the sensor by 0.6 m per 100 m of range (the tracker's bias
     the joint models, ``range_bias_sigma``): with the bias parameter (prior 0.5 m / 100 m)
     the pose is found and covered and the bias comes out towards the sensor; without it the
-    bias is read as a confident pose error twice as large."""
+    bias is read as a confident pose error twice as large (the considered constant bias, which
+    would widen that covariance, off in both)."""
     T_true = se2(0.3, -0.2, np.deg2rad(0.4))
     tracks, det, sensor_c, lines = _scene(True, T_true, np.array([30.0, -30.0]), 4,
                                           per_lane=6, range_bias=0.6)
     out = {}
     for sd in (0.5, 0.0):
-        res = joint_refine(tracks, det, sensor_c, lines, np.eye(3), _cfg(range_bias_sigma=sd))
+        res = joint_refine(tracks, det, sensor_c, lines, np.eye(3),
+                           _cfg(range_bias_sigma=sd, consider_side_bias_sigma=0.0))
         e = np.array(se2_params(res.T)) - np.array(se2_params(T_true))
         e[2] = wrap_angle(e[2])
         out[sd] = (float(np.hypot(e[0], e[1])), float(np.rad2deg(abs(e[2]))),
@@ -161,6 +163,32 @@ def test_range_bias_is_estimated_with_the_pose():
     assert with_bias[0] < 0.25 and with_bias[1] < 0.1 and with_bias[2] < 16.3, out
     assert 0.3 < with_bias[3][0] < 0.8, out
     assert without[0] > 2 * with_bias[0] and without[2] > 16.3, out
+
+
+@pytest.mark.parametrize("sensor", [(12.0, -12.0), (0.5, -12.0)])
+def test_considered_side_bias_is_the_pose_shift_a_real_bias_causes(sensor):
+    """The considered constant side bias (``consider_side_bias_sigma``, not estimated) adds
+    ``sigma^2 K K^T`` to the covariance, K the pose's sensitivity to the bias. Checked
+    against central differences: the joint on the same scene with the target lines moved
+    +-0.1 m towards the sensor (a real side bias of 0.1 m) moves the pose by K * 0.1 (noise
+    levels fixed, so both runs weigh the points alike). The sensor in a quadrant of the
+    crossing has every lane on one side (the bias is a translation, as on a T-junction);
+    between the north-south lanes it is told apart there."""
+    T_true = se2(0.3, -0.2, np.deg2rad(0.4))
+    runs = {}
+    for offset in (-0.1, 0.0, 0.1):
+        scene = _scene(True, T_true, np.array(sensor), 6, offset=offset)
+        runs[offset] = joint_refine(*scene, np.eye(3), _cfg(consider_side_bias_sigma=0.0,
+                                                            estimate_noise=False))
+    considered = joint_refine(*_scene(True, T_true, np.array(sensor), 6), np.eye(3),
+                              _cfg(consider_side_bias_sigma=0.1, estimate_noise=False))
+    assert np.allclose(se2_params(considered.T), se2_params(runs[0.0].T), atol=1e-9)
+    extra = considered.covariance_model - runs[0.0].covariance_model
+    shift = 0.5 * (np.array(se2_params(runs[0.1].T)) - np.array(se2_params(runs[-0.1].T)))
+    assert abs(shift[1]) > 0.08                         # the bias does move the pose
+    assert np.allclose(np.diag(extra), shift**2, rtol=0.1, atol=(2e-5, 2e-5, 1e-9)), (
+        np.diag(extra), shift**2)
+    assert np.all(np.linalg.eigvalsh(considered.covariance - runs[0.0].covariance) > -1e-12)
 
 
 def test_config_fields_are_checked():

@@ -54,8 +54,10 @@ parameter beside ``T``) takes it up instead of a rotation. The model covariance 
 marginal covariance of ``T`` at the solution (the inverse of its Schur complement, equal to
 ``gtsam.Marginals`` on the equivalent graph); the reported one (``covariance =
 "track-robust"``) is the cluster-robust sandwich over tracks, never below the model one
-(:func:`fgloc.registration.joint_solver.track_robust_covariance`), mapped to the sensor's
-(x, y, yaw) in L. Its calibration (NEES) is measured in docs/benchmarks.md.
+(:func:`fgloc.registration.joint_solver.track_robust_covariance`); both add the effect of a
+constant side bias that is considered, not estimated (``consider_side_bias_sigma``,
+:func:`consider_covariance`), and are mapped to the sensor's (x, y, yaw) in L. Their
+calibration (NEES) is measured in docs/benchmarks.md.
 
 Degeneracy report: the information of ``T`` (inverse marginal covariance) re-expressed in
 metric coordinates about the matched points' centroid (translation, and rotation as arc length
@@ -356,9 +358,37 @@ def side_basis(target: np.ndarray, normal: np.ndarray, sensor_l: np.ndarray,
     _, used = _bias_terms(jc)
     if not used.any():
         return None
+    return _side_columns(target, normal, sensor_l)[:, used]
+
+
+def _side_columns(target: np.ndarray, normal: np.ndarray, sensor_l: np.ndarray) -> np.ndarray:
+    """(P, 2) coefficients of a constant (m) and a range-proportional (m per 100 m) side bias
+    of each point (:func:`side_basis`)."""
     sign = np.where(np.einsum("pi,pi->p", sensor_l - target, normal) >= 0.0, 1.0, -1.0)
     hm = np.linalg.norm(target - sensor_l, axis=1) / 100.0
-    return np.column_stack([sign, sign * hm])[:, used]
+    return np.column_stack([sign, sign * hm])
+
+
+def consider_covariance(tq: TrackQuadratic, pts: PointSet, pri: Priors, n_tracks: int,
+                        x: np.ndarray, glob: np.ndarray, b: np.ndarray | None,
+                        layout: BandedLayout, owner: np.ndarray, offsets: bool,
+                        column: np.ndarray, sigma: float) -> np.ndarray:
+    """(G, G) covariance added to the global parameters' by a side bias that is *considered*,
+    not estimated (Schmidt): each point's offset along its normal is ``column`` (F, K) times
+    a bias ``c ~ N(0, sigma^2)`` the estimate ignores. With ``S`` the reduced information of
+    the parameters augmented by ``c``, the estimate moves by ``K c``, ``K = -S_ee^-1 S_ec``,
+    so ``sigma^2 K K^T`` is added. Where the geometry tells the bias from the pose (lanes on
+    both sides of the sensor) ``K`` is small; where it cannot (every lane on one side, a
+    T-junction) the pose's uncertainty across the road grows by about ``sigma``."""
+    G = pts.n_global
+    side = column[..., None] if pts.side is None else np.concatenate(
+        [pts.side, column[..., None]], axis=-1)
+    aug = dataclasses.replace(pts, side=side)
+    aug_pri = Priors(np.append(pri.pose_mean, 0.0), np.append(pri.pose_w, 0.0), pri.offset_w)
+    S = solve_arrow(linearize(tq, aug, aug_pri, n_tracks, x, np.append(glob, 0.0), b),
+                    layout, owner, offsets).pose_information
+    K = -np.linalg.solve(S[:G, :G], S[:G, G])
+    return sigma**2 * np.outer(K, K)
 
 
 def _point_set(fp: FramePoints, pad: tuple[np.ndarray, np.ndarray], index: np.ndarray,
@@ -605,9 +635,15 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     info = sol.pose_information
     cov = cov_model = None
     if np.linalg.cond(info) < 1e12:
-        cov_model = np.linalg.inv(info)[:3, :3]
+        cov_model = np.linalg.inv(info)
         cov = cov_model if jc.covariance == "model" else track_robust_covariance(
-            info, arrow_final.gp_track, pri.pose_w**2)[:3, :3]
+            info, arrow_final.gp_track, pri.pose_w**2)
+        if jc.consider_side_bias_sigma > 0.0 and jc.side_bias_sigma == 0.0:
+            column = _side_columns(target, normal, sensor_l)[pad[0], 0]
+            extra = consider_covariance(tq, pts, pri, len(dec.tracks), x, pose, b, layout,
+                                        owner, offsets, column, jc.consider_side_bias_sigma)
+            cov, cov_model = cov + extra, cov_model + extra
+        cov, cov_model = cov[:3, :3], cov_model[:3, :3]
     _add_time(timing, "marginals", t0)
 
     from fgloc.smoothing.graph import tracks_from_states
