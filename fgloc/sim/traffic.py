@@ -162,7 +162,9 @@ class _Follower:
 
 
 def _arc(x: float, y: float, h: float, k: float) -> tuple[float, float, float]:
-    """Pose after ROUTE_DS m of constant curvature k from (x, y, h)."""
+    """Pose after ROUTE_DS m of constant curvature k from (x, y, h): the chord formula of
+    :func:`fgloc.sim.paths._advance` on plain floats (it runs twice per step of every route;
+    the array version costs ~30x more per call: 25 against 0.8 us)."""
     half = 0.5 * k * ROUTE_DS
     chord = ROUTE_DS * (math.sin(half) / half if abs(half) > 1e-12 else 1.0)
     return x + chord * math.cos(h + half), y + chord * math.sin(h + half), h + 2.0 * half
