@@ -194,7 +194,8 @@ def test_considered_side_bias_is_the_pose_shift_a_real_bias_causes(sensor):
 def test_config_fields_are_checked():
     check_joint_config(JointConfig())
     for field, value in [("start", "x"), ("step_stride", 0), ("along_weight", 2.0),
-                         ("label_weight_other", -0.1), ("max_rounds", 0)]:
+                         ("label_weight_other", -0.1), ("max_rounds", 0),
+                         ("consider_side_bias_sigma", -0.1)]:
         with pytest.raises(ValueError, match=field):
             check_joint_config(dataclasses.replace(JointConfig(), **{field: value}))
 
