@@ -369,25 +369,28 @@ def _side_columns(target: np.ndarray, normal: np.ndarray, sensor_l: np.ndarray) 
     return np.column_stack([sign, sign * hm])
 
 
-def consider_covariance(tq: TrackQuadratic, pts: PointSet, pri: Priors, n_tracks: int,
-                        x: np.ndarray, glob: np.ndarray, b: np.ndarray | None,
-                        layout: BandedLayout, owner: np.ndarray, offsets: bool,
-                        column: np.ndarray, sigma: float) -> np.ndarray:
-    """(G, G) covariance added to the global parameters' by a side bias that is *considered*,
-    not estimated (Schmidt): each point's offset along its normal is ``column`` (F, K) times
-    a bias ``c ~ N(0, sigma^2)`` the estimate ignores. With ``S`` the reduced information of
-    the parameters augmented by ``c``, the estimate moves by ``K c``, ``K = -S_ee^-1 S_ec``,
-    so ``sigma^2 K K^T`` is added. Where the geometry tells the bias from the pose (lanes on
-    both sides of the sensor) ``K`` is small; where it cannot (every lane on one side, a
-    T-junction) the pose's uncertainty across the road grows by about ``sigma``."""
-    G = pts.n_global
+def with_considered_bias(pts: PointSet, pri: Priors, glob: np.ndarray, column: np.ndarray
+                         ) -> tuple[PointSet, Priors, np.ndarray]:
+    """The point set, priors and global parameters with one more side-bias parameter last,
+    at 0 and without a prior: each point's offset along its normal is ``column`` (F, K) times
+    it. Its row and column of the reduced information give :func:`consider_covariance`."""
     side = column[..., None] if pts.side is None else np.concatenate(
         [pts.side, column[..., None]], axis=-1)
-    aug = dataclasses.replace(pts, side=side)
-    aug_pri = Priors(np.append(pri.pose_mean, 0.0), np.append(pri.pose_w, 0.0), pri.offset_w)
-    S = solve_arrow(linearize(tq, aug, aug_pri, n_tracks, x, np.append(glob, 0.0), b),
-                    layout, owner, offsets).pose_information
-    K = -np.linalg.solve(S[:G, :G], S[:G, G])
+    return (dataclasses.replace(pts, side=side),
+            Priors(np.append(pri.pose_mean, 0.0), np.append(pri.pose_w, 0.0), pri.offset_w),
+            np.append(glob, 0.0))
+
+
+def consider_covariance(info: np.ndarray, sigma: float) -> np.ndarray:
+    """(G, G) covariance added to the global parameters' by a side bias that is *considered*,
+    not estimated (Schmidt): info (G + 1, G + 1) their reduced information augmented by the
+    bias last (:func:`with_considered_bias`), the bias ``c ~ N(0, sigma^2)`` m. The estimate
+    moves by ``K c``, ``K = -S_ee^-1 S_ec``, so ``sigma^2 K K^T`` is added. Where the geometry
+    tells the bias from the pose (lanes on both sides of the sensor) ``K`` is small; where it
+    cannot (every lane on one side, a T-junction) the pose's uncertainty across the road grows
+    by about ``sigma``."""
+    G = len(info) - 1
+    K = -np.linalg.solve(info[:G, :G], info[:G, G])
     return sigma**2 * np.outer(K, K)
 
 
@@ -630,18 +633,23 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
             break
 
     t0 = time.perf_counter()
-    arrow_final = linearize(tq, pts, pri, len(dec.tracks), x, pose, b)
-    sol = solve_arrow(arrow_final, layout, owner, offsets)
-    info = sol.pose_information
+    # the final information, with the considered bias as one more (last) global parameter
+    consider = jc.consider_side_bias_sigma > 0.0 and jc.side_bias_sigma == 0.0
+    G = pts.n_global
+    final_pts, final_pri, final_glob = pts, pri, pose
+    if consider:
+        column = _side_columns(target, normal, sensor_l)[pad[0], 0]
+        final_pts, final_pri, final_glob = with_considered_bias(pts, pri, pose, column)
+    arrow_final = linearize(tq, final_pts, final_pri, len(dec.tracks), x, final_glob, b)
+    info_all = solve_arrow(arrow_final, layout, owner, offsets).pose_information
+    info = info_all[:G, :G]
     cov = cov_model = None
     if np.linalg.cond(info) < 1e12:
         cov_model = np.linalg.inv(info)
         cov = cov_model if jc.covariance == "model" else track_robust_covariance(
-            info, arrow_final.gp_track, pri.pose_w**2)
-        if jc.consider_side_bias_sigma > 0.0 and jc.side_bias_sigma == 0.0:
-            column = _side_columns(target, normal, sensor_l)[pad[0], 0]
-            extra = consider_covariance(tq, pts, pri, len(dec.tracks), x, pose, b, layout,
-                                        owner, offsets, column, jc.consider_side_bias_sigma)
+            info, arrow_final.gp_track[:, :G], pri.pose_w**2)
+        if consider:
+            extra = consider_covariance(info_all, jc.consider_side_bias_sigma)
             cov, cov_model = cov + extra, cov_model + extra
         cov, cov_model = cov[:3, :3], cov_model[:3, :3]
     _add_time(timing, "marginals", t0)
