@@ -51,12 +51,14 @@ def _visible_points(centre: np.ndarray, yaw: float, sensor: np.ndarray,
 
 
 def _scene(crossing: bool, T_true: np.ndarray, sensor_l: np.ndarray, seed: int,
-           per_lane: int = 4, offset: float = 0.0, range_bias: float = 0.0):
+           per_lane: int = 4, offset: float = 0.0, range_bias: float = 0.0,
+           lane_shift: tuple[int, float] | None = None):
     """Tracks in C = T_true^-1 L of vehicles on the lanes (each with its own lateral offset
     from the lane centre), their detections in C, the sensor in C and the target lines in L
-    (lane centres, shifted ``offset`` m towards the sensor). ``range_bias`` (m per 100 m):
-    every vehicle, its states and its detections, lies that far per 100 m of its range
-    towards the sensor's side of its lane (a tracker's range-growing bias)."""
+    (lane centres, shifted ``offset`` m towards the sensor; each lane one lanelet).
+    ``range_bias`` (m per 100 m): every vehicle, its states and its detections, lies that far
+    per 100 m of its range towards the sensor's side of its lane (a tracker's range-growing
+    bias). ``lane_shift`` (lane index, m): that lane's line moved along its left normal."""
     rng = np.random.default_rng(seed)
     Tinv = np.linalg.inv(T_true)
     yaw_c = se2_params(Tinv)[2]
@@ -90,10 +92,13 @@ def _scene(crossing: bool, T_true: np.ndarray, sensor_l: np.ndarray, seed: int,
             tracks.append(Track(len(tracks), 0.2 * np.arange(n), states,
                                 np.full(n, STRAIGHT, np.int8), None,
                                 np.array(di, np.int64), np.array(ds, np.int64)))
+    lane = np.repeat(np.arange(len(xy_l)), [len(p) for p in xy_l])
     xy, nrm = np.vstack(xy_l), np.vstack(nrm_l)
     side = np.sign(np.einsum("ij,ij->i", sensor_l - xy, nrm))
-    lines = LaneLines.of(xy + (offset * side)[:, None] * nrm, nrm,
-                         np.full(len(xy), STRAIGHT))
+    shift = offset * side
+    if lane_shift is not None:
+        shift = shift + np.where(lane == lane_shift[0], lane_shift[1], 0.0)
+    lines = LaneLines.of(xy + shift[:, None] * nrm, nrm, np.full(len(xy), STRAIGHT), lane)
     return (TrackSet(tracks), np.array(det), transform_points(Tinv, sensor_l[None])[0], lines)
 
 
@@ -191,11 +196,41 @@ def test_considered_side_bias_is_the_pose_shift_a_real_bias_causes(sensor):
     assert np.all(np.linalg.eigvalsh(considered.covariance - runs[0.0].covariance) > -1e-12)
 
 
+@pytest.mark.parametrize("sensor", [(12.0, -12.0), (0.5, -12.0)])
+def test_considered_lane_biases_are_the_pose_shifts_real_lane_biases_cause(sensor):
+    """One lateral bias per lanelet, considered (``consider_lane_bias_sigma``): the
+    covariance gains ``sum_j sigma^2 K_j K_j^T``. Checked against central differences: the
+    joint with lane j's line moved +-0.1 m along its normal (every vehicle of that lane off
+    its line alike) moves the pose by ``K_j 0.1``; the added covariance is the sum of those
+    squared shifts over the four lanes (noise levels fixed)."""
+    T_true = se2(0.3, -0.2, np.deg2rad(0.4))
+    plain = _cfg(consider_side_bias_sigma=0.0, consider_lane_bias_sigma=0.0,
+                 estimate_noise=False)
+    expected = np.zeros((3, 3))
+    for lane in range(4):
+        pose = {}
+        for shift in (-0.1, 0.1):
+            scene = _scene(True, T_true, np.array(sensor), 6, lane_shift=(lane, shift))
+            pose[shift] = np.array(se2_params(joint_refine(*scene, np.eye(3), plain).T))
+        d = 0.5 * (pose[0.1] - pose[-0.1])
+        expected += np.outer(d, d)
+    scene = _scene(True, T_true, np.array(sensor), 6)
+    base = joint_refine(*scene, np.eye(3), plain)
+    considered = joint_refine(*scene, np.eye(3), dataclasses.replace(
+        plain, joint=dataclasses.replace(plain.joint, consider_lane_bias_sigma=0.1)))
+    assert np.allclose(se2_params(considered.T), se2_params(base.T), atol=1e-9)
+    extra = considered.covariance_model - base.covariance_model
+    assert np.sqrt(expected[0, 0] + expected[1, 1]) > 0.02      # the lanes do move the pose
+    scale = np.sqrt(np.outer(np.diag(expected), np.diag(expected)))
+    assert np.all(np.abs(extra - expected) <= 0.1 * scale + 1e-12), (extra, expected)
+
+
 def test_config_fields_are_checked():
     check_joint_config(JointConfig())
     for field, value in [("start", "x"), ("step_stride", 0), ("along_weight", 2.0),
                          ("label_weight_other", -0.1), ("max_rounds", 0),
-                         ("consider_side_bias_sigma", -0.1)]:
+                         ("consider_side_bias_sigma", -0.1),
+                         ("consider_lane_bias_sigma", -0.1)]:
         with pytest.raises(ValueError, match=field):
             check_joint_config(dataclasses.replace(JointConfig(), **{field: value}))
 

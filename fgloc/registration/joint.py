@@ -55,8 +55,9 @@ marginal covariance of ``T`` at the solution (the inverse of its Schur complemen
 ``gtsam.Marginals`` on the equivalent graph); the reported one (``covariance =
 "track-robust"``) is the cluster-robust sandwich over tracks, never below the model one
 (:func:`fgloc.registration.joint_solver.track_robust_covariance`); both add the effect of a
-constant side bias that is considered, not estimated (``consider_side_bias_sigma``,
-:func:`consider_covariance`), and are mapped to the sensor's (x, y, yaw) in L. Their
+constant side bias and of one lateral bias per lanelet that are considered, not estimated
+(``consider_side_bias_sigma``, ``consider_lane_bias_sigma``, :func:`consider_covariance`),
+and are mapped to the sensor's (x, y, yaw) in L. Their
 calibration (NEES) is measured in docs/benchmarks.md.
 
 Degeneracy report: the information of ``T`` (inverse marginal covariance) re-expressed in
@@ -109,7 +110,9 @@ if TYPE_CHECKING:
 class LaneLines:
     """Labelled, directed target lines in L: samples (M, 2) of the lanelet centre lines
     (optionally shifted sideways towards the sensor), their unit left normals (M, 2) -- the
-    driving direction is ``(n_y, -n_x)`` -- and label codes (M,). One KD-tree per label over
+    driving direction is ``(n_y, -n_x)`` --, label codes (M,) and the index (M,) of the
+    lanelet each sample belongs to (None: unknown; it groups the points whose lateral bias
+    is considered per lanelet, ``consider_lane_bias_sigma``). One KD-tree per label over
     ``(x, y, w cos psi, w sin psi)`` (psi the driving direction, ``w`` the heading weight in m)
     is built on first use and kept, so a vehicle is matched to a lane it drives along, not to
     a crossing one."""
@@ -117,6 +120,7 @@ class LaneLines:
     xy: np.ndarray
     normal: np.ndarray
     label: np.ndarray
+    lane: np.ndarray | None = None
     _trees: dict[tuple[int, float], tuple[np.ndarray, cKDTree]] = field(
         default_factory=dict, init=False, repr=False)
 
@@ -135,17 +139,23 @@ class LaneLines:
         label = np.concatenate([np.full(len(lc.xy), target.lanelet_labels[ll.id], np.int64)
                                 for lc, ll in zip(lanes, lanelets)])
         side = np.sign(np.einsum("ij,ij->i", np.asarray(sensor_xy) - xy, normal))
-        return cls.of(xy + (offset * side)[:, None] * normal, normal, label)
+        lane = np.repeat(np.arange(len(lanes)), [len(lc.xy) for lc in lanes])
+        return cls.of(xy + (offset * side)[:, None] * normal, normal, label, lane)
 
     @classmethod
-    def of(cls, xy: np.ndarray, normal: np.ndarray, label: np.ndarray) -> LaneLines:
-        """Lines from samples (M, 2), unit left normals (M, 2) and label codes (M,)."""
+    def of(cls, xy: np.ndarray, normal: np.ndarray, label: np.ndarray,
+           lane: np.ndarray | None = None) -> LaneLines:
+        """Lines from samples (M, 2), unit left normals (M, 2), label codes (M,) and,
+        optionally, the lanelet index of each sample (M,)."""
         xy, normal = np.asarray(xy, dtype=float), np.asarray(normal, dtype=float)
         label = np.asarray(label, dtype=np.int64)
-        if normal.shape != xy.shape or label.shape != (xy.shape[0],) or xy.ndim != 2:
-            raise ValueError(f"LaneLines: xy {xy.shape}, normal {normal.shape} and label "
-                             f"{label.shape} do not match")
-        return cls(xy, normal, label)
+        lane = None if lane is None else np.asarray(lane, dtype=np.int64)
+        if (normal.shape != xy.shape or label.shape != (xy.shape[0],) or xy.ndim != 2
+                or (lane is not None and lane.shape != label.shape)):
+            raise ValueError(f"LaneLines: xy {xy.shape}, normal {normal.shape}, label "
+                             f"{label.shape} and lane {None if lane is None else lane.shape} "
+                             "do not match")
+        return cls(xy, normal, label, lane)
 
     def tree(self, code: int, weight: float) -> tuple[np.ndarray, cKDTree]:
         """(indices, KD-tree over (x, y, weight * direction)) of label ``code``."""
@@ -369,29 +379,63 @@ def _side_columns(target: np.ndarray, normal: np.ndarray, sensor_l: np.ndarray) 
     return np.column_stack([sign, sign * hm])
 
 
-def with_considered_bias(pts: PointSet, pri: Priors, glob: np.ndarray, column: np.ndarray
+#: Prior sqrt information (1/m) of a considered bias while it rides the final linearization
+#: as a global parameter: it only keeps that solve regular (a lanelet's bias may be
+#: confounded with the constant one); it enters the considered parameters' own block of the
+#: reduced information, which :func:`consider_covariance` does not use.
+CONSIDERED_PRIOR_W = 1e-3
+
+
+def considered_columns(target: np.ndarray, normal: np.ndarray, index: np.ndarray,
+                       sensor_l: np.ndarray, lines: LaneLines, jc: JointConfig
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """The biases that are considered, not estimated: each point's coefficients (P, C) and
+    their std. devs. (C,) m. The constant side bias towards the sensor
+    (``consider_side_bias_sigma``, when ``side_bias_sigma`` does not estimate it), then one
+    lateral bias per lanelet that holds matched points (``consider_lane_bias_sigma``; the
+    shift of its points along their normal; needs ``lines.lane``). target, normal (P, 2) in
+    L, index (P,) the matched line sample (-1 none), sensor_l (2,)."""
+    cols, sd = [np.zeros((len(index), 0))], []
+    if jc.consider_side_bias_sigma > 0.0 and jc.side_bias_sigma == 0.0:
+        cols.append(_side_columns(target, normal, sensor_l)[:, :1])
+        sd.append(jc.consider_side_bias_sigma)
+    if jc.consider_lane_bias_sigma > 0.0 and lines.lane is not None:
+        ok = np.flatnonzero(index >= 0)
+        lanes, which = np.unique(lines.lane[index[ok]], return_inverse=True)
+        one_hot = np.zeros((len(index), len(lanes)))
+        one_hot[ok, which] = 1.0
+        cols.append(one_hot)
+        sd += [jc.consider_lane_bias_sigma] * len(lanes)
+    return np.concatenate(cols, axis=1), np.array(sd)
+
+
+def with_considered_bias(pts: PointSet, pri: Priors, glob: np.ndarray, columns: np.ndarray
                          ) -> tuple[PointSet, Priors, np.ndarray]:
-    """The point set, priors and global parameters with one more side-bias parameter last,
-    at 0 and without a prior: each point's offset along its normal is ``column`` (F, K) times
-    it. Its row and column of the reduced information give :func:`consider_covariance`."""
-    side = column[..., None] if pts.side is None else np.concatenate(
-        [pts.side, column[..., None]], axis=-1)
+    """The point set, priors and global parameters with C more bias parameters last, at 0
+    (prior :data:`CONSIDERED_PRIOR_W`): each point's offset along its normal is ``columns``
+    (F, K, C) times them. Their rows of the reduced information give
+    :func:`consider_covariance`."""
+    C = columns.shape[-1]
+    side = columns if pts.side is None else np.concatenate([pts.side, columns], axis=-1)
     return (dataclasses.replace(pts, side=side),
-            Priors(np.append(pri.pose_mean, 0.0), np.append(pri.pose_w, 0.0), pri.offset_w),
-            np.append(glob, 0.0))
+            Priors(np.append(pri.pose_mean, np.zeros(C)),
+                   np.append(pri.pose_w, np.full(C, CONSIDERED_PRIOR_W)), pri.offset_w),
+            np.append(glob, np.zeros(C)))
 
 
-def consider_covariance(info: np.ndarray, sigma: float) -> np.ndarray:
-    """(G, G) covariance added to the global parameters' by a side bias that is *considered*,
-    not estimated (Schmidt): info (G + 1, G + 1) their reduced information augmented by the
-    bias last (:func:`with_considered_bias`), the bias ``c ~ N(0, sigma^2)`` m. The estimate
-    moves by ``K c``, ``K = -S_ee^-1 S_ec``, so ``sigma^2 K K^T`` is added. Where the geometry
-    tells the bias from the pose (lanes on both sides of the sensor) ``K`` is small; where it
+def consider_covariance(info: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """(G, G) covariance added to the global parameters' by C biases that are *considered*,
+    not estimated (Schmidt): info (G + C, G + C) their reduced information augmented by the
+    biases last (:func:`with_considered_bias`), the biases independent, ``c_j ~ N(0,
+    sigma_j^2)`` m. The estimate moves by ``K c``, ``K = -S_ee^-1 S_ec`` (G, C), so ``K
+    diag(sigma^2) K^T`` is added. Where the geometry tells a bias from the pose (lanes on
+    both sides of the sensor, for the constant one) its column of ``K`` is small; where it
     cannot (every lane on one side, a T-junction) the pose's uncertainty across the road grows
-    by about ``sigma``."""
-    G = len(info) - 1
-    K = -np.linalg.solve(info[:G, :G], info[:G, G])
-    return sigma**2 * np.outer(K, K)
+    by about its sigma."""
+    sigma = np.atleast_1d(np.asarray(sigma, dtype=float))
+    G = len(info) - len(sigma)
+    K = -np.linalg.solve(info[:G, :G], info[:G, G:])
+    return (K * sigma**2) @ K.T
 
 
 def _point_set(fp: FramePoints, pad: tuple[np.ndarray, np.ndarray], index: np.ndarray,
@@ -633,13 +677,13 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
             break
 
     t0 = time.perf_counter()
-    # the final information, with the considered bias as one more (last) global parameter
-    consider = jc.consider_side_bias_sigma > 0.0 and jc.side_bias_sigma == 0.0
+    # the final information, with the considered biases as more (last) global parameters
+    columns, consider_sd = considered_columns(target, normal, index, sensor_l, lines, jc)
     G = pts.n_global
     final_pts, final_pri, final_glob = pts, pri, pose
-    if consider:
-        column = _side_columns(target, normal, sensor_l)[pad[0], 0]
-        final_pts, final_pri, final_glob = with_considered_bias(pts, pri, pose, column)
+    if len(consider_sd):
+        final_pts, final_pri, final_glob = with_considered_bias(pts, pri, pose,
+                                                                columns[pad[0]])
     arrow_final = linearize(tq, final_pts, final_pri, len(dec.tracks), x, final_glob, b)
     info_all = solve_arrow(arrow_final, layout, owner, offsets).pose_information
     info = info_all[:G, :G]
@@ -648,8 +692,8 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
         cov_model = np.linalg.inv(info)
         cov = cov_model if jc.covariance == "model" else track_robust_covariance(
             info, arrow_final.gp_track[:, :G], pri.pose_w**2)
-        if consider:
-            extra = consider_covariance(info_all, jc.consider_side_bias_sigma)
+        if len(consider_sd):
+            extra = consider_covariance(info_all, consider_sd)
             cov, cov_model = cov + extra, cov_model + extra
         cov, cov_model = cov[:3, :3], cov_model[:3, :3]
     _add_time(timing, "marginals", t0)

@@ -85,6 +85,13 @@ class JointConfig:
     shares among vehicles (measured -0.1 m near, +0.2 m far on T-junction 3), which a
     T-junction, all lanes on one side of the sensor, cannot tell from the sensor's position
     across the road. 0 = off."""
+    consider_lane_bias_sigma: float = 0.1
+    """Standard deviation (m) of a lateral bias shared by the vehicles of one lanelet,
+    considered per lanelet (independent between lanelets; Schmidt, like
+    ``consider_side_bias_sigma``): a lane centre line drawn off in the map, drivers keeping
+    to one side of that lane, the tracker's bias at that lane's range and aspect. The
+    per-track offsets cannot carry it (every vehicle of the lane shares it), so without it the
+    covariance trusts one lane as much as its number of vehicles says. 0 = off."""
     range_bias_sigma: float = 0.2
     """Prior standard deviation (m per 100 m of range) of a range-proportional side bias: an
     offset of every contour point towards the sensor that grows with its distance from the
@@ -149,6 +156,7 @@ def check_joint_config(cfg: JointConfig) -> None:
         "side_bias_sigma": cfg.side_bias_sigma < 0.0,
         "range_bias_sigma": cfg.range_bias_sigma < 0.0,
         "consider_side_bias_sigma": cfg.consider_side_bias_sigma < 0.0,
+        "consider_lane_bias_sigma": cfg.consider_lane_bias_sigma < 0.0,
         "min_sigma": not cfg.min_sigma > 0.0,
         "pose_prior_sigma": not cfg.pose_prior_sigma > 0.0,
         "pose_prior_sigma_yaw_deg": not cfg.pose_prior_sigma_yaw_deg > 0.0,
