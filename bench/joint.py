@@ -9,15 +9,22 @@ deviations, weak-direction flag and time; then the means.
     OMP_NUM_THREADS=1 python bench/joint.py accuracy --seeds 1 2 3 4 5
     OMP_NUM_THREADS=1 python bench/joint.py straight --seeds 1 2 3
     OMP_NUM_THREADS=1 python bench/joint.py timing --duration 120
+    OMP_NUM_THREADS=1 python bench/joint.py accuracy --seeds 1 2 3 \
+        --sim "radar.sigma_azimuth_deg=0.4;radar.corner_fraction=0.1"
 
-"accuracy" and "straight" use the sensor.toml yaw guess; "timing" reports the joint stage's
-split into Python callbacks and the rest. The data-efficiency sweep (error against the number
-of trajectories, every method) is bench/accuracy.py's ``--efficiency-*`` part.
+``--sim`` changes the simulator's settings (``section.field=value`` of
+:class:`fgloc.sim.config.SimConfig`, numbers or comma-separated tuples of numbers, ``;``
+between them): the robustness runs of docs/benchmarks.md (the methods' settings are not
+tuned to the simulator's). "accuracy" and "straight" use the sensor.toml yaw guess; "timing"
+reports the joint stage's split into Python callbacks and the rest. The data-efficiency
+sweep (error against the number of trajectories, every method) is bench/accuracy.py's
+``--efficiency-*`` part.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -32,6 +39,7 @@ from fgloc.progress import Timer
 from fgloc.registration.joint import joint_from_tracks
 from fgloc.result import LocalizationResult
 from fgloc.sim import simulate
+from fgloc.sim.config import SimConfig
 from fgloc.tracking import track_scenario
 
 
@@ -51,8 +59,28 @@ def score(res: LocalizationResult, truth: np.ndarray, seconds: float) -> dict:
     return row
 
 
-def prepared(case: str, seed: int, duration: float, cfg: Config):
-    scn = simulate(case, seed, duration=duration)
+def sim_config(spec: str | None) -> SimConfig:
+    """The default SimConfig with the ``section.field=value;...`` changes of ``spec`` (values:
+    a number or comma-separated numbers for a tuple field). ValueError names a bad item."""
+    sim = SimConfig()
+    for item in filter(None, (spec or "").split(";")):
+        key, _, value = item.partition("=")
+        section, _, name = key.strip().partition(".")
+        sub = getattr(sim, section, None)
+        if sub is None or not dataclasses.is_dataclass(sub) or not hasattr(sub, name):
+            raise ValueError(f"--sim {item!r}: no simulator setting {key.strip()!r}")
+        old = getattr(sub, name)
+        try:
+            new = (tuple(float(v) for v in value.split(",")) if isinstance(old, tuple)
+                   else type(old)(float(value)))
+        except ValueError as exc:
+            raise ValueError(f"--sim {item!r}: expected a number for {key.strip()}") from exc
+        sim = dataclasses.replace(sim, **{section: dataclasses.replace(sub, **{name: new})})
+    return sim
+
+
+def prepared(case: str, seed: int, duration: float, cfg: Config, sim: SimConfig | None = None):
+    scn = simulate(case, seed, duration=duration, config=sim)
     timer = Timer()
     target, coarse = target_and_coarse(scn, cfg, timer)
     tracks = track_scenario(scn, coarse.T_coarse, cfg.tracking)
@@ -75,7 +103,8 @@ def accuracy(args, cfg: Config) -> list[dict]:
           f"{'yaw':>7}{'sd x':>7}{'sd y':>7}{'sd yaw':>7}{'NEES':>7}{'weak':>5}{'t s':>6}")
     for case in args.cases:
         for seed in args.seeds:
-            scn, target, coarse, tracks = prepared(case, seed, args.duration, cfg)
+            scn, target, coarse, tracks = prepared(case, seed, args.duration, cfg,
+                                                   sim_config(args.sim))
             f, j = both(scn, target, coarse, tracks, cfg)
             rows.append({"case": case, "seed": seed, "tracks": len(tracks), "filter_sicp": f,
                          "joint": j})
@@ -96,7 +125,8 @@ def accuracy(args, cfg: Config) -> list[dict]:
 def straight(args, cfg: Config) -> list[dict]:
     rows = []
     for seed in args.seeds:
-        scn, target, coarse, tracks = prepared("straight", seed, args.duration, cfg)
+        scn, target, coarse, tracks = prepared("straight", seed, args.duration, cfg,
+                                               sim_config(args.sim))
         f, j = both(scn, target, coarse, tracks, cfg)
         rows.append({"case": "straight", "seed": seed, "filter_sicp": f, "joint": j})
         print(f"straight {seed}: f-sicp 2D {f['d2d']:.3f} | joint 2D {j['d2d']:.3f} yaw "
@@ -107,7 +137,8 @@ def straight(args, cfg: Config) -> list[dict]:
 
 
 def timing(args, cfg: Config) -> list[dict]:
-    scn, target, coarse, tracks = prepared("intersection", args.seeds[0], args.duration, cfg)
+    scn, target, coarse, tracks = prepared("intersection", args.seeds[0], args.duration, cfg,
+                                           sim_config(args.sim))
     f, j = both(scn, target, coarse, tracks, cfg)
     print(f"intersection seed {args.seeds[0]}, {args.duration:.0f} s, {len(tracks)} tracks: "
           f"joint stage {j['time_s']:.1f} s (incl. LaneLines and the result), 2D {j['d2d']:.3f} m")
@@ -124,6 +155,9 @@ def main() -> int:
                     help="scenario length in s (default 60; timing: 120)")
     ap.add_argument("--json", default=None, help="also write all rows to this JSON file")
     ap.add_argument("--config", default=None, help="fgloc config TOML (default: all defaults)")
+    ap.add_argument("--sim", default=None,
+                    help='simulator changes, e.g. "radar.sigma_azimuth_deg=0.4;'
+                         'traffic.class_mix=0.4,0.5,0.1"')
     args = ap.parse_args()
     if args.duration is None:
         args.duration = 120.0 if args.part == "timing" else 60.0
