@@ -24,7 +24,6 @@ sweep (error against the number of trajectories, every method) is bench/accuracy
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import time
 from pathlib import Path
@@ -32,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from fgloc.coarse import target_and_coarse
-from fgloc.config import Config, load_config
+from fgloc.config import Config, from_dict, load_config, to_dict, tomllib  # tomllib / tomli
 from fgloc.evaluate import pose_error_vector
 from fgloc.fine import register_tracks
 from fgloc.progress import Timer
@@ -61,22 +60,23 @@ def score(res: LocalizationResult, truth: np.ndarray, seconds: float) -> dict:
 
 def sim_config(spec: str | None) -> SimConfig:
     """The default SimConfig with the ``section.field=value;...`` changes of ``spec`` (values:
-    a number or comma-separated numbers for a tuple field). ValueError names a bad item."""
-    sim = SimConfig()
+    a TOML value, comma-separated ones for a tuple field), checked like a config file
+    (:func:`fgloc.config.from_dict`: an unknown field or a wrong type is an InputError naming
+    it); ValueError names an item that is not ``section.field=value`` or not a TOML value."""
+    data = to_dict(SimConfig())
     for item in filter(None, (spec or "").split(";")):
         key, _, value = item.partition("=")
         section, _, name = key.strip().partition(".")
-        sub = getattr(sim, section, None)
-        if sub is None or not dataclasses.is_dataclass(sub) or not hasattr(sub, name):
-            raise ValueError(f"--sim {item!r}: no simulator setting {key.strip()!r}")
-        old = getattr(sub, name)
+        table = data.get(section)
+        if not isinstance(table, dict) or not name:
+            raise ValueError(f"--sim {item!r}: expected section.field=value of a simulator "
+                             f"section ({', '.join(data)})")
+        text = f"[{value}]" if isinstance(table.get(name), list) else value
         try:
-            new = (tuple(float(v) for v in value.split(",")) if isinstance(old, tuple)
-                   else type(old)(float(value)))
-        except ValueError as exc:
-            raise ValueError(f"--sim {item!r}: expected a number for {key.strip()}") from exc
-        sim = dataclasses.replace(sim, **{section: dataclasses.replace(sub, **{name: new})})
-    return sim
+            table[name] = tomllib.loads(f"v = {text}")["v"]
+        except tomllib.TOMLDecodeError as exc:
+            raise ValueError(f"--sim {item!r}: {value.strip()!r} is not a value") from exc
+    return from_dict(SimConfig, data, None)
 
 
 def prepared(case: str, seed: int, duration: float, cfg: Config, sim: SimConfig | None = None):
@@ -103,8 +103,7 @@ def accuracy(args, cfg: Config) -> list[dict]:
           f"{'yaw':>7}{'sd x':>7}{'sd y':>7}{'sd yaw':>7}{'NEES':>7}{'weak':>5}{'t s':>6}")
     for case in args.cases:
         for seed in args.seeds:
-            scn, target, coarse, tracks = prepared(case, seed, args.duration, cfg,
-                                                   sim_config(args.sim))
+            scn, target, coarse, tracks = prepared(case, seed, args.duration, cfg, args.sim)
             f, j = both(scn, target, coarse, tracks, cfg)
             rows.append({"case": case, "seed": seed, "tracks": len(tracks), "filter_sicp": f,
                          "joint": j})
@@ -125,8 +124,7 @@ def accuracy(args, cfg: Config) -> list[dict]:
 def straight(args, cfg: Config) -> list[dict]:
     rows = []
     for seed in args.seeds:
-        scn, target, coarse, tracks = prepared("straight", seed, args.duration, cfg,
-                                               sim_config(args.sim))
+        scn, target, coarse, tracks = prepared("straight", seed, args.duration, cfg, args.sim)
         f, j = both(scn, target, coarse, tracks, cfg)
         rows.append({"case": "straight", "seed": seed, "filter_sicp": f, "joint": j})
         print(f"straight {seed}: f-sicp 2D {f['d2d']:.3f} | joint 2D {j['d2d']:.3f} yaw "
@@ -138,7 +136,7 @@ def straight(args, cfg: Config) -> list[dict]:
 
 def timing(args, cfg: Config) -> list[dict]:
     scn, target, coarse, tracks = prepared("intersection", args.seeds[0], args.duration, cfg,
-                                           sim_config(args.sim))
+                                           args.sim)
     f, j = both(scn, target, coarse, tracks, cfg)
     print(f"intersection seed {args.seeds[0]}, {args.duration:.0f} s, {len(tracks)} tracks: "
           f"joint stage {j['time_s']:.1f} s (incl. LaneLines and the result), 2D {j['d2d']:.3f} m")
@@ -159,6 +157,7 @@ def main() -> int:
                     help='simulator changes, e.g. "radar.sigma_azimuth_deg=0.4;'
                          'traffic.class_mix=0.4,0.5,0.1"')
     args = ap.parse_args()
+    args.sim = sim_config(args.sim)          # checked before anything runs
     if args.duration is None:
         args.duration = 120.0 if args.part == "timing" else 60.0
     cfg = load_config(args.config)
