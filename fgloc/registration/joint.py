@@ -409,8 +409,8 @@ def considered_columns(target: np.ndarray, normal: np.ndarray, index: np.ndarray
     return np.concatenate(cols, axis=1), np.array(sd)
 
 
-def with_considered_bias(pts: PointSet, pri: Priors, glob: np.ndarray, columns: np.ndarray
-                         ) -> tuple[PointSet, Priors, np.ndarray]:
+def with_considered_biases(pts: PointSet, pri: Priors, glob: np.ndarray, columns: np.ndarray
+                           ) -> tuple[PointSet, Priors, np.ndarray]:
     """The point set, priors and global parameters with C more bias parameters last, at 0
     (prior :data:`CONSIDERED_PRIOR_W`): each point's offset along its normal is ``columns``
     (F, K, C) times them. Their rows of the reduced information give
@@ -426,7 +426,7 @@ def with_considered_bias(pts: PointSet, pri: Priors, glob: np.ndarray, columns: 
 def consider_covariance(info: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """(G, G) covariance added to the global parameters' by C biases that are *considered*,
     not estimated (Schmidt): info (G + C, G + C) their reduced information augmented by the
-    biases last (:func:`with_considered_bias`), the biases independent, ``c_j ~ N(0,
+    biases last (:func:`with_considered_biases`), the biases independent, ``c_j ~ N(0,
     sigma_j^2)`` m. The estimate moves by ``K c``, ``K = -S_ee^-1 S_ec`` (G, C), so ``K
     diag(sigma^2) K^T`` is added. Where the geometry tells a bias from the pose (lanes on
     both sides of the sensor, for the constant one) its column of ``K`` is small; where it
@@ -682,8 +682,8 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     G = pts.n_global
     final_pts, final_pri, final_glob = pts, pri, pose
     if len(consider_sd):
-        final_pts, final_pri, final_glob = with_considered_bias(pts, pri, pose,
-                                                                columns[pad[0]])
+        final_pts, final_pri, final_glob = with_considered_biases(pts, pri, pose,
+                                                                  columns[pad[0]])
     arrow_final = linearize(tq, final_pts, final_pri, len(dec.tracks), x, final_glob, b)
     info_all = solve_arrow(arrow_final, layout, owner, offsets).pose_information
     info = info_all[:G, :G]
