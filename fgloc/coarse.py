@@ -84,6 +84,7 @@ class CoarseResult:
     timings: dict[str, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
     source_xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    tilt_covariance: np.ndarray | None = None
 
 
 # --------------------------------------------------------------------------------------------
@@ -302,7 +303,7 @@ def distinct_peaks(
 def fit_vertical(
     lev: np.ndarray, xy_l: np.ndarray, road: RoadModel, allowed: np.ndarray,
     tilt: tuple[float, float], z_prior: float, cfg: CoarseConfig,
-) -> tuple[np.ndarray, float] | None:
+) -> tuple[np.ndarray, float, np.ndarray] | None:
     """Small tilt (wx, wy) rad about the levelled axes and the sensor height z (m in L) that put
     the levelled points ``lev`` (N, 3, sensor-centred) at road height + reflection height.
 
@@ -331,10 +332,11 @@ def fit_vertical(
         aw = np.vstack([a[keep] * wd, a_prior])
         bw = np.concatenate([b[keep] * wd, b_prior])
         sol = np.linalg.lstsq(aw, bw, rcond=None)[0]
+        cov = np.linalg.inv(aw.T @ aw)
         r = b - a @ sol
         med = np.median(r)
         keep = np.abs(r - med) <= 3.0 * 1.4826 * (np.median(np.abs(r - med)) + 1e-6)
-    return sol[:2], float(sol[2])
+    return sol[:2], float(sol[2]), cov
 
 
 def below_fov_floor(
@@ -447,12 +449,15 @@ def _search(
 
 @dataclass
 class _Refined:
-    """Refinement state: planar pose (x, y, yaw), tilt rotation, sensor height, last ICP."""
+    """Refinement state: planar pose (x, y, yaw), tilt rotation, sensor height, last ICP, and
+    the covariance (2, 2) of the last vertical fit's tilt about L's x and y axes (rad^2; None
+    before a fit)."""
 
     pose2d: np.ndarray
     r_tilt: np.ndarray
     z: float
     icp: IcpOutcome
+    tilt_cov: np.ndarray | None = None
 
 
 def _refine(
@@ -463,6 +468,7 @@ def _refine(
     r_tilt = np.eye(3)
     pitch = roll = 0.0
     z_prior = z
+    tilt_cov = None
     out = IcpOutcome(pose2d, False, 0)
     for _ in range(cfg.alternations):
         lev = src @ r_tilt.T
@@ -474,12 +480,15 @@ def _refine(
         vertical = fit_vertical(lev, xy_l, road, seen, (pitch, roll), z_prior, cfg)
         if vertical is None:
             break
-        w, z = vertical
+        w, z, cov = vertical
+        # (wx, wy) turn about the levelled axes, which are L's turned by the yaw
+        to_l = rot_z(pose2d[2])[:2, :2]
+        tilt_cov = to_l @ cov[:2, :2] @ to_l.T
         full = rot_z(pose2d[2]) @ _rodrigues(np.array([w[0], w[1], 0.0])) @ r_tilt
         yaw, pitch, roll = ypr_from_rot(full)
         pose2d = np.array([pose2d[0], pose2d[1], yaw])
         r_tilt = rot_from_ypr(0.0, pitch, roll)
-    return _Refined(pose2d, r_tilt, z, out)
+    return _Refined(pose2d, r_tilt, z, out, tilt_cov)
 
 
 def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig) -> CoarseResult:
@@ -555,6 +564,7 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig) -> Co
         timings=timings,
         warnings=warnings,
         source_xyz=src,
+        tilt_covariance=ref.tilt_cov,
     )
 
 

@@ -99,6 +99,29 @@ def sensor_covariance(cov_fine: np.ndarray | None, T_fine: np.ndarray,
     return J @ cov_fine @ J.T
 
 
+def coarse_tilt_covariance(coarse: CoarseResult) -> np.ndarray | None:
+    """3x3 covariance of the sensor's (x, y, yaw) in L that the coarse tilt's error causes
+    (None without ``coarse.tilt_covariance``).
+
+    The fine stages keep the coarse roll and pitch. A tilt error, the small rotation ``w``
+    (about L's x and y axes) between the true and the coarse attitude, moves a point placed at
+    height ``z`` sideways by ``z (w_y, -w_x)``; a planar registration aligns the vehicles at
+    their reflection height, so the sensor, ``dh`` higher, keeps ``dh (w_y, -w_x)`` of it.
+    ``dh`` is the sensor's height above the median placed dynamic point. Where one road
+    leaves the roll about it to the prior (a straight road, a T-junction) this is a
+    translation across the road the registration cannot see.
+    """
+    if coarse.tilt_covariance is None or not len(coarse.source_xyz):
+        return None
+    T = coarse.T_coarse
+    z = coarse.source_xyz @ T[2, :3] + T[2, 3]
+    dh = T[2, 3] - float(np.median(z))
+    M = dh * np.array([[0.0, 1.0], [-1.0, 0.0]])
+    out = np.zeros((3, 3))
+    out[:2, :2] = M @ coarse.tilt_covariance @ M.T
+    return out
+
+
 def _sicp_diagnostics(res: SicpResult, scfg: SicpConfig, targets: SemanticTargets,
                       cfg: FineConfig) -> dict[str, object]:
     """JSON-ready summary of the SICP stage."""

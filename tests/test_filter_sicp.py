@@ -9,11 +9,11 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fgloc.coarse import coarse_localize
+from fgloc.coarse import CoarseResult, _rodrigues, coarse_localize
 from fgloc.config import Config, dump_config, load_config
 from fgloc.evaluate import pose_error
-from fgloc.fine import register_tracks, sensor_covariance
-from fgloc.geo import rot_z, se2, se3, transform_points
+from fgloc.fine import coarse_tilt_covariance, register_tracks, sensor_covariance
+from fgloc.geo import rot_from_ypr, rot_z, se2, se3, transform_points
 from fgloc.labels import LEFT, RIGHT, STRAIGHT
 from fgloc.map import build_target_cloud
 from fgloc.pipeline import METHODS, localize
@@ -142,6 +142,43 @@ def test_sensor_covariance_propagates_the_lever_arm():
     # turning by dyaw moves a point at (10, 0) by 10 dyaw along y
     np.testing.assert_allclose(out, [[0.01, 0, 0], [0, 0.04 + 100e-4, 1e-3], [0, 1e-3, 1e-4]])
     assert sensor_covariance(None, np.eye(3), np.zeros(2)) is None
+
+
+def test_coarse_tilt_covariance_is_the_shift_a_real_tilt_error_causes():
+    """A coarse pose whose roll / pitch is off by w (about L's x, y), followed by the ideal
+    planar registration of the vehicles (Kabsch of their placed to their true positions),
+    puts the sensor off sideways; the covariance added for a tilt covariance S must be
+    ``K S K^T``, K the central-difference Jacobian of that shift with respect to w."""
+    rng = np.random.default_rng(4)
+    T_true = se3(rot_from_ypr(0.7, np.deg2rad(4.0), np.deg2rad(-1.0)), [3.0, -2.0, 6.5])
+    # vehicles on one road beside the sensor, reflections 0.3-1.4 m above a flat road (z = 0)
+    x = np.column_stack([rng.uniform(-60, 120, 3000), rng.uniform(12, 22, 3000),
+                         rng.uniform(0.3, 1.4, 3000)])
+    p_s = (x - T_true[:3, 3]) @ T_true[:3, :3]
+
+    def sensor_shift(w: np.ndarray) -> np.ndarray:
+        T_c = se3(_rodrigues(w).T @ T_true[:3, :3], T_true[:3, 3])
+        q = p_s @ T_c[:3, :3].T + T_c[:3, 3]
+        # the best 2D rigid transform from the placed to the true positions
+        qc, xc = q[:, :2].mean(0), x[:, :2].mean(0)
+        u, _, vt = np.linalg.svd((q[:, :2] - qc).T @ (x[:, :2] - xc))
+        R = (u @ vt).T
+        est = R @ (T_c[:2, 3] - qc) + xc
+        return T_true[:2, 3] - est
+
+    h = 1e-4
+    K = np.column_stack([(sensor_shift(h * e) - sensor_shift(-h * e)) / (2 * h)
+                         for e in np.eye(3)[:2]])
+    S = np.array([[4.0, -1.5], [-1.5, 1.0]]) * np.deg2rad(1.0) ** 2
+    coarse = CoarseResult(T_true, (0.0,) * 6, 1.0, 0.1, len(p_s), len(p_s), True, "converged",
+                          None, source_xyz=p_s, tilt_covariance=S)
+    out = coarse_tilt_covariance(coarse)
+    np.testing.assert_allclose(out[:2, :2], K @ S @ K.T, rtol=0.05)
+    assert np.all(out[2] == 0) and np.all(out[:, 2] == 0)
+    # the shift of a real 1 deg error (0.1 m) is the linear one within a few millimetres
+    w = np.deg2rad([1.0, -0.5, 0.0])
+    np.testing.assert_allclose(sensor_shift(w), K @ w[:2], atol=0.005)
+    assert coarse_tilt_covariance(dataclasses.replace(coarse, tilt_covariance=None)) is None
 
 
 # ---------------------------------------------------------------------------------------------

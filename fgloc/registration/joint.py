@@ -775,7 +775,7 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
     registration as the start (``start``, computed here when None), then
     :func:`joint_refine` on the same trajectory subset, the covariance mapped to the sensor's
     (x, y, yaw) in L and the degeneracy report."""
-    from fgloc.fine import register_tracks, sensor_covariance
+    from fgloc.fine import coarse_tilt_covariance, register_tracks, sensor_covariance
     from fgloc.smoothing.graph import detection_range_rates, extent_trusted, placed_detections
     from fgloc.source import choose_tracks
 
@@ -795,6 +795,9 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
                           detection_range_rates(scn))
     cov = sensor_covariance(jr.covariance, jr.T, sensor_c)
     cov_model = sensor_covariance(jr.covariance_model, jr.T, sensor_c)
+    tilt = coarse_tilt_covariance(coarse) if cfg.joint.consider_coarse_tilt else None
+    if tilt is not None and cov is not None:
+        cov, cov_model = cov + tilt, cov_model + tilt
     degen = degeneracy_report(jr.covariance, jr.T, jr.matched, cfg.joint.weak_sigma)
     warnings = list(start.warnings)
     if not jr.converged:
@@ -819,6 +822,7 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
         "sensor_std": _sensor_std(cov),
         "sensor_std_model": _sensor_std(cov_model),
         "sensor_covariance_model": cov_model,
+        "coarse_tilt_std_m": None if tilt is None else _sensor_std(tilt),
         "degeneracy": degen,
         "history": jr.history,
         "timing_s": jr.timing,
