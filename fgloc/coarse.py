@@ -332,11 +332,10 @@ def fit_vertical(
         aw = np.vstack([a[keep] * wd, a_prior])
         bw = np.concatenate([b[keep] * wd, b_prior])
         sol = np.linalg.lstsq(aw, bw, rcond=None)[0]
-        cov = np.linalg.inv(aw.T @ aw)
         r = b - a @ sol
         med = np.median(r)
         keep = np.abs(r - med) <= 3.0 * 1.4826 * (np.median(np.abs(r - med)) + 1e-6)
-    return sol[:2], float(sol[2]), cov
+    return sol[:2], float(sol[2]), np.linalg.inv(aw.T @ aw)
 
 
 def below_fov_floor(
@@ -482,9 +481,9 @@ def _refine(
             break
         w, z, cov = vertical
         # (wx, wy) turn about the levelled axes, which are L's turned by the yaw
-        to_l = rot_z(pose2d[2])[:2, :2]
-        tilt_cov = to_l @ cov[:2, :2] @ to_l.T
-        full = rot_z(pose2d[2]) @ _rodrigues(np.array([w[0], w[1], 0.0])) @ r_tilt
+        to_l = rot_z(pose2d[2])
+        tilt_cov = to_l[:2, :2] @ cov[:2, :2] @ to_l[:2, :2].T
+        full = to_l @ _rodrigues(np.array([w[0], w[1], 0.0])) @ r_tilt
         yaw, pitch, roll = ypr_from_rot(full)
         pose2d = np.array([pose2d[0], pose2d[1], yaw])
         r_tilt = rot_from_ypr(0.0, pitch, roll)
