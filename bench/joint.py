@@ -21,11 +21,13 @@ reports the joint stage's split into Python callbacks and the rest. "decompose" 
 joint's error into what the filter's tracks bring and what remains with exact tracks: besides
 filter-sicp and the joint it runs the joint with the track states held (``refine_tracks =
 false``) on the filter's tracks, on them with each step's centre error across the vehicle
-removed ("truth lateral"), and with each step's centre, yaw, speed and yaw rate replaced by
-the simulator's truth ("truth kinematics"; the contours stay the filter's), a step's truth
-being that of the vehicle most of its detections came from (the simulator's source); the truth
-enters in the tracks' frame C, mapped with the coarse pose as the detections are (so the
-coarse pose's own error stays in every variant). The data-efficiency
+removed ("truth_lateral"; "truth_lateral_mean": only its mean over the steps of one track that
+measured one vehicle; "truth_lateral_within": only the deviations about that mean), and with
+each step's centre, yaw, speed and yaw rate replaced by the simulator's truth
+("truth_kinematics"; the contours stay the filter's), a step's truth being that of the vehicle
+most of its detections came from (the simulator's source); the truth enters in the tracks'
+frame C, mapped with the coarse pose as the detections are (so the coarse pose's own error
+stays in every variant). The data-efficiency
 sweep (error against the number of trajectories, every method) is bench/accuracy.py's
 ``--efficiency-*`` part.
 """
@@ -200,8 +202,10 @@ def with_truth(tracks: TrackSet, truth: list[TrackTruth], vehicles: list[np.ndar
                part: str) -> tuple[TrackSet, float]:
     """The tracks (frame of ``truth``) with every step inside its measured vehicle's truth
     span (``vehicles``: :func:`step_vehicles`) corrected: "lateral" removes the centre error's
-    component across the track's heading, "kinematics" replaces centre, yaw, speed and yaw
-    rate by the truth. Returns them and the share of steps corrected."""
+    component across the track's heading, "lateral_mean" only its mean over the steps that
+    measured one vehicle, "lateral_within" only the deviations about that mean; "kinematics"
+    replaces centre, yaw, speed and yaw rate by the truth. Returns them and the share of steps
+    corrected."""
     by_id = {tr.id: np.asarray(tr.states, dtype=float) for tr in truth}
     out, n = [], 0
     for tr, vid in zip(tracks.tracks, vehicles):
@@ -211,9 +215,13 @@ def with_truth(tracks: TrackSet, truth: list[TrackTruth], vehicles: list[np.ndar
             k = np.flatnonzero((vid == v) & (tr.t >= s[0, 0]) & (tr.t <= s[-1, 0]))
             x, y, yaw, speed, yawrate = (np.interp(tr.t[k], s[:, 0], c) for c in (
                 s[:, 1], s[:, 2], np.unwrap(s[:, 3]), s[:, 4], s[:, 5]))
-            if part == "lateral":
+            if part.startswith("lateral"):
                 left = np.column_stack([-np.sin(st[k, YAW]), np.cos(st[k, YAW])])
                 across = np.einsum("ki,ki->k", st[k][:, [X, Y]] - np.column_stack([x, y]), left)
+                if part == "lateral_mean":
+                    across = np.full_like(across, across.mean())
+                elif part == "lateral_within":
+                    across = across - across.mean()
                 st[k, X] -= across * left[:, 0]
                 st[k, Y] -= across * left[:, 1]
             else:
@@ -227,8 +235,10 @@ def with_truth(tracks: TrackSet, truth: list[TrackTruth], vehicles: list[np.ndar
 
 def decompose(args, cfg: Config) -> list[dict]:
     held = dataclasses.replace(cfg, joint=dataclasses.replace(cfg.joint, refine_tracks=False))
-    names = ("filter_sicp", "joint", "held", "truth_lateral", "truth_kinematics")
-    print(f"{'case':<13}{'seed':>4} | " + " | ".join(f"{n:>16}" for n in names)
+    parts = ("lateral_mean", "lateral_within", "lateral", "kinematics")
+    names = ("filter_sicp", "joint", "held", *(f"truth_{p}" for p in parts))
+    print(f"{'case':<13}{'seed':>4} | " + " | ".join(f"{n.replace('truth_', '= '):>16}"
+                                                  for n in names)
           + " | steps corrected")
     print(f"{'':17} | " + " | ".join(f"{'2D m / yaw deg':>16}" for _ in names) + " |")
     rows = []
@@ -243,9 +253,8 @@ def decompose(args, cfg: Config) -> list[dict]:
             row["filter_sicp"], row["joint"], fs = both(scn, target, coarse, tracks, cfg)
             truth_c = truth_in_track_frame(scn, coarse, tracks)
             vehicles = step_vehicles(tracks, sim.source)
-            variants = {"held": (tracks, 0.0),
-                        "truth_lateral": with_truth(tracks, truth_c, vehicles, "lateral"),
-                        "truth_kinematics": with_truth(tracks, truth_c, vehicles, "kinematics")}
+            variants = {"held": (tracks, 0.0)} | {
+                f"truth_{p}": with_truth(tracks, truth_c, vehicles, p) for p in parts}
             for name, (trk, _) in variants.items():
                 t0 = time.perf_counter()
                 res = joint_from_tracks(scn, held, target, coarse, trk, Timer(), start=fs)
@@ -258,7 +267,7 @@ def decompose(args, cfg: Config) -> list[dict]:
     base = [np.mean([r["filter_sicp"][k] for r in rows]) for k in ("d2d", "dyaw_deg")]
     for n in names:
         m = [np.mean([r[n][k] for r in rows]) for k in ("d2d", "dyaw_deg")]
-        print(f"mean {n:<17} 2D {m[0]:.3f} m  |dyaw| {m[1]:.3f} deg  (x filter-sicp: "
+        print(f"mean {n:<22} 2D {m[0]:.3f} m  |dyaw| {m[1]:.3f} deg  (x filter-sicp: "
               f"{m[0] / base[0]:.2f} / {m[1] / base[1]:.2f})")
     return rows
 
