@@ -53,6 +53,7 @@ from fgloc.result import LocalizationResult
 from fgloc.scenario import TrackTruth
 from fgloc.sim import simulate, simulate_detailed
 from fgloc.sim.config import SimConfig
+from fgloc.smoothing.run import smooth_tracks
 from fgloc.tracking import track_scenario
 from fgloc.tracks import YAW, YAWRATE, TrackSet, V, X, Y
 
@@ -103,12 +104,16 @@ def prepared(case: str, seed: int, duration: float, cfg: Config, sim: SimConfig 
 
 
 def both(scn, target, coarse, tracks, cfg: Config) -> tuple[dict, dict, LocalizationResult]:
-    """Scores of filter-sicp and of the joint started from it, and the filter-sicp result."""
+    """Scores of filter-sicp and of the joint started from it (its time includes the
+    ``[joint] smoother`` smoothing), and the filter-sicp result."""
     truth = scn.truth.sensor_pose
     t0 = time.perf_counter()
     fs = register_tracks(scn, cfg, target, coarse, tracks, Timer(), method="filter-sicp")
     t1 = time.perf_counter()
-    jt = joint_from_tracks(scn, cfg, target, coarse, tracks, Timer(), start=fs)
+    smoothed = (None if cfg.joint.smoother == "none" else
+                smooth_tracks(scn, tracks, coarse.T_coarse, cfg.joint.smoother, cfg))
+    jt = joint_from_tracks(scn, cfg, target, coarse, tracks, Timer(), start=fs,
+                           smoothed=smoothed)
     t2 = time.perf_counter()
     return score(fs, truth, t1 - t0), score(jt, truth, t2 - t1), fs
 

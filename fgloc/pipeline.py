@@ -166,15 +166,16 @@ class SharedStages:
                 return track_scenario(self.scenario, coarse.T_coarse, self.config.tracking)
         return self._stage("tracks", run)
 
-    def smoothed(self) -> TrackSet:
+    def smoothed(self, name: str | None = None) -> TrackSet:
+        """The filter's tracks smoothed by ``name`` (default ``[smoothing] smoother``)."""
         _, coarse = self.coarse()
-        name = self.config.smoothing.smoother
+        name = name or self.config.smoothing.smoother
 
         def run(timer: Timer) -> TrackSet:
             with timer.stage(f"smoothing ({name})"):
                 return smooth_tracks(self.scenario, self.tracks(), coarse.T_coarse, name,
                                      self.config)
-        return self._stage("smoothed", run)
+        return self._stage(f"smoothed {name}", run)
 
     def times(self, *stages: str) -> dict[str, float]:
         """Seconds of the named shared stages (those that ran)."""
@@ -225,11 +226,15 @@ def localize_many(scenario: Scenario, methods: list[str], config: Config | None 
         if method == "joint":
             timer = Timer()
             target, coarse = st.coarse()
+            smoother = cfg.joint.smoother
+            smoothed = None if smoother == "none" else st.smoothed(smoother)
             out[method] = joint_from_tracks(scenario, cfg, target, coarse, st.tracks(), timer,
-                                            start=out["filter-sicp"])
+                                            start=out["filter-sicp"], smoothed=smoothed)
             own[method] = {**own["filter-sicp"], **timer.seconds}
     smoothing = f"smoothing ({cfg.smoothing.smoother})"
     for method in methods:
         shared = _SHARED.get(method, (*_SHARED["filter-sicp"], smoothing))
+        if method == "joint" and cfg.joint.smoother != "none":
+            shared = (*shared, f"smoothing ({cfg.joint.smoother})")
         out[method].timings = {**st.times(*shared), **own[method]}
     return {m: out[m] for m in methods}

@@ -759,22 +759,29 @@ def run_joint(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
     Raises :class:`fgloc.errors.LocalizationError` when the coarse stage cannot find a pose.
     """
     from fgloc.coarse import target_and_coarse
+    from fgloc.smoothing.run import smooth_tracks
     from fgloc.tracking import track_scenario
 
     check_joint_config(cfg.joint)
     target, coarse = target_and_coarse(scn, cfg, timer)
     with timer.stage("tracking"):
         tracks = track_scenario(scn, coarse.T_coarse, cfg.tracking)
-    return joint_from_tracks(scn, cfg, target, coarse, tracks, timer)
+    smoothed = None
+    if cfg.joint.smoother != "none":
+        with timer.stage(f"smoothing ({cfg.joint.smoother})"):
+            smoothed = smooth_tracks(scn, tracks, coarse.T_coarse, cfg.joint.smoother, cfg)
+    return joint_from_tracks(scn, cfg, target, coarse, tracks, timer, smoothed=smoothed)
 
 
 def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: CoarseResult,
                       tracks: TrackSet, timer: Timer,
-                      start: LocalizationResult | None = None) -> LocalizationResult:
+                      start: LocalizationResult | None = None,
+                      smoothed: TrackSet | None = None) -> LocalizationResult:
     """The joint stage on the filter's ``tracks`` (frame C of ``coarse.T_coarse``): filter-sicp's
     registration as the start (``start``, computed here when None), then
-    :func:`joint_refine` on the same trajectory subset, the covariance mapped to the sensor's
-    (x, y, yaw) in L and the degeneracy report."""
+    :func:`joint_refine` on the same trajectory subset of ``smoothed`` (the same tracks
+    smoothed, ``[joint] smoother``; None: ``tracks`` themselves), the covariance mapped to the
+    sensor's (x, y, yaw) in L and the degeneracy report."""
     from fgloc.fine import coarse_tilt_covariance, register_tracks, sensor_covariance
     from fgloc.smoothing.graph import detection_range_rates, extent_trusted, placed_detections
     from fgloc.source import choose_tracks
@@ -788,7 +795,8 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
                   else 0.0)
         lines = LaneLines.build(scn, target, cfg.fine.lane_sample_step, sensor_c, offset)
         used = choose_tracks(len(tracks), cfg.fine, np.random.default_rng(cfg.seed))
-        subset = dataclasses.replace(tracks, tracks=[tracks.tracks[i] for i in used])
+        refined = tracks if smoothed is None else smoothed
+        subset = dataclasses.replace(refined, tracks=[refined.tracks[i] for i in used])
         T0 = start.tracks.T_frame_to_L if cfg.joint.start == "sicp" else np.eye(3)
         trusted = extent_trusted(scn, coarse.T_coarse, det_xy, cfg.tracking)
         jr = joint_refine(subset, det_xy, sensor_c, lines, T0, cfg, trusted,
@@ -811,6 +819,7 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
     tx, ty, yaw = se2_params(jr.T)
     diag = {
         "start": cfg.joint.start,
+        "smoother": cfg.joint.smoother,
         "T_fine": {"x": tx, "y": ty, "yaw_deg": float(np.rad2deg(yaw))},
         "rounds": jr.rounds,
         "converged": jr.converged,

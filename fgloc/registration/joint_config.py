@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from fgloc.smoothing.config import SMOOTHERS
+
 #: Where the joint optimization starts the sensor pose.
 STARTS: tuple[str, ...] = ("sicp", "coarse")
 #: Where a contour point should lie beside its target line (:mod:`fgloc.registration.joint`).
@@ -26,6 +28,13 @@ class JointConfig:
 
     start: str = "sicp"
     """Initial pose: "sicp" = filter-sicp's result, "coarse" = the coarse pose."""
+    smoother: str = "none"
+    """The tracks the joint starts from and linearizes its track factors at: "none" = the
+    filter's; "batch" / "fixed-lag" = the filter's smoothed first by that smoother
+    (``[smoothing]``'s other settings; the filter-sicp start stays on the filter's tracks).
+    The batch smoother halves the lateral error of a track's first seconds; on the simulated
+    intersections and T-junctions (seeds 1-5) the joint came out closer from its tracks, at
+    ~4 CPU s per track-minute more (docs/benchmarks.md, joint section)."""
     lateral_model: str = "contour"
     """Target of a contour point: "contour" = the lane centre line moved sideways by the
     point's lateral place in its vehicle (r sin theta: a vehicle drives centred in its lane);
@@ -152,6 +161,7 @@ def check_joint_config(cfg: JointConfig) -> None:
     """Raise ValueError naming the first invalid JointConfig field."""
     problems = {
         "start": cfg.start not in STARTS,
+        "smoother": cfg.smoother not in SMOOTHERS,
         "lateral_model": cfg.lateral_model not in LATERAL_MODELS,
         "step_stride": cfg.step_stride < 1,
         "min_track_steps": cfg.min_track_steps < 2,
