@@ -227,7 +227,8 @@ def test_considered_lane_biases_are_the_pose_shifts_real_lane_biases_cause(senso
 
 def test_config_fields_are_checked():
     check_joint_config(JointConfig())
-    for field, value in [("start", "x"), ("step_stride", 0), ("along_weight", 2.0),
+    for field, value in [("start", "x"), ("smoother", "kalman"), ("step_stride", 0),
+                         ("along_weight", 2.0),
                          ("label_weight_other", -0.1), ("max_rounds", 0),
                          ("consider_side_bias_sigma", -0.1),
                          ("consider_lane_bias_sigma", -0.1)]:

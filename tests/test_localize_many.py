@@ -38,3 +38,25 @@ def test_icp_and_filter_sicp_share_their_stages() -> None:
 @pytest.mark.slow
 def test_every_method_equals_its_separate_run() -> None:
     check_equal_to_separate_runs(sorted(METHODS), 20.0)
+
+
+def test_joint_on_smoothed_tracks_shares_the_smoothing_stage() -> None:
+    """``[joint] smoother = "batch"``: the joint refines the batch smoother's tracks (a
+    different pose than on the filter's), the same in localize() and localize_many(), which
+    computes the smoothing once for smoother-sicp and joint and reports it in both."""
+    import dataclasses
+
+    scn = simulate("tjunction", 4, duration=12.0, vehicles=12)
+    plain = Config()
+    cfg = dataclasses.replace(plain, joint=dataclasses.replace(plain.joint, smoother="batch"))
+    one = localize(scn, "joint", cfg)
+    assert one.diagnostics["joint"]["smoother"] == "batch"
+    assert "smoothing (batch)" in one.timings
+    stages = SharedStages(scn, cfg)
+    many = localize_many(scn, ["smoother-sicp", "joint"], cfg, stages)
+    np.testing.assert_allclose(many["joint"].T_local, one.T_local, atol=1e-9)
+    assert set(many["joint"].timings) == set(one.timings)
+    assert sum(k.startswith("smoothed") for k in stages._cache) == 1
+    on_filter = localize(scn, "joint", plain)
+    assert "smoothing (batch)" not in on_filter.timings
+    assert np.abs(on_filter.T_local[:2, 3] - one.T_local[:2, 3]).max() > 1e-6
