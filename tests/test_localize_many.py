@@ -46,6 +46,9 @@ def test_joint_on_smoothed_tracks_shares_the_smoothing_stage() -> None:
     computes the smoothing once for smoother-sicp and joint and reports it in both."""
     import dataclasses
 
+    from fgloc.progress import Timer
+    from fgloc.registration.joint import joint_from_tracks
+
     scn = simulate("tjunction", 4, duration=12.0, vehicles=12)
     plain = Config()
     cfg = dataclasses.replace(plain, joint=dataclasses.replace(plain.joint, smoother="batch"))
@@ -57,6 +60,10 @@ def test_joint_on_smoothed_tracks_shares_the_smoothing_stage() -> None:
     np.testing.assert_allclose(many["joint"].T_local, one.T_local, atol=1e-9)
     assert set(many["joint"].timings) == set(one.timings)
     assert sum(k.startswith("smoothed") for k in stages._cache) == 1
+    tracks = stages.tracks()
+    with pytest.raises(ValueError, match="smoothed"):      # other tracks than the filter's
+        joint_from_tracks(scn, cfg, *stages.coarse(), tracks, Timer(),
+                          smoothed=dataclasses.replace(tracks, tracks=tracks.tracks[1:]))
     on_filter = localize(scn, "joint", plain)
     assert "smoothing (batch)" not in on_filter.timings
     assert np.abs(on_filter.T_local[:2, 3] - one.T_local[:2, 3]).max() > 1e-6

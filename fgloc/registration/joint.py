@@ -781,12 +781,15 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
     registration as the start (``start``, computed here when None), then
     :func:`joint_refine` on the same trajectory subset of ``smoothed`` (the same tracks
     smoothed, ``[joint] smoother``; None: ``tracks`` themselves), the covariance mapped to the
-    sensor's (x, y, yaw) in L and the degeneracy report."""
+    sensor's (x, y, yaw) in L and the degeneracy report. Raises ValueError when ``smoothed``
+    holds other tracks than ``tracks``."""
     from fgloc.fine import coarse_tilt_covariance, register_tracks, sensor_covariance
     from fgloc.smoothing.graph import detection_range_rates, extent_trusted, placed_detections
     from fgloc.source import choose_tracks
 
     check_joint_config(cfg.joint)
+    if smoothed is not None and [t.id for t in smoothed.tracks] != [t.id for t in tracks.tracks]:
+        raise ValueError("smoothed: expected the same tracks as tracks, in the same order")
     if start is None:
         start = register_tracks(scn, cfg, target, coarse, tracks, timer, method="filter-sicp")
     with timer.stage("joint"):
