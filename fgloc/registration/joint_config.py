@@ -32,9 +32,10 @@ class JointConfig:
     """The tracks the joint starts from and linearizes its track factors at: "none" = the
     filter's; "batch" / "fixed-lag" = the filter's smoothed first by that smoother
     (``[smoothing]``'s other settings; the filter-sicp start stays on the filter's tracks).
-    The batch smoother halves the lateral error of a track's first seconds; on the simulated
-    intersections and T-junctions (seeds 1-5) the joint came out closer from its tracks, at
-    ~4 CPU s per track-minute more (docs/benchmarks.md, joint section)."""
+    The batch smoother halves the lateral error of a track's first seconds; the joint came
+    out closer from its tracks on the default simulated intersections and T-junctions (seeds
+    1-5) but not under changed simulator settings, at ~4 CPU s per track-minute more
+    (docs/benchmarks.md, joint section)."""
     lateral_model: str = "contour"
     """Target of a contour point: "contour" = the lane centre line moved sideways by the
     point's lateral place in its vehicle (r sin theta: a vehicle drives centred in its lane);
