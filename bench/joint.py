@@ -96,11 +96,14 @@ def sim_config(spec: str | None) -> SimConfig:
 
 
 def prepared(case: str, seed: int, duration: float, cfg: Config, sim: SimConfig | None = None):
-    scn = simulate(case, seed, duration=duration, config=sim)
-    timer = Timer()
-    target, coarse = target_and_coarse(scn, cfg, timer)
-    tracks = track_scenario(scn, coarse.T_coarse, cfg.tracking)
-    return scn, target, coarse, tracks
+    return stages_of(simulate(case, seed, duration=duration, config=sim), cfg)
+
+
+def stages_of(scn, cfg: Config):
+    """``(scn, target, coarse, tracks)``: the scenario with its target cloud, coarse pose and
+    the filter's tracks."""
+    target, coarse = target_and_coarse(scn, cfg, Timer())
+    return scn, target, coarse, track_scenario(scn, coarse.T_coarse, cfg.tracking)
 
 
 def both(scn, target, coarse, tracks, cfg: Config) -> tuple[dict, dict, LocalizationResult]:
@@ -192,9 +195,13 @@ def step_vehicles(tracks: TrackSet, source: np.ndarray) -> list[np.ndarray]:
     for tr in tracks.tracks:
         vid = np.full(len(tr), -1, np.int64)
         src = source[tr.det_index]
-        for s in np.unique(tr.det_step[src >= 0]):
-            ids, counts = np.unique(src[(tr.det_step == s) & (src >= 0)], return_counts=True)
-            vid[s] = ids[np.argmax(counts)]
+        ok = src >= 0
+        pairs, counts = np.unique(np.column_stack([tr.det_step[ok], src[ok]]), axis=0,
+                                  return_counts=True)
+        # per step the most common source (ties: the smaller id)
+        order = np.lexsort((pairs[:, 1], -counts, pairs[:, 0]))
+        best = order[np.r_[True, np.diff(pairs[order, 0]) != 0]] if len(order) else order
+        vid[pairs[best, 0]] = pairs[best, 1]
         have = np.flatnonzero(vid >= 0)
         if have.size:
             fill = np.maximum.accumulate(np.where(vid >= 0, np.arange(len(tr)), -1))
@@ -250,9 +257,7 @@ def decompose(args, cfg: Config) -> list[dict]:
     for case in args.cases:
         for seed in args.seeds:
             sim = simulate_detailed(case, seed, duration=args.duration, config=args.sim)
-            scn = sim.scenario
-            target, coarse = target_and_coarse(scn, cfg, Timer())
-            tracks = track_scenario(scn, coarse.T_coarse, cfg.tracking)
+            scn, target, coarse, tracks = stages_of(sim.scenario, cfg)
             truth = scn.truth.sensor_pose
             row: dict = {"case": case, "seed": seed}
             row["filter_sicp"], row["joint"], fs = both(scn, target, coarse, tracks, cfg)
