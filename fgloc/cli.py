@@ -1,7 +1,8 @@
 """The ``fgloc`` command line: a thin layer that parses, calls the library and prints.
 
 Every :class:`fgloc.errors.FglocError` (bad input, impossible localization) ends the command with
-a one-line message on stderr and exit code 2.
+a one-line message on stderr and exit code 2. ``localize`` ends with :data:`EXIT_AMBIGUOUS` (3)
+when the result is ``ambiguous`` (outputs written, a warning on stderr).
 """
 
 from __future__ import annotations
@@ -18,6 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from fgloc.errors import FglocError
+
+#: exit code of ``fgloc localize`` when the pose is ambiguous (several modes fit alike)
+EXIT_AMBIGUOUS = 3
 
 EXAMPLE_DIR = Path(__file__).resolve().parent.parent / "data" / "example"
 
@@ -103,7 +107,8 @@ def _load_for_localize(path: str | Path, ignore_yaw_guess: bool):
 def _print_result(res) -> None:
     doc = res.to_json()
     s = doc["sensor"]
-    print(f"method {res.method}: {'converged' if res.converged else 'NOT CONVERGED'}")
+    print(f"method {res.method}: {'converged' if res.converged else 'NOT CONVERGED'}, "
+          f"{res.status} ({len(res.modes)} mode(s))")
     print(f"  E {s['x']:.3f}  N {s['y']:.3f}  z {s['z']:.3f}  ({res.crs})")
     print(
         f"  yaw {s['yaw_deg']:.3f} deg (true heading {doc['true_heading_deg']:.3f} deg)  "
@@ -129,6 +134,11 @@ def cmd_localize(args: argparse.Namespace) -> int:
     written = write_localization(args.out, scn, res)
     _print_result(res)
     print("wrote " + ", ".join(str(p) for p in written))
+    if res.status == "ambiguous":
+        tied = sum(bool(m["tied"]) for m in res.modes)
+        print(f"fgloc: warning: ambiguous pose: {tied} modes could not be told "
+              "apart (result.json 'modes'; the covariance covers them)", file=sys.stderr)
+        return EXIT_AMBIGUOUS
     return 0
 
 

@@ -48,7 +48,7 @@ from scipy.spatial import cKDTree
 from fgloc._open3d import open3d
 from fgloc.config import CoarseConfig, Config
 from fgloc.errors import LocalizationError
-from fgloc.geo import pose_from_se3, rot_from_ypr, rot_z, se3, wrap_angle, ypr_from_rot
+from fgloc.geo import pose_from_se3, rot_from_ypr, rot_z, se2, se3, wrap_angle, ypr_from_rot
 from fgloc.map import (
     TargetCloud,
     approx_position_local,
@@ -85,6 +85,28 @@ class CoarseResult:
     warnings: list[str] = field(default_factory=list)
     source_xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     tilt_covariance: np.ndarray | None = None
+    modes: list[CoarseMode] = field(default_factory=list)
+
+    def mode_starts(self) -> list[np.ndarray]:
+        """Per mode, the 3x3 SE(2) start of T_fine (C -> L) that moves the coarse frame C of
+        ``T_coarse`` onto that mode's placement (the identity for the first, best mode);
+        ``[np.eye(3)]`` when no modes were kept."""
+        return [m.start for m in self.modes] or [np.eye(3)]
+
+
+@dataclass
+class CoarseMode:
+    """One distinct coarse pose within ``mode_margin`` of the best lane-centre score.
+
+    pose2d: (x, y, yaw) of the sensor in L (m, rad). lane_score: its robust lane-centre score
+    (:func:`robust_score`, 1 = every point on a shifted centre line). start: 3x3 SE(2) C -> L
+    that moves the best mode's placement onto this one (the same tilt and height: the
+    registrations later reuse the tracks placed by the best mode, moved rigidly).
+    """
+
+    pose2d: np.ndarray
+    lane_score: float
+    start: np.ndarray
 
 
 # --------------------------------------------------------------------------------------------
@@ -382,37 +404,90 @@ def _yaw_candidates(yaw_guess_deg: float | None, cfg: CoarseConfig) -> np.ndarra
     return np.deg2rad(yaw_guess_deg) + np.arange(-w, w + 1e-9, step)
 
 
-def _ambiguity_warnings(
+def _lane_fit(lev: np.ndarray, target: PlanarTarget | LaneCentres, pose: np.ndarray,
+              cfg: CoarseConfig, iterations: int | None = None) -> tuple[float, np.ndarray]:
+    """Lane-centre ICP of levelled points ``lev`` (N, 2) from ``pose`` against ``target`` (the
+    shifted centre lines; given the lanes, those shifted towards the pose's sensor position,
+    start and end); (robust lane score, end pose). ``iterations`` per ICP stage (default
+    ``cfg.icp_iterations``)."""
+    tau = cfg.lane_icp_ranges[-1]
+    lanes = target if isinstance(target, LaneCentres) else None
+    if lanes is not None:
+        target = lanes.towards(pose[:2], cfg.visible_side_offset)
+    end = icp_planar(lev, target, pose, cfg.lane_icp_ranges,
+                     iterations or cfg.icp_iterations).pose
+    if lanes is not None:
+        target = lanes.towards(end[:2], cfg.visible_side_offset)
+    d = target.tree.query(_planar(lev, end), distance_upper_bound=tau)[0]
+    return robust_score(d, tau), end
+
+
+def _distinct(pose: np.ndarray, kept: list[tuple[float, np.ndarray]], cfg: CoarseConfig) -> bool:
+    """Whether ``pose`` is ``mode_separation`` m or ``mode_separation_deg`` from every kept."""
+    return all(np.hypot(*(pose[:2] - k[1][:2])) >= cfg.mode_separation
+               or abs(wrap_angle(pose[2] - k[1][2])) >= np.deg2rad(cfg.mode_separation_deg)
+               for k in kept)
+
+
+def lane_modes(
     refined: list[tuple[float, np.ndarray]], final: _Refined, src: np.ndarray,
     lanes: LaneCentres, cfg: CoarseConfig,
-) -> list[str]:
-    """A warning when a clearly different pose fits the lanes almost as well as the best one.
+) -> list[tuple[float, np.ndarray]]:
+    """The distinct planar poses (x, y, yaw) that fit the lane centres within
+    ``cfg.mode_margin`` of the best, as (lane score, pose), best first (at most ``max_modes``).
 
-    Runner-ups of the road-area search (which cannot tell poses a lane apart) are carried
-    through the lane-centre ICP; one that ends away from ``final`` with a lane-centre score of at
-    least ``cfg.ambiguity_ratio`` times the final pose's is reported.
+    Starts: ``final``'s pose, the road-area search's runner-ups (which cannot tell poses a lane
+    apart) and a grid around ``final`` (``mode_search_radius`` m in ``mode_search_step`` m
+    steps, yaw offsets ``mode_search_yaw_deg``), each carried through the lane-centre ICP on a
+    subsample of ``mode_points`` levelled points (``mode_search_iterations`` per stage) against
+    the lines shifted towards ``final``'s sensor; the distinct ends within the margin are
+    polished and re-scored with every point of ``src`` (levelled with ``final``'s tilt)
+    against the lines shifted towards their own.
     """
-    lev = (src @ final.r_tilt.T)[:, :2]
+    lev_all = (src @ final.r_tilt.T)[:, :2]
+    lev = lev_all[:: max(1, len(lev_all) // cfg.mode_points)]
+    r = cfg.mode_search_radius
+    offs = np.arange(-r, r + 1e-9, cfg.mode_search_step)
+    grid = [final.pose2d + np.array([dx, dy, np.deg2rad(dyaw)])
+            for dyaw in cfg.mode_search_yaw_deg for dx in offs for dy in offs]
     target = lanes.towards(final.pose2d[:2], cfg.visible_side_offset)
-    tau = cfg.lane_icp_ranges[-1]
+    ends = [_lane_fit(lev, target, p, cfg, cfg.mode_search_iterations)
+            for p in [final.pose2d, *(p for _, p in refined[1:]), *grid]]
+    top = max(score for score, _ in ends)
+    rough: list[tuple[float, np.ndarray]] = []
+    for score, pose in sorted(ends, key=lambda item: -item[0]):
+        if score >= cfg.mode_margin * top and _distinct(pose, rough, cfg):
+            rough.append((score, pose))
+    polished = sorted((_lane_fit(lev_all, lanes, pose, cfg) for _, pose in rough),
+                      key=lambda item: -item[0])
+    top = polished[0][0]
+    kept: list[tuple[float, np.ndarray]] = []
+    for score, pose in polished:
+        if len(kept) < cfg.max_modes and score >= cfg.mode_margin * top and _distinct(
+                pose, kept, cfg):
+            kept.append((score, pose))
+    return kept
 
-    def lane_score(pose: np.ndarray) -> float:
-        return robust_score(target.tree.query(_planar(lev, pose), distance_upper_bound=tau)[0], tau)
 
-    best = lane_score(final.pose2d)
-    for _, pose in refined[1:]:
-        end = icp_planar(lev, target, pose, cfg.lane_icp_ranges, cfg.icp_iterations).pose
-        dist = float(np.hypot(*(end[:2] - final.pose2d[:2])))
-        dyaw = abs(wrap_angle(end[2] - final.pose2d[2]))
-        far = dist > 2.0 * cfg.icp_ranges[-1] or dyaw > np.deg2rad(3.0)
-        score = lane_score(end)
-        if far and score >= cfg.ambiguity_ratio * best:
-            return [
-                f"ambiguous coarse pose: a pose {dist:.1f} m / {np.rad2deg(dyaw):.1f} deg away "
-                f"fits the lanes almost as well ({score:.3f} vs {best:.3f}); give "
-                "sensor.yaw_guess_deg or a better approx_position"
-            ]
-    return []
+def coarse_modes(kept: list[tuple[float, np.ndarray]], final: _Refined) -> list[CoarseMode]:
+    """The modes (best first) with their starts relative to ``final``'s placement (the first
+    mode's start is the identity: ``final`` is refined from it)."""
+    base = np.linalg.inv(se2(*final.pose2d))
+    return [CoarseMode(pose, score, np.eye(3) if k == 0 else se2(*pose) @ base)
+            for k, (score, pose) in enumerate(kept)]
+
+
+def mode_warning(modes: list[CoarseMode]) -> list[str]:
+    """A warning naming the other modes' distance from the best one (none for one mode)."""
+    if len(modes) < 2:
+        return []
+    best = modes[0]
+    parts = [f"{np.hypot(*(m.pose2d[:2] - best.pose2d[:2])):.1f} m / "
+             f"{np.rad2deg(abs(wrap_angle(m.pose2d[2] - best.pose2d[2]))):.1f} deg "
+             f"({m.lane_score:.3f} vs {best.lane_score:.3f})" for m in modes[1:]]
+    return [f"coarse: {len(modes)} poses fit the lanes almost as well: the best and "
+            f"{'; '.join(parts)} away; the later stages compare them (give "
+            "sensor.yaw_guess_deg or a better approx_position to narrow the search)"]
 
 
 def _start_height(road: RoadModel, centre: np.ndarray, height: float) -> float:
@@ -532,7 +607,15 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig) -> Co
     t = time.perf_counter()
     fit = src[:: max(1, len(src) // cfg.refine_points)]
     ref = _refine(fit, road, lanes, refined[0][1], z0, scn.sensor.vfov_deg, cfg)
-    warnings = _ambiguity_warnings(refined, ref, fit, lanes, cfg)
+    if cfg.max_modes > 1:
+        kept = lane_modes(refined, ref, fit, lanes, cfg)
+    else:
+        kept = [(_lane_fit((fit @ ref.r_tilt.T)[:, :2], lanes, ref.pose2d, cfg)[0], ref.pose2d)]
+    if _distinct(ref.pose2d, kept[:1], cfg):      # another pose fits the lanes best
+        ref = _refine(fit, road, lanes, kept[0][1], z0, scn.sensor.vfov_deg, cfg)
+        kept[0] = (kept[0][0], ref.pose2d)
+    modes = coarse_modes(kept, ref)
+    warnings = mode_warning(modes)
     timings["refinement"] = time.perf_counter() - t
 
     T = se3(rot_z(ref.pose2d[2]) @ ref.r_tilt, [ref.pose2d[0], ref.pose2d[1], ref.z])
@@ -564,6 +647,7 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig) -> Co
         warnings=warnings,
         source_xyz=src,
         tilt_covariance=ref.tilt_cov,
+        modes=modes,
     )
 
 

@@ -103,8 +103,36 @@ class CoarseConfig:
     """Std. dev. (deg) of the zero-mean prior on pitch and roll in the vertical fit."""
     alternations: int = 3
     """Rounds of horizontal ICP / vertical fit in the refinement."""
-    ambiguity_ratio: float = 0.97
-    """A different pose scoring at least this share of the best one's score is warned about."""
+    mode_margin: float = 0.97
+    """A distinct pose whose lane-centre score is at least this share of the best one's is
+    kept as a mode; every later method registers and compares every mode."""
+    mode_separation: float = 1.0
+    """Modes are at least this far apart (m) or ``mode_separation_deg`` apart in yaw; final
+    poses closer than both merge into the better one."""
+    mode_separation_deg: float = 1.0
+    """Yaw separation (deg) of distinct modes (see ``mode_separation``)."""
+    mode_search_radius: float = 4.5
+    """Half-width (m) of the grid of lane-centre ICP starts around the refined pose that look
+    for other modes (lane-width shifts along and across the roads)."""
+    mode_search_step: float = 1.5
+    """Step (m) of that grid."""
+    mode_search_yaw_deg: list[float] = field(default_factory=lambda: [-2.0, 0.0, 2.0])
+    """Yaw offsets (deg) of that grid."""
+    mode_points: int = 600
+    """About this many levelled points (a regular subsample) run the mode search's ICPs."""
+    mode_search_iterations: int = 15
+    """Iterations per ICP stage of the mode search's starts (the kept ends are polished with
+    ``icp_iterations``)."""
+    max_modes: int = 4
+    """At most this many modes (the best first) are carried to the later stages."""
+    mode_cost_scale: float = 1.5
+    """Scale c (m) of the robust cost that compares the modes' final fits:
+    ``min(d, c)^2 / c^2`` per tracked detection, d its distance to the nearest target line
+    point of its label."""
+    mode_z: float = 3.0
+    """A mode is told apart from the best when the best fits better by at least this many
+    standard errors over the tracks (self-normalized sum of the per-track cost differences);
+    otherwise the result is ``ambiguous``."""
     min_fitness: float = 0.5
     """A final fitness below this marks the result as not converged."""
     default_height: float = 6.0

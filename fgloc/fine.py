@@ -30,6 +30,7 @@ from scipy.spatial import cKDTree
 from fgloc.config import Config
 from fgloc.geo import se2_params, se2_to_se3, transform_points
 from fgloc.labels import NAMES
+from fgloc.modes import RESOLVED, ModeFit, choose_mode, track_costs
 from fgloc.progress import Timer
 from fgloc.registration.config import FineConfig, SicpConfig
 from fgloc.registration.sicp import SemanticTargets, SicpResult, sicp
@@ -73,6 +74,13 @@ def fine_targets(
         return SemanticTargets.build(*lane_centre_points(scn, target, step))
     offset = cfg.coarse.visible_side_offset
     return SemanticTargets.build(*lane_centre_points(scn, target, step, sensor_xy, offset))
+
+
+def mode_targets(scn: Scenario, target: TargetCloud, cfg: Config, coarse: CoarseResult,
+                 start: np.ndarray) -> SemanticTargets:
+    """:func:`fine_targets` for the mode whose placement is ``start`` (3x3 C -> L) applied to
+    the coarse frame: the visible sides face that mode's sensor position."""
+    return fine_targets(scn, target, cfg, transform_points(start, coarse.T_coarse[None, :2, 3])[0])
 
 
 def fine_sicp_config(cfg: Config) -> SicpConfig:
@@ -191,17 +199,33 @@ def register_tracks(
     ``sicp.sensor_covariance_uncalibrated`` and the result's ``covariance`` stays None until a
     calibrated one exists (the joint method). The source cloud is in L after the final pose and
     the tracks carry ``T_frame_to_L = T_fine``.
+
+    Every coarse mode (``coarse.modes``) is registered, from its start (the tracks placed by
+    the best mode moved rigidly onto it), against the targets seen from its sensor position;
+    the fits are compared on the same source cloud (:mod:`fgloc.modes`) and the best one is
+    reported; when they cannot be told apart the result is ``ambiguous`` and its covariance
+    covers the modes (built from the SICP covariances above).
     """
 
     with timer.stage("source cloud"):
         src = build_source_cloud(scn, tracks, coarse.T_coarse, cfg)
+    scfg = fine_sicp_config(cfg)
+    runs: list[tuple[SicpResult, SemanticTargets]] = []
+    fits: list[ModeFit] = []
     with timer.stage("SICP"):
-        targets = fine_targets(scn, target, cfg, coarse.T_coarse[:2, 3])
-        scfg = fine_sicp_config(cfg)
-        res = sicp(src.xy, src.label, targets, None, np.eye(3), scfg)
-
+        for start, mode in zip(coarse.mode_starts(), coarse.modes or [None]):
+            targets = mode_targets(scn, target, cfg, coarse, start)
+            res = sicp(src.xy, src.label, targets, None, start, scfg)
+            cov = sensor_covariance(res.covariance, res.T, coarse.T_coarse[:2, 3])
+            fits.append(ModeFit(res.T, se2_to_se3(res.T) @ coarse.T_coarse, cov,
+                                track_costs(src, targets, res.T, cfg.coarse.mode_cost_scale),
+                                1.0 if mode is None else mode.lane_score, res.converged,
+                                start))
+            runs.append((res, targets))
+    choice = choose_mode(fits, cfg.coarse)
+    res, targets = runs[next(i for i, f in enumerate(fits) if f is choice.best)]
     T_fine = res.T
-    warnings = [*target.warnings, *coarse.warnings, *res.warnings]
+    warnings = [*target.warnings, *coarse.warnings, *res.warnings, *choice.warnings(method)]
     if res.stop_reason == "max_iterations":
         warnings.append(f"SICP stopped on its iteration limit ({scfg.max_iterations}) before "
                         f"the RMSE settled: not converged")
@@ -216,7 +240,7 @@ def register_tracks(
         frame=scn.frame,
         T_local=se2_to_se3(T_fine) @ coarse.T_coarse,
         converged=coarse.converged and res.converged,
-        covariance=None,
+        covariance=None if choice.status == RESOLVED else choice.covariance(cfg.coarse),
         diagnostics=json_ready({
             "target": target.summary(),
             "coarse": coarse_diag,
@@ -224,9 +248,7 @@ def register_tracks(
             "source": src.summary(),
             "sicp": {
                 **_sicp_diagnostics(res, scfg, targets, cfg.fine),
-                "sensor_covariance_uncalibrated": sensor_covariance(
-                    res.covariance, T_fine, coarse.T_coarse[:2, 3]
-                ),
+                "sensor_covariance_uncalibrated": choice.best.covariance,
             },
         }),
         warnings=warnings,
@@ -235,4 +257,7 @@ def register_tracks(
         source_label=src.label,
         target=target,
         tracks=dataclasses.replace(tracks, T_frame_to_L=T_fine),
+        status=choice.status,
+        modes=json_ready(choice.summary(scn.frame)),
+        mode_fits=choice.fits,
     )

@@ -86,20 +86,28 @@ def _run_icp(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
 
 def _icp_result(scn: Scenario, cfg: Config, target: TargetCloud, coarse: CoarseResult
                 ) -> LocalizationResult:
-    """The icp method's result from the shared target cloud and coarse stage."""
+    """The icp method's result from the shared target cloud and coarse stage: the best coarse
+    mode, ``ambiguous`` when the coarse stage kept several (the covariance then spans them)."""
+    from fgloc.modes import RESOLVED, coarse_choice
+
     src = transform_points(coarse.T_coarse, coarse.source_xyz)
     diag = {k: v for k, v in asdict(coarse).items() if k not in ("T_coarse", "source_xyz")}
+    choice = coarse_choice(coarse)
     return LocalizationResult(
         method="icp",
         frame=scn.frame,
         T_local=coarse.T_coarse,
         converged=coarse.converged,
+        covariance=None if choice.status == RESOLVED else choice.covariance(cfg.coarse),
         diagnostics={"target": target.summary(), "coarse": json_ready(diag)},
-        warnings=[*target.warnings, *coarse.warnings],
+        warnings=[*target.warnings, *coarse.warnings, *choice.warnings("icp")],
         config=cfg,
         source_xyz=src,
         source_label=np.full(len(src), STRAIGHT, dtype=np.int8),
         target=target,
+        status=choice.status,
+        modes=json_ready(choice.summary(scn.frame)),
+        mode_fits=choice.fits,
     )
 
 

@@ -16,6 +16,7 @@ from fgloc.io.json_file import read_json
 
 if TYPE_CHECKING:
     from fgloc.map import TargetCloud
+    from fgloc.modes import ModeFit
     from fgloc.tracks import TrackSet
 
 
@@ -42,6 +43,11 @@ class LocalizationResult:
     source_label: (N,) int label codes of those points (all STRAIGHT when unlabelled).
     target: the labelled target cloud the pose was registered against (for reports).
     tracks: the vehicle tracks the method used (with ``T_frame_to_L`` set), or None.
+    status: "resolved", or "ambiguous" when the coarse stage's modes could not be told apart
+    (:mod:`fgloc.modes`; the pose is the best mode's, the covariance covers every mode).
+    modes: JSON-ready summary of every mode (best first; :meth:`fgloc.modes.ModeChoice.summary`).
+    mode_fits: the modes' fits (:class:`fgloc.modes.ModeFit`, best first; the joint starts from
+    them). z_std: std. dev. (m) of the sensor height, or None when the method gives none.
     """
 
     method: str
@@ -57,6 +63,10 @@ class LocalizationResult:
     source_label: np.ndarray | None = None
     target: TargetCloud | None = None
     tracks: TrackSet | None = None
+    status: str = "resolved"
+    modes: list[dict[str, Any]] = field(default_factory=list)
+    mode_fits: list[ModeFit] = field(default_factory=list)
+    z_std: float | None = None
 
     @property
     def crs(self) -> str:
@@ -73,6 +83,7 @@ class LocalizationResult:
         lat, lon = to_latlon(self.crs, x, y)
         doc: dict[str, Any] = {
             "method": self.method,
+            "status": self.status,
             "converged": bool(self.converged),
             "crs": self.crs,
             "sensor": {
@@ -89,6 +100,8 @@ class LocalizationResult:
             "true_heading_deg": true_heading_deg(self.crs, x, y, yaw),
             "covariance": None if self.covariance is None else np.asarray(self.covariance).tolist(),
             "covariance_order": ["x_m", "y_m", "yaw_rad"],
+            "z_std_m": self.z_std,
+            "modes": self.modes,
             "local_origin": list(self.frame.origin),
             "diagnostics": self.diagnostics,
             "timings_s": self.timings,

@@ -122,7 +122,8 @@ def run_job(job: Job, out: str) -> dict[str, Any]:
             os.replace(p, tmp / p.name)
         (tmp / "out").rmdir()
         x, y, z, yaw, _, _ = pose_from_se3(res.T_utm)
-        rec.update(status="ok", converged=bool(res.converged), crs=res.crs, x=x, y=y, z=z,
+        rec.update(status="ok", converged=bool(res.converged), pose_status=res.status,
+                   n_modes=len(res.modes), crs=res.crs, x=x, y=y, z=z,
                    yaw_deg=math.degrees(yaw))
         if scn.truth is not None:
             err = pose_error(res.T_local, scn.truth.sensor_pose)

@@ -1,10 +1,11 @@
 """The batch summary: one CSV row per job and an aggregate table per method.
 
-``summary.csv``: job, scenario, method, status, converged, x, y, z (world CRS, m), yaw_deg,
-dx, dy, d2d (m), dyaw_deg (errors against ground truth, empty without it), time_s,
-peak_rss_mb, error. ``aggregate.csv`` and the printed table: per method the job counts, the
-mean and worst 2D and yaw errors over the successful jobs with ground truth, and the mean and
-total wall time.
+``summary.csv``: job, scenario, method, status (of the job: ok / failed), converged,
+pose_status (result.json's ``status``: resolved / ambiguous), n_modes, x, y, z (world CRS, m),
+yaw_deg, dx, dy, d2d (m), dyaw_deg (errors against ground truth, empty without it), time_s,
+peak_rss_mb, error. ``aggregate.csv`` and the printed table: per method the job counts (and
+how many ended ambiguous), the mean and worst 2D and yaw errors over the successful jobs with
+ground truth, and the mean and total wall time.
 """
 
 from __future__ import annotations
@@ -18,11 +19,12 @@ from typing import Any
 from fgloc.io.atomic import write_text_atomic
 
 SUMMARY_COLUMNS: tuple[str, ...] = (
-    "job", "scenario", "method", "status", "converged", "x", "y", "z", "yaw_deg",
+    "job", "scenario", "method", "status", "converged", "pose_status", "n_modes",
+    "x", "y", "z", "yaw_deg",
     "dx", "dy", "d2d", "dyaw_deg", "time_s", "peak_rss_mb", "error",
 )
 AGGREGATE_COLUMNS: tuple[str, ...] = (
-    "method", "jobs", "ok", "failed", "with_truth", "mean_2d_m", "worst_2d_m",
+    "method", "jobs", "ok", "failed", "ambiguous", "with_truth", "mean_2d_m", "worst_2d_m",
     "mean_dyaw_deg", "worst_dyaw_deg", "mean_time_s", "total_time_s",
 )
 
@@ -56,6 +58,7 @@ def aggregate(records: list[dict[str, Any]], methods: list[str]) -> list[dict[st
         dyaw = [r["dyaw_deg"] for r in truth]
         rows.append({
             "method": m, "jobs": len(mine), "ok": len(ok), "failed": len(mine) - len(ok),
+            "ambiguous": sum(r.get("pose_status") == "ambiguous" for r in ok),
             "with_truth": len(truth),
             "mean_2d_m": sum(d2d) / len(d2d) if d2d else None,
             "worst_2d_m": max(d2d) if d2d else None,
@@ -69,10 +72,10 @@ def aggregate(records: list[dict[str, Any]], methods: list[str]) -> list[dict[st
 
 def aggregate_table(rows: list[dict[str, Any]]) -> str:
     """The aggregate rows as an aligned text table."""
-    head = ("method", "jobs", "ok", "failed", "mean 2D m", "worst 2D m", "mean |dyaw| deg",
-            "worst |dyaw| deg", "mean time s")
-    keys = ("method", "jobs", "ok", "failed", "mean_2d_m", "worst_2d_m", "mean_dyaw_deg",
-            "worst_dyaw_deg", "mean_time_s")
+    head = ("method", "jobs", "ok", "failed", "ambiguous", "mean 2D m", "worst 2D m",
+            "mean |dyaw| deg", "worst |dyaw| deg", "mean time s")
+    keys = ("method", "jobs", "ok", "failed", "ambiguous", "mean_2d_m", "worst_2d_m",
+            "mean_dyaw_deg", "worst_dyaw_deg", "mean_time_s")
 
     def fmt(v: Any) -> str:
         if v is None or (isinstance(v, float) and math.isnan(v)):

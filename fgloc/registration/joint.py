@@ -783,9 +783,10 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
     smoothed, ``[joint] smoother``; None: ``tracks`` themselves), the covariance mapped to the
     sensor's (x, y, yaw) in L and the degeneracy report. Raises ValueError when ``smoothed``
     holds other tracks than ``tracks``."""
-    from fgloc.fine import coarse_tilt_covariance, register_tracks, sensor_covariance
+    from fgloc.fine import coarse_tilt_covariance, mode_targets, register_tracks, sensor_covariance
+    from fgloc.modes import ModeFit, choose_mode, track_costs
     from fgloc.smoothing.graph import detection_range_rates, extent_trusted, placed_detections
-    from fgloc.source import choose_tracks
+    from fgloc.source import build_source_cloud, choose_tracks
 
     check_joint_config(cfg.joint)
     if smoothed is not None and [t.id for t in smoothed.tracks] != [t.id for t in tracks.tracks]:
@@ -796,21 +797,37 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
         det_xy, sensor_c = placed_detections(scn, coarse.T_coarse)
         offset = (cfg.coarse.visible_side_offset if cfg.joint.lateral_model == "visible-side"
                   else 0.0)
-        lines = LaneLines.build(scn, target, cfg.fine.lane_sample_step, sensor_c, offset)
         used = choose_tracks(len(tracks), cfg.fine, np.random.default_rng(cfg.seed))
         refined = tracks if smoothed is None else smoothed
         subset = dataclasses.replace(refined, tracks=[refined.tracks[i] for i in used])
-        T0 = start.tracks.T_frame_to_L if cfg.joint.start == "sicp" else np.eye(3)
         trusted = extent_trusted(scn, coarse.T_coarse, det_xy, cfg.tracking)
-        jr = joint_refine(subset, det_xy, sensor_c, lines, T0, cfg, trusted,
-                          detection_range_rates(scn))
-    cov = sensor_covariance(jr.covariance, jr.T, sensor_c)
+        rates = detection_range_rates(scn)
+        cloud = build_source_cloud(scn, tracks, coarse.T_coarse, cfg)
+        tilt = coarse_tilt_covariance(coarse) if cfg.joint.consider_coarse_tilt else None
+        runs: list[JointResult] = []
+        fits: list[ModeFit] = []
+        for mode in start.mode_fits:
+            mode_sensor = transform_points(mode.start, sensor_c[None])[0]
+            lines = LaneLines.build(scn, target, cfg.fine.lane_sample_step, mode_sensor, offset)
+            T0 = mode.T_fine if cfg.joint.start == "sicp" else mode.start
+            jr = joint_refine(subset, det_xy, sensor_c, lines, T0, cfg, trusted, rates)
+            cov = sensor_covariance(jr.covariance, jr.T, sensor_c)
+            if tilt is not None and cov is not None:
+                cov = cov + tilt
+            targets = mode_targets(scn, target, cfg, coarse, mode.start)
+            fits.append(ModeFit(jr.T, se2_to_se3(jr.T) @ coarse.T_coarse, cov,
+                                track_costs(cloud, targets, jr.T, cfg.coarse.mode_cost_scale),
+                                mode.lane_score, jr.converged, mode.start))
+            runs.append(jr)
+        choice = choose_mode(fits, cfg.coarse)
+        jr = runs[next(i for i, f in enumerate(fits) if f is choice.best)]
+    cov = choice.best.covariance
     cov_model = sensor_covariance(jr.covariance_model, jr.T, sensor_c)
-    tilt = coarse_tilt_covariance(coarse) if cfg.joint.consider_coarse_tilt else None
-    if tilt is not None and cov is not None:
-        cov, cov_model = cov + tilt, cov_model + tilt
+    if tilt is not None and cov_model is not None:
+        cov_model = cov_model + tilt
     degen = degeneracy_report(jr.covariance, jr.T, jr.matched, cfg.joint.weak_sigma)
-    warnings = list(start.warnings)
+    warnings = [w for w in start.warnings if not w.startswith(f"{start.method}: ambiguous")]
+    warnings += choice.warnings("joint")
     if not jr.converged:
         warnings.append(f"joint: the pose or the noise levels still moved after {jr.rounds} "
                         "rounds (max_rounds)")
@@ -848,9 +865,12 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
         method="joint",
         T_local=se2_to_se3(jr.T) @ coarse.T_coarse,
         converged=start.converged and jr.converged and cov is not None,
-        covariance=cov,
+        covariance=choice.covariance(cfg.coarse),
         diagnostics=json_ready({**start.diagnostics, "joint": diag}),
         warnings=warnings,
         source_xyz=src,
         tracks=jr.tracks,
+        status=choice.status,
+        modes=json_ready(choice.summary(scn.frame)),
+        mode_fits=choice.fits,
     )
