@@ -86,6 +86,8 @@ class CoarseResult:
     source_xyz: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
     tilt_covariance: np.ndarray | None = None
     modes: list[CoarseMode] = field(default_factory=list)
+    z_std: float | None = None
+    n_static_ground: int = 0
 
     def mode_starts(self) -> list[np.ndarray]:
         """Per mode, the 3x3 SE(2) start of T_fine (C -> L) that moves the coarse frame C of
@@ -100,13 +102,23 @@ class CoarseMode:
 
     pose2d: (x, y, yaw) of the sensor in L (m, rad). lane_score: its robust lane-centre score
     (:func:`robust_score`, 1 = every point on a shifted centre line). start: 3x3 SE(2) C -> L
-    that moves the best mode's placement onto this one (the same tilt and height: the
-    registrations later reuse the tracks placed by the best mode, moved rigidly).
+    that moves the best mode's placement onto this one (the same tilt: the registrations
+    later reuse the tracks placed by the best mode, moved rigidly). z, z_std: the sensor height
+    (m in L) of the vertical fit at this mode's pose and its std. dev. (m; None without a fit);
+    a final pose that started from this mode takes this height.
     """
 
     pose2d: np.ndarray
     lane_score: float
     start: np.ndarray
+    z: float
+    z_std: float | None = None
+
+    def placed(self, T_local: np.ndarray) -> np.ndarray:
+        """``T_local`` (4x4 S -> L) with this mode's height."""
+        out = np.array(T_local, dtype=float)
+        out[2, 3] = self.z
+        return out
 
 
 # --------------------------------------------------------------------------------------------
@@ -322,41 +334,126 @@ def distinct_peaks(
 # --------------------------------------------------------------------------------------------
 # vertical fit
 # --------------------------------------------------------------------------------------------
+#: ASPRS classes that are never an obstacle above the road: ground, noise, water, road surface,
+#: ignored ground
+_GROUND_LIKE = np.array([2, 7, 9, 11, 20])
+
+
+@dataclass
+class StaticGround:
+    """Static returns near the ground whose height the ALS gives (kerbs, the road's edge).
+
+    src: (M, 3) detections in S with ``|doppler| <= static_doppler_max`` (a regular subsample
+    of at most ``static_points``). high: 2D KD-tree over the ALS points outside the road
+    classes (buildings, vegetation, poles) and their heights ``high_z`` (M',) in L. lanes: a
+    KD-tree over the lane centre samples (a return within ``static_lane_clearance`` of a lane
+    centre may be a vehicle that stands or crosses the beam, not the ground).
+    """
+
+    src: np.ndarray
+    high: cKDTree | None
+    high_z: np.ndarray
+    lanes: cKDTree
+
+    @classmethod
+    def build(cls, radar: RadarData, als_xyz: np.ndarray, als_class: np.ndarray,
+              centre: np.ndarray, reach: float, lanes: LaneCentres, cfg: CoarseConfig
+              ) -> StaticGround:
+        """From the radar rows, the ALS (xyz (N, 3) in L, ASPRS classes (N,)) within ``reach``
+        m of ``centre`` (2,) (every class but ground, road, water, noise and ignored ground
+        may be an obstacle; the height test decides for unclassified points) and the lanes."""
+        st = np.asarray(radar.xyz, dtype=float)[np.abs(radar.doppler) <= cfg.static_doppler_max]
+        st = st[:: max(1, len(st) // cfg.static_points)] if len(st) else np.zeros((0, 3))
+        near = np.hypot(*(als_xyz[:, :2] - centre).T) <= reach
+        off = near & ~np.isin(als_class, _GROUND_LIKE)
+        high = cKDTree(als_xyz[off, :2]) if off.any() else None
+        return cls(st, high, als_xyz[off, 2].astype(float), cKDTree(lanes.xy))
+
+    def rows(self, r_tilt: np.ndarray, pose2d: np.ndarray, road: RoadModel,
+             cfg: CoarseConfig) -> tuple[np.ndarray, np.ndarray]:
+        """The static returns that qualify at this placement: their levelled sensor-centred
+        coordinates (K, 3) and the ALS road height under each (K,). A return qualifies within
+        ``static_ground_distance`` m of a road point, at least ``static_lane_clearance`` m from
+        every lane centre, with no ALS point higher than ``static_clearance_height`` m above
+        that road height within ``static_clearance`` m (no wall, tree or pole it could be)."""
+        lev = self.src @ r_tilt.T
+        xy = _planar(lev[:, :2], pose2d)
+        zr, dn = road.road_height(xy)
+        ok = (dn <= cfg.static_ground_distance) & (
+            self.lanes.query(xy)[0] >= cfg.static_lane_clearance)
+        if self.high is not None and ok.any():
+            d, i = self.high.query(xy[ok], k=8, distance_upper_bound=cfg.static_clearance)
+            found = np.isfinite(d)
+            hz = np.where(found, self.high_z[np.minimum(i, len(self.high_z) - 1)], -np.inf)
+            ok[np.flatnonzero(ok)] = ~np.any(hz > zr[ok, None] + cfg.static_clearance_height,
+                                             axis=1)
+        return lev[ok], zr[ok]
+
+
 def fit_vertical(
     lev: np.ndarray, xy_l: np.ndarray, road: RoadModel, allowed: np.ndarray,
     tilt: tuple[float, float], z_prior: float, cfg: CoarseConfig,
+    statics: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> tuple[np.ndarray, float, np.ndarray] | None:
-    """Small tilt (wx, wy) rad about the levelled axes and the sensor height z (m in L) that put
-    the levelled points ``lev`` (N, 3, sensor-centred) at road height + reflection height.
+    """Small tilt (wx, wy) rad about the levelled axes and the sensor height z (m in L) from the
+    moving returns ``lev`` (N, 3, levelled, sensor-centred) and the static ground returns
+    ``statics`` ((K, 3) levelled, (K,) ALS road height under each; :meth:`StaticGround.rows`).
 
-    Solves ``lev_z + wx lev_y - wy lev_x + z = z_road(xy) + h`` over the ``allowed`` points
-    within ``cfg.icp_ranges[-1]`` of the road (dropping residuals beyond 3 MADs) with Gaussian
-    priors z ~ z_prior (``height_prior_sigma``) and total pitch, roll ~ 0
-    (``tilt_prior_sigma_deg``; ``tilt`` = current (pitch, roll) rad, to first order wy adds to
-    the pitch and wx to the roll). Height errors are largely systematic (body heights, field of
-    view), so the points together weigh as ``vertical_effective_points`` measurements of sigma
-    ``height_residual_sigma``; the priors then decide the directions the points barely
-    determine, e.g. the roll about a single straight road.
-    Returns None when fewer than 10 points lie on the road.
+    Unknowns ``(wx, wy, z, h_v, h_s)``: h_v the mean height of the moving returns above the
+    road, h_s that of the static ones. Rows: ``lev_z + wx lev_y - wy lev_x + z - h = z_road``
+    for the ``allowed`` moving points within ``cfg.icp_ranges[-1]`` of the road (h = h_v) and
+    for the static ones (h = h_s), each group dropping residuals beyond 3 of its MADs. Priors:
+    z ~ z_prior (``height_prior_sigma``), total pitch, roll ~ 0 (``tilt_prior_sigma_deg``;
+    ``tilt`` = current (pitch, roll) rad, to first order wy adds to the pitch and wx to the
+    roll), h_v ~ ``reflection_height`` +- ``reflection_height_sigma`` (nobody knows where a
+    given radar's returns sit on the bodies; 0 fixes it), h_s ~ ``static_height`` +-
+    ``static_height_sigma``. The moving returns alone fix only ``z - h_v`` (and the tilt): their
+    height errors are largely systematic (body heights, field of view), so they weigh as
+    ``vertical_effective_points`` measurements of sigma ``height_residual_sigma``. The static
+    ones (at least ``static_min_points``) weigh as at most ``static_effective_points``
+    measurements of their own scatter (1.4826 MAD). Returns (wx, wy), z and the 5x5 covariance
+    of the unknowns (z's variance at [2, 2]), or None when fewer than 10 moving points lie on
+    the road.
     """
     zr, dn = road.road_height(xy_l)
     use = allowed & (dn <= cfg.icp_ranges[-1])
     if use.sum() < 10:
         return None
-    a = np.column_stack([lev[use, 1], -lev[use, 0], np.ones(int(use.sum()))])
-    b = zr[use] + cfg.reflection_height - lev[use, 2]
+    nv = int(use.sum())
+    groups = [(np.column_stack([lev[use, 1], -lev[use, 0], np.ones(nv), -np.ones(nv),
+                                np.zeros(nv)]), zr[use] - lev[use, 2])]
+    if statics is not None and len(statics[1]) >= cfg.static_min_points:
+        ls, zg = statics
+        ns = len(zg)
+        groups.append((np.column_stack([ls[:, 1], -ls[:, 0], np.ones(ns), np.zeros(ns),
+                                        -np.ones(ns)]), zg - ls[:, 2]))
     st = np.deg2rad(cfg.tilt_prior_sigma_deg)
-    a_prior = np.diag([1.0 / st, 1.0 / st, 1.0 / cfg.height_prior_sigma])
-    b_prior = np.array([-tilt[1] / st, -tilt[0] / st, z_prior / cfg.height_prior_sigma])
-    keep = np.ones(len(b), dtype=bool)
-    for _ in range(3):
-        wd = np.sqrt(cfg.vertical_effective_points / keep.sum()) / cfg.height_residual_sigma
-        aw = np.vstack([a[keep] * wd, a_prior])
-        bw = np.concatenate([b[keep] * wd, b_prior])
+    sd = np.array([st, st, cfg.height_prior_sigma, max(cfg.reflection_height_sigma, 1e-6),
+                   max(cfg.static_height_sigma, 1e-6)])
+    a_prior = np.diag(1.0 / sd)
+    b_prior = np.array([-tilt[1], -tilt[0], z_prior, cfg.reflection_height,
+                        cfg.static_height]) / sd
+    keep = [np.ones(len(b), dtype=bool) for _, b in groups]
+    sigma = [cfg.height_residual_sigma, np.inf]
+    for it in range(4):
+        aw, bw = [a_prior], [b_prior]
+        for g, ((a, b), k) in enumerate(zip(groups, keep)):
+            if it == 0 and g == 1:          # the statics join once a first solution exists
+                continue
+            eff = cfg.vertical_effective_points if g == 0 else min(
+                cfg.static_effective_points, k.sum())
+            wd = np.sqrt(eff / k.sum()) / sigma[g]
+            aw.append(a[k] * wd)
+            bw.append(b[k] * wd)
+        aw, bw = np.vstack(aw), np.concatenate(bw)
         sol = np.linalg.lstsq(aw, bw, rcond=None)[0]
-        r = b - a @ sol
-        med = np.median(r)
-        keep = np.abs(r - med) <= 3.0 * 1.4826 * (np.median(np.abs(r - med)) + 1e-6)
+        for g, (a, b) in enumerate(groups):
+            r = b - a @ sol
+            med = np.median(r[keep[g]]) if it else np.median(r)
+            mad = 1.4826 * np.median(np.abs(r - med)[keep[g]] if it else np.abs(r - med))
+            keep[g] = np.abs(r - med) <= 3.0 * (mad + 1e-6)
+            if g == 1:
+                sigma[1] = max(mad, 0.05)
     return sol[:2], float(sol[2]), np.linalg.inv(aw.T @ aw)
 
 
@@ -469,12 +566,28 @@ def lane_modes(
     return kept
 
 
-def coarse_modes(kept: list[tuple[float, np.ndarray]], final: _Refined) -> list[CoarseMode]:
+def coarse_modes(kept: list[tuple[float, np.ndarray]], final: _Refined,
+                 heights: list[tuple[float, float | None]]) -> list[CoarseMode]:
     """The modes (best first) with their starts relative to ``final``'s placement (the first
-    mode's start is the identity: ``final`` is refined from it)."""
+    mode's start is the identity: ``final`` is refined from it) and their (z, z std. dev.)."""
     base = np.linalg.inv(se2(*final.pose2d))
-    return [CoarseMode(pose, score, np.eye(3) if k == 0 else se2(*pose) @ base)
-            for k, (score, pose) in enumerate(kept)]
+    return [CoarseMode(pose, score, np.eye(3) if k == 0 else se2(*pose) @ base, *height)
+            for k, ((score, pose), height) in enumerate(zip(kept, heights))]
+
+
+def _height_at(src: np.ndarray, road: RoadModel, statics: StaticGround, final: _Refined,
+               pose2d: np.ndarray, z_prior: float, vfov_deg: float, cfg: CoarseConfig
+               ) -> tuple[float, float | None]:
+    """The sensor height (m in L) and its std. dev. of the vertical fit at another planar pose
+    with ``final``'s tilt (a mode a lane away stands on other road heights); ``final``'s own
+    when the fit finds too few points."""
+    lev = src @ final.r_tilt.T
+    xy_l = _planar(lev[:, :2], pose2d)
+    seen = below_fov_floor(src, final.r_tilt, final.z, road.road_height(xy_l)[0], vfov_deg)
+    pitch, roll = ypr_from_rot(final.r_tilt)[1:]
+    out = fit_vertical(lev, xy_l, road, seen, (pitch, roll), z_prior, cfg,
+                       statics.rows(final.r_tilt, pose2d, road, cfg))
+    return (final.z, final.z_std) if out is None else (out[1], float(np.sqrt(out[2][2, 2])))
 
 
 def mode_warning(modes: list[CoarseMode]) -> list[str]:
@@ -532,17 +645,20 @@ class _Refined:
     z: float
     icp: IcpOutcome
     tilt_cov: np.ndarray | None = None
+    z_std: float | None = None
+    n_static: int = 0
 
 
 def _refine(
     src: np.ndarray, road: RoadModel, lanes: LaneCentres, pose2d: np.ndarray, z: float,
-    vfov_deg: float, cfg: CoarseConfig,
+    vfov_deg: float, cfg: CoarseConfig, statics: StaticGround | None = None,
 ) -> _Refined:
     """Alternate the lane-centre planar ICP and the vertical fit (see the module docstring)."""
     r_tilt = np.eye(3)
     pitch = roll = 0.0
     z_prior = z
-    tilt_cov = None
+    tilt_cov = z_std = None
+    n_static = 0
     out = IcpOutcome(pose2d, False, 0)
     for _ in range(cfg.alternations):
         lev = src @ r_tilt.T
@@ -551,10 +667,13 @@ def _refine(
         pose2d = out.pose
         xy_l = _planar(lev[:, :2], pose2d)
         seen = below_fov_floor(src, r_tilt, z, road.road_height(xy_l)[0], vfov_deg)
-        vertical = fit_vertical(lev, xy_l, road, seen, (pitch, roll), z_prior, cfg)
+        rows = None if statics is None else statics.rows(r_tilt, pose2d, road, cfg)
+        vertical = fit_vertical(lev, xy_l, road, seen, (pitch, roll), z_prior, cfg, rows)
         if vertical is None:
             break
         w, z, cov = vertical
+        z_std = float(np.sqrt(cov[2, 2]))
+        n_static = 0 if rows is None else len(rows[1])
         # (wx, wy) turn about the levelled axes, which are L's turned by the yaw
         to_l = rot_z(pose2d[2])
         tilt_cov = to_l[:2, :2] @ cov[:2, :2] @ to_l[:2, :2].T
@@ -562,7 +681,7 @@ def _refine(
         yaw, pitch, roll = ypr_from_rot(full)
         pose2d = np.array([pose2d[0], pose2d[1], yaw])
         r_tilt = rot_from_ypr(0.0, pitch, roll)
-    return _Refined(pose2d, r_tilt, z, out, tilt_cov)
+    return _Refined(pose2d, r_tilt, z, out, tilt_cov, z_std, n_static)
 
 
 def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig) -> CoarseResult:
@@ -606,15 +725,21 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig) -> Co
 
     t = time.perf_counter()
     fit = src[:: max(1, len(src) // cfg.refine_points)]
-    ref = _refine(fit, road, lanes, refined[0][1], z0, scn.sensor.vfov_deg, cfg)
+    statics = StaticGround.build(scn.radar, np.asarray(scn.als.xyz, dtype=float),
+                                 np.asarray(scn.als.classification), centre,
+                                 scn.sensor.max_range + pad, lanes, cfg)
+    ref = _refine(fit, road, lanes, refined[0][1], z0, scn.sensor.vfov_deg, cfg, statics)
     if cfg.max_modes > 1:
         kept = lane_modes(refined, ref, fit, lanes, cfg)
     else:
         kept = [(_lane_fit((fit @ ref.r_tilt.T)[:, :2], lanes, ref.pose2d, cfg)[0], ref.pose2d)]
     if _distinct(ref.pose2d, kept[:1], cfg):      # another pose fits the lanes best
-        ref = _refine(fit, road, lanes, kept[0][1], z0, scn.sensor.vfov_deg, cfg)
+        ref = _refine(fit, road, lanes, kept[0][1], z0, scn.sensor.vfov_deg, cfg, statics)
         kept[0] = (kept[0][0], ref.pose2d)
-    modes = coarse_modes(kept, ref)
+    heights = [(ref.z, ref.z_std)] + [
+        _height_at(fit, road, statics, ref, pose, z0, scn.sensor.vfov_deg, cfg)
+        for _, pose in kept[1:]]
+    modes = coarse_modes(kept, ref, heights)
     warnings = mode_warning(modes)
     timings["refinement"] = time.perf_counter() - t
 
@@ -648,6 +773,8 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig) -> Co
         source_xyz=src,
         tilt_covariance=ref.tilt_cov,
         modes=modes,
+        z_std=ref.z_std,
+        n_static_ground=ref.n_static,
     )
 
 

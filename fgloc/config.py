@@ -82,9 +82,35 @@ class CoarseConfig:
     """Distance (m) off the road at which a point stops counting in the hypothesis score."""
     raster_cell: float = 0.5
     """Cell (m) of the road distance raster used by the hypothesis search."""
-    reflection_height: float = 1.2
-    """Mean height (m) of the dynamic detections above the road (vehicle bodies; mixed traffic
-    with vans and trucks, whose larger sides return more detections)."""
+    reflection_height: float = 1.0
+    """Prior mean (m) of the moving returns' mean height above the road (vehicle bodies:
+    bumpers and wheel arches to roofs; unknown for a given radar, estimated in the vertical
+    fit with ``reflection_height_sigma``)."""
+    reflection_height_sigma: float = 0.4
+    """Prior std. dev. (m) of that mean height (0 = fixed at ``reflection_height``)."""
+    static_doppler_max: float = 0.15
+    """Detections with ``|doppler|`` up to this (m/s) may be static ground returns (kerbs, the
+    road's edge) for the vertical fit."""
+    static_points: int = 20000
+    """At most about this many static detections (a regular subsample) are considered."""
+    static_ground_distance: float = 1.0
+    """A static ground return lies within this distance (m) of a road point of the ALS."""
+    static_lane_clearance: float = 1.5
+    """... and at least this far (m) from every lane centre (not a standing vehicle)."""
+    static_clearance: float = 1.5
+    """... with no ALS obstacle point (wall, tree, pole) within this distance (m) ..."""
+    static_clearance_height: float = 0.5
+    """... higher than this (m) above the road height there."""
+    static_height: float = 0.1
+    """Prior mean (m) of the static ground returns' height above the ALS road height (kerb
+    edges, road surface)."""
+    static_height_sigma: float = 0.05
+    """Prior std. dev. (m) of that height (shared by all static returns)."""
+    static_min_points: int = 30
+    """Fewer qualifying static returns than this: the vertical fit uses the moving ones only."""
+    static_effective_points: float = 100.0
+    """The static ground returns weigh like at most this many independent measurements of
+    their scatter (1.4826 MAD) in the vertical fit."""
     lane_icp_ranges: list[float] = field(default_factory=lambda: [3.0, 2.0])
     """Correspondence ranges (m) of the lane-centre refinement ICP stages."""
     lane_sample_step: float = 0.25

@@ -204,7 +204,8 @@ def register_tracks(
     the best mode moved rigidly onto it), against the targets seen from its sensor position;
     the fits are compared on the same source cloud (:mod:`fgloc.modes`) and the best one is
     reported; when they cannot be told apart the result is ``ambiguous`` and its covariance
-    covers the modes (built from the SICP covariances above).
+    covers the modes (their spread plus the mode set's resolution per mode: SICP's own
+    covariance is not calibrated).
     """
 
     with timer.stage("source cloud"):
@@ -216,12 +217,12 @@ def register_tracks(
         for start, mode in zip(coarse.mode_starts(), coarse.modes or [None]):
             targets = mode_targets(scn, target, cfg, coarse, start)
             res = sicp(src.xy, src.label, targets, None, start, scfg)
-            cov = sensor_covariance(res.covariance, res.T, coarse.T_coarse[:2, 3])
-            fits.append(ModeFit(res.T, se2_to_se3(res.T) @ coarse.T_coarse, cov,
+            T_local = se2_to_se3(res.T) @ coarse.T_coarse
+            fits.append(ModeFit(res.T, T_local if mode is None else mode.placed(T_local), None,
                                 track_costs(src, targets, res.T, cfg.coarse.mode_cost_scale),
                                 1.0 if mode is None else mode.lane_score, res.converged,
-                                start))
-            runs.append((res, targets))
+                                start, coarse.z_std if mode is None else mode.z_std))
+            runs.append((res, targets))      # SICP's covariance is not calibrated: None
     choice = choose_mode(fits, cfg.coarse)
     res, targets = runs[next(i for i, f in enumerate(fits) if f is choice.best)]
     T_fine = res.T
@@ -238,7 +239,7 @@ def register_tracks(
     return LocalizationResult(
         method=method,
         frame=scn.frame,
-        T_local=se2_to_se3(T_fine) @ coarse.T_coarse,
+        T_local=choice.best.T_local,
         converged=coarse.converged and res.converged,
         covariance=None if choice.status == RESOLVED else choice.covariance(cfg.coarse),
         diagnostics=json_ready({
@@ -248,7 +249,8 @@ def register_tracks(
             "source": src.summary(),
             "sicp": {
                 **_sicp_diagnostics(res, scfg, targets, cfg.fine),
-                "sensor_covariance_uncalibrated": choice.best.covariance,
+                "sensor_covariance_uncalibrated": sensor_covariance(
+                    res.covariance, T_fine, coarse.T_coarse[:2, 3]),
             },
         }),
         warnings=warnings,
@@ -260,4 +262,5 @@ def register_tracks(
         status=choice.status,
         modes=json_ready(choice.summary(scn.frame)),
         mode_fits=choice.fits,
+        z_std=choice.best.z_std,
     )

@@ -50,7 +50,8 @@ class ModeFit:
     covariance: 3x3 of the sensor's (x [m], y [m], yaw [rad]) in L, or None. track_cost: (J,)
     robust cost per track (the order of :func:`track_costs`'s ids, the same for every mode of
     one run). lane_score: the coarse mode's lane-centre score. converged: the registration's.
-    start: 3x3 SE(2) C -> L, the coarse mode's start (:meth:`fgloc.coarse.CoarseMode.start`).
+    start: 3x3 SE(2) C -> L, the coarse mode's start (:attr:`fgloc.coarse.CoarseMode.start`).
+    z_std: std. dev. (m) of the height (T_local's z, that of the coarse mode), or None.
     """
 
     T_fine: np.ndarray
@@ -60,6 +61,7 @@ class ModeFit:
     lane_score: float
     converged: bool
     start: np.ndarray
+    z_std: float | None = None
 
     @property
     def cost(self) -> float:
@@ -153,6 +155,7 @@ class ModeChoice:
             cov = fit.covariance
             out.append({
                 "x": x, "y": y, "z": z, "yaw_deg": float(np.rad2deg(yaw)),
+                "z_std_m": fit.z_std,
                 "cost": fit.cost if len(fit.track_cost) else None, "separation_z": float(self.z[k]),
                 "selected": k == 0, "tied": k in self.tied,
                 "coarse_lane_score": fit.lane_score, "converged": fit.converged,
@@ -177,8 +180,9 @@ class ModeChoice:
 def coarse_choice(coarse: CoarseResult) -> ModeChoice:
     """The coarse stage's modes as they stand (the icp method): the lane-centre scores cannot
     rule a mode out (they are all within ``mode_margin``), so more than one is ambiguous."""
-    fits = [ModeFit(m.start, se2_to_se3(m.start) @ coarse.T_coarse, None, np.zeros(0),
-                    m.lane_score, coarse.converged, m.start) for m in coarse.modes]
+    fits = [ModeFit(m.start, m.placed(se2_to_se3(m.start) @ coarse.T_coarse), None,
+                    np.zeros(0), m.lane_score, coarse.converged, m.start, m.z_std)
+            for m in coarse.modes]
     return ModeChoice(fits, np.zeros(len(fits)), list(range(len(fits))))
 
 

@@ -96,7 +96,7 @@ def _icp_result(scn: Scenario, cfg: Config, target: TargetCloud, coarse: CoarseR
     return LocalizationResult(
         method="icp",
         frame=scn.frame,
-        T_local=coarse.T_coarse,
+        T_local=choice.best.T_local,
         converged=coarse.converged,
         covariance=None if choice.status == RESOLVED else choice.covariance(cfg.coarse),
         diagnostics={"target": target.summary(), "coarse": json_ready(diag)},
@@ -108,6 +108,7 @@ def _icp_result(scn: Scenario, cfg: Config, target: TargetCloud, coarse: CoarseR
         status=choice.status,
         modes=json_ready(choice.summary(scn.frame)),
         mode_fits=choice.fits,
+        z_std=choice.best.z_std,
     )
 
 

@@ -76,13 +76,14 @@ class _FlatRoad:
 
 def test_vertical_fit_covariance_is_the_spread_of_its_estimates() -> None:
     """With heights as independent as the fit assumes (``vertical_effective_points`` = their
-    count, noise ``height_residual_sigma``), the returned covariance of (wx, wy, z) is the
+    count, noise ``height_residual_sigma``) and a known reflection height
+    (``reflection_height_sigma = 0``), the returned covariance of (wx, wy, z) is the
     spread of the estimates over noise draws (200 draws: std. devs. within 15 %)."""
     rng = np.random.default_rng(7)
     n = 400
     cfg = dataclasses.replace(CoarseConfig(), vertical_effective_points=float(n),
                               height_residual_sigma=0.5, tilt_prior_sigma_deg=20.0,
-                              height_prior_sigma=20.0)
+                              height_prior_sigma=20.0, reflection_height_sigma=0.0)
     # one road on one side: the roll about it rests on a 10 m wide band
     xy = np.column_stack([rng.uniform(10, 120, n), rng.uniform(10, 20, n)])
     truth = np.array([0.01, -0.02, 6.0])                      # wx, wy (rad), z (m)
@@ -92,7 +93,7 @@ def test_vertical_fit_covariance_is_the_spread_of_its_estimates() -> None:
         lev = np.column_stack([xy, h - truth[2] - truth[0] * xy[:, 1] + truth[1] * xy[:, 0]])
         w, z, cov = fit_vertical(lev, xy, _FlatRoad(), np.ones(n, bool), (0.0, 0.0), 6.0, cfg)
         est.append([*w, z])
-        covs.append(cov)
+        covs.append(cov[:3, :3])
     est = np.array(est)
     assert np.all(np.abs(est.mean(0) - truth) < 4 * np.sqrt(np.diag(covs[0]) / 200))
     np.testing.assert_allclose(est.std(0), np.sqrt(np.diag(np.mean(covs, axis=0))), rtol=0.15)
@@ -134,3 +135,28 @@ def test_poor_overlap_is_reported_not_raised() -> None:
     )
     res = coarse_localize(scn, partial, CoarseConfig())
     assert not res.converged and "fitness" in res.message
+
+
+def test_static_ground_returns_fix_the_height_the_moving_ones_cannot() -> None:
+    """Moving returns 0.5 m above the road (the prior says 1.0 +- 0.4) fix only z minus their
+    height: alone, z is off by up to the prior's doubt and its std. dev. says so; static returns
+    at the kerb height (0.1 m) with 0.3 m of noise and 20 % outliers at 2-8 m pin z."""
+    rng = np.random.default_rng(3)
+    cfg = CoarseConfig()
+    z_true, n, m = 6.0, 600, 800
+    xy = np.column_stack([rng.uniform(10, 120, n), rng.uniform(-30, 30, n)])
+    lev = np.column_stack([xy, 0.5 + rng.normal(0, 0.3, n) - z_true])
+    alone = fit_vertical(lev, xy, _FlatRoad(), np.ones(n, bool), (0.0, 0.0), 6.3, cfg)
+    assert alone is not None
+    z_alone, sd_alone = alone[1], np.sqrt(alone[2][2, 2])
+    assert sd_alone > 0.3 and abs(z_alone - z_true) < 2.5 * sd_alone
+    s_xy = np.column_stack([rng.uniform(5, 100, m), rng.uniform(-40, 40, m)])
+    h = cfg.static_height + rng.normal(0, 0.3, m)
+    out = rng.random(m) < 0.2
+    h[out] = rng.uniform(2.0, 8.0, out.sum())
+    s_lev = np.column_stack([s_xy, h - z_true])
+    w, z, cov = fit_vertical(lev, xy, _FlatRoad(), np.ones(n, bool), (0.0, 0.0), 6.3, cfg,
+                             (s_lev, np.zeros(m)))
+    sd = np.sqrt(cov[2, 2])
+    assert sd < min(0.1, sd_alone / 3.0) and abs(z - z_true) < 3.0 * sd
+    assert np.all(np.abs(w) < np.deg2rad(0.1))

@@ -815,9 +815,11 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
             if tilt is not None and cov is not None:
                 cov = cov + tilt
             targets = mode_targets(scn, target, cfg, coarse, mode.start)
-            fits.append(ModeFit(jr.T, se2_to_se3(jr.T) @ coarse.T_coarse, cov,
+            T_local = se2_to_se3(jr.T) @ coarse.T_coarse
+            T_local[2, 3] = mode.T_local[2, 3]          # the coarse mode's height
+            fits.append(ModeFit(jr.T, T_local, cov,
                                 track_costs(cloud, targets, jr.T, cfg.coarse.mode_cost_scale),
-                                mode.lane_score, jr.converged, mode.start))
+                                mode.lane_score, jr.converged, mode.start, mode.z_std))
             runs.append(jr)
         choice = choose_mode(fits, cfg.coarse)
         jr = runs[next(i for i, f in enumerate(fits) if f is choice.best)]
@@ -863,7 +865,7 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
     return dataclasses.replace(
         start,
         method="joint",
-        T_local=se2_to_se3(jr.T) @ coarse.T_coarse,
+        T_local=choice.best.T_local,
         converged=start.converged and jr.converged and cov is not None,
         covariance=choice.covariance(cfg.coarse),
         diagnostics=json_ready({**start.diagnostics, "joint": diag}),
@@ -873,4 +875,5 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
         status=choice.status,
         modes=json_ready(choice.summary(scn.frame)),
         mode_fits=choice.fits,
+        z_std=choice.best.z_std,
     )
