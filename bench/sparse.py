@@ -147,6 +147,34 @@ def height_rows(cases: list[str], seeds: list[int], duration: float, cfg: Config
     return lines
 
 
+def timing_rows(cfg: Config, repeats: int = 2) -> list[str]:
+    """Wall time of ``localize(..., "joint")`` with the modes (the defaults) against one mode
+    (``max_modes = 1``: no mode search) on the 120 s intersection (seed 1, default traffic)
+    and on the 60 s 4-arm junction at 5 vehicles per minute (seed 1); best of ``repeats``."""
+    from fgloc.pipeline import localize
+
+    lines = ["| scenario | max_modes | modes kept | status | wall s (best of "
+             f"{repeats}) | ratio |", "|---|---|---|---|---|---|"]
+    for name, scn in (("intersection 120 s, seed 1", simulate("intersection", 1,
+                                                               duration=120.0)),
+                      ("intersection 60 s, 5 veh/min, seed 1",
+                       scenario("intersection", 1, 5.0, 60.0))):
+        base = None
+        for modes in (1, cfg.coarse.max_modes):
+            mc = dataclasses.replace(cfg, coarse=dataclasses.replace(cfg.coarse,
+                                                                     max_modes=modes))
+            best, res = np.inf, None
+            for _ in range(repeats):
+                t0 = time.perf_counter()
+                res = localize(scn, "joint", mc)
+                best = min(best, time.perf_counter() - t0)
+            base = base or best
+            lines.append(f"| {name} | {modes} | {len(res.diagnostics['coarse']['modes'])} | "
+                         f"{res.status} | {best:.1f} | {best / base:.2f} |")
+            print(lines[-1], flush=True)
+    return lines
+
+
 def _fmt(v: float | None, f: str = "{:.2f}") -> str:
     return "-" if v is None or not np.isfinite(v) else f.format(v)
 
@@ -219,6 +247,7 @@ def main() -> int:
     ap.add_argument("--mode-tolerance", type=float, default=0.5,
                     help="an ambiguous run holds the truth when a tied mode is this close (m)")
     ap.add_argument("--no-height", action="store_true", help="skip the sensor-height part")
+    ap.add_argument("--no-timing", action="store_true", help="skip the modes' time part")
     ap.add_argument("--config", default=None, help="fgloc config TOML (default: all defaults)")
     ap.add_argument("--json", default=None, help="also write every run's figures here")
     ap.add_argument("--write", default=None, metavar="BENCHMARKS_MD",
@@ -245,6 +274,9 @@ def main() -> int:
     height = [] if args.no_height else ["", "Sensor height (coarse stage; 60 s, default "
                                         "traffic, the cases and seeds above):", "",
                                         *height_rows(args.cases, args.seeds, 60.0, cfg)]
+    timing = [] if args.no_timing else ["", "Time of the modes (`--method joint`, one "
+                                        "process, OMP_NUM_THREADS=1):", "",
+                                        *timing_rows(cfg, 1 if args.quick else 2)]
     elapsed = time.perf_counter() - t0
     command = "OMP_NUM_THREADS=1 python bench/sparse.py" + (" " if len(sys.argv) > 1 else "") \
         + " ".join(sys.argv[1:])
@@ -256,7 +288,7 @@ def main() -> int:
             "Cells over the seeds: mean / worst seed. NEES of (x, y, yaw) against the "
             "reported covariance (3 degrees of freedom). An ambiguous run holds the truth when "
             f"one of its tied modes lies within {args.mode_tolerance:g} m of it.", ""]
-    text = "\n".join(head + table(runs) + [""] + totals(runs) + height)
+    text = "\n".join(head + table(runs) + [""] + totals(runs) + height + timing)
     print("\n" + text)
     if args.write:
         replace_section(args.write, "sparse", text)

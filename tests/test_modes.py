@@ -137,3 +137,39 @@ def test_one_mode_when_max_modes_is_one(sparse_runs):
     cfg.coarse.max_modes = 1
     res = localize(scn, "icp", cfg)
     assert res.status == RESOLVED and len(res.modes) == 1
+
+
+def test_cli_localize_exits_3_on_an_ambiguous_pose(sparse_runs, tmp_path, capsys):
+    """icp on the sparse junction keeps several coarse modes: exit code 3, a warning on
+    stderr, result.json with status, every mode and a covariance covering them."""
+    import json
+
+    from fgloc.cli import EXIT_AMBIGUOUS, main
+    from fgloc.io import write_scenario
+
+    scn, out = sparse_runs
+    write_scenario(scn, tmp_path / "scn")
+    code = main(["-q", "localize", str(tmp_path / "scn"), "--out", str(tmp_path / "out"),
+                 "--method", "icp"])
+    assert code == EXIT_AMBIGUOUS == 3
+    assert "ambiguous" in capsys.readouterr().err
+    doc = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert doc["status"] == "ambiguous" and len(doc["modes"]) == len(out["icp"].modes) >= 2
+    assert sum(m["tied"] for m in doc["modes"]) >= 2 and doc["covariance"] is not None
+    assert doc["z_std_m"] > 0
+
+
+def test_batch_summary_carries_the_pose_status(tmp_path):
+    import csv
+
+    from fgloc.batch.summary import write_summary
+
+    recs = [{"job": f"s{i}/joint", "scenario": f"s{i}", "method": "joint", "status": "ok",
+             "pose_status": st, "n_modes": n, "d2d": 0.1, "dyaw_deg": 0.01, "time_s": 1.0}
+            for i, (st, n) in enumerate([("resolved", 1), ("ambiguous", 3), ("resolved", 2)])]
+    (agg,) = write_summary(tmp_path, recs, ["joint"])
+    assert (agg["ok"], agg["ambiguous"]) == (3, 1)
+    with (tmp_path / "summary.csv").open() as fh:
+        rows = list(csv.DictReader(fh))
+    assert [r["pose_status"] for r in rows] == ["resolved", "ambiguous", "resolved"]
+    assert [r["n_modes"] for r in rows] == ["1", "3", "2"]
