@@ -156,6 +156,28 @@ class PlanarTarget:
 
 
 @dataclass
+class ScoreRaster:
+    """float32 raster (nx, ny) of ``clip(1 - d / tau, 0, 1)``, d the distance (m) from the cell
+    centre to the nearest occupied cell; origin (2,) is the centre of cell (0, 0), cell (m).
+    The raster extends ``pad`` m beyond the points, so its outer ``pad - tau`` m score 0."""
+
+    score: np.ndarray
+    origin: np.ndarray
+    cell: float
+
+    @classmethod
+    def build(cls, xy: np.ndarray, cell: float, pad: float, tau: float) -> ScoreRaster:
+        """The raster of points (M, 2) in L."""
+        origin = xy.min(axis=0) - pad
+        shape = np.ceil((xy.max(axis=0) + pad - origin) / cell).astype(int) + 1
+        occ = np.zeros(shape, dtype=bool)
+        ij = np.round((xy - origin) / cell).astype(int)
+        occ[ij[:, 0], ij[:, 1]] = True
+        dist = distance_transform_edt(~occ) * cell
+        return cls(np.clip(1.0 - dist / tau, 0.0, 1.0).astype(np.float32), origin, cell)
+
+
+@dataclass
 class RoadModel:
     """Planar view of the road points: a 2D KD-tree with heights, and a score raster.
 
@@ -174,15 +196,9 @@ class RoadModel:
     @classmethod
     def build(cls, target: TargetCloud, cell: float, pad: float, tau: float) -> RoadModel:
         xyz = target.unique_xyz()
-        xy = xyz[:, :2]
-        origin = xy.min(axis=0) - pad
-        shape = np.ceil((xy.max(axis=0) + pad - origin) / cell).astype(int) + 1
-        occ = np.zeros(shape, dtype=bool)
-        ij = np.round((xy - origin) / cell).astype(int)
-        occ[ij[:, 0], ij[:, 1]] = True
-        dist = distance_transform_edt(~occ) * cell
-        score = np.clip(1.0 - dist / tau, 0.0, 1.0).astype(np.float32)
-        return cls(PlanarTarget.of(xy), z=xyz[:, 2], score=score, origin=origin, cell=cell)
+        raster = ScoreRaster.build(xyz[:, :2], cell, pad, tau)
+        return cls(PlanarTarget.of(xyz[:, :2]), z=xyz[:, 2], score=raster.score,
+                   origin=raster.origin, cell=cell)
 
     def distance(self, xy: np.ndarray, upper: float = np.inf) -> np.ndarray:
         """2D distance (m) of points (N, 2) to the nearest road point (inf beyond ``upper``)."""
@@ -289,7 +305,8 @@ def icp_planar(
 # global hypothesis search
 # --------------------------------------------------------------------------------------------
 def search_grid(
-    src: np.ndarray, road: RoadModel, centre: np.ndarray, yaws: np.ndarray, offs: np.ndarray
+    src: np.ndarray, road: RoadModel | ScoreRaster, centre: np.ndarray, yaws: np.ndarray,
+    offs: np.ndarray,
 ) -> np.ndarray:
     """Robust score (nyaw, n, n) of every (yaw, start position ``centre + (offs[i], offs[j])``)
     hypothesis for source points (N, 2), read from the score raster.
@@ -534,20 +551,29 @@ def lane_modes(
     ``cfg.mode_margin`` of the best, as (lane score, pose), best first (at most ``max_modes``).
 
     Starts: ``final``'s pose, the road-area search's runner-ups (which cannot tell poses a lane
-    apart) and a grid around ``final`` (``mode_search_radius`` m in ``mode_search_step`` m
-    steps, yaw offsets ``mode_search_yaw_deg``), each carried through the lane-centre ICP on a
-    subsample of ``mode_points`` levelled points (``mode_search_iterations`` per stage) against
-    the lines shifted towards ``final``'s sensor; the distinct ends within the margin are
-    polished and re-scored with every point of ``src`` (levelled with ``final``'s tilt)
-    against the lines shifted towards their own.
+    apart) and the ``mode_candidates`` best distinct peaks of a lane-level search: every pose
+    within ``mode_search_radius`` m (steps of the raster cell ``mode_search_cell``) and
+    ``mode_search_yaw_deg`` (steps ``mode_search_yaw_step_deg``) of ``final``'s, scored like
+    the road-area search (:func:`search_grid`) on a raster of the centre lines shifted
+    towards ``final``'s sensor (``tau`` = the last lane ICP range). Each start is carried
+    through the lane-centre ICP on a subsample of ``mode_points`` levelled points
+    (``mode_search_iterations`` per stage) against those lines; the distinct ends within the
+    margin are polished and re-scored with every point of ``src`` (levelled with ``final``'s
+    tilt) against the lines shifted towards their own.
     """
     lev_all = (src @ final.r_tilt.T)[:, :2]
     lev = lev_all[:: max(1, len(lev_all) // cfg.mode_points)]
-    r = cfg.mode_search_radius
-    offs = np.arange(-r, r + 1e-9, cfg.mode_search_step)
-    grid = [final.pose2d + np.array([dx, dy, np.deg2rad(dyaw)])
-            for dyaw in cfg.mode_search_yaw_deg for dx in offs for dy in offs]
     target = lanes.towards(final.pose2d[:2], cfg.visible_side_offset)
+    r, cell, tau = cfg.mode_search_radius, cfg.mode_search_cell, cfg.lane_icp_ranges[-1]
+    offs = np.arange(-np.floor(r / cell), np.floor(r / cell) + 1) * cell
+    raster = ScoreRaster.build(target.xy, cell, 2.0 * (r + tau) + cell, tau)
+    w, step = cfg.mode_search_yaw_deg, cfg.mode_search_yaw_step_deg
+    yaws = final.pose2d[2] + np.deg2rad(np.arange(-w, w + 1e-9, step))
+    scores = search_grid(lev, raster, final.pose2d[:2], yaws, offs)
+    peaks = distinct_peaks(scores, yaws, offs, cfg.mode_candidates,
+                           np.deg2rad(cfg.mode_separation_deg), cfg.mode_separation)
+    grid = [np.array([final.pose2d[0] + dx, final.pose2d[1] + dy, yaw])
+            for _, yaw, dx, dy in peaks]
     ends = [_lane_fit(lev, target, p, cfg, cfg.mode_search_iterations)
             for p in [final.pose2d, *(p for _, p in refined[1:]), *grid]]
     top = max(score for score, _ in ends)

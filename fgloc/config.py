@@ -137,13 +137,17 @@ class CoarseConfig:
     poses closer than both merge into the better one."""
     mode_separation_deg: float = 1.0
     """Yaw separation (deg) of distinct modes (see ``mode_separation``)."""
-    mode_search_radius: float = 4.5
-    """Half-width (m) of the grid of lane-centre ICP starts around the refined pose that look
-    for other modes (lane-width shifts along and across the roads)."""
-    mode_search_step: float = 1.5
-    """Step (m) of that grid."""
-    mode_search_yaw_deg: list[float] = field(default_factory=lambda: [-2.0, 0.0, 2.0])
-    """Yaw offsets (deg) of that grid."""
+    mode_search_radius: float = 10.0
+    """Half-width (m) of the lane-level search for other modes around the refined pose
+    (lane-width shifts along and across the roads)."""
+    mode_search_cell: float = 0.5
+    """Cell (m) of the lane-centre score raster of that search (its position step)."""
+    mode_search_yaw_deg: float = 3.0
+    """Half-width (deg) of that search's yaws around the refined yaw."""
+    mode_search_yaw_step_deg: float = 0.5
+    """Yaw step (deg) of that search."""
+    mode_candidates: int = 12
+    """Best distinct peaks of that search carried through the lane-centre ICP."""
     mode_points: int = 600
     """About this many levelled points (a regular subsample) run the mode search's ICPs."""
     mode_search_iterations: int = 15
