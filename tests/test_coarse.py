@@ -160,3 +160,31 @@ def test_static_ground_returns_fix_the_height_the_moving_ones_cannot() -> None:
     sd = np.sqrt(cov[2, 2])
     assert sd < min(0.1, sd_alone / 3.0) and abs(z - z_true) < 3.0 * sd
     assert np.all(np.abs(w) < np.deg2rad(0.1))
+
+
+class _RoadBand:
+    """A flat road at height 0 for |y| <= 5 m (road_height's distance grows beyond it)."""
+
+    def road_height(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return np.zeros(len(xy)), np.maximum(np.abs(xy[:, 1]) - 5.0, 0.0)
+
+
+def test_static_ground_returns_are_kerbs_not_vehicles_poles_or_far_off() -> None:
+    from scipy.spatial import cKDTree
+
+    from fgloc.coarse import StaticGround
+
+    cfg = CoarseConfig()
+    lanes = np.column_stack([np.tile(np.arange(0.0, 60.0, 0.25), 2),
+                             np.repeat([-1.75, 1.75], 240)])
+    pole = np.column_stack([np.full(6, 20.0), np.full(6, 6.0), np.arange(6.0)])
+    z_s = 6.0                                            # sensor 6 m above the road at (0, 0)
+    src = np.array([[10.0, 5.2, 0.15 - z_s],             # kerb: qualifies
+                    [30.0, -5.3, 0.1 - z_s],             # kerb on the other side: qualifies
+                    [10.0, 1.9, 0.8 - z_s],              # on a lane: a vehicle, not ground
+                    [20.0, 6.2, 0.5 - z_s],              # at the pole
+                    [10.0, 12.0, 0.0 - z_s]])            # 7 m off the road
+    ground = StaticGround(src, cKDTree(pole[:, :2]), pole[:, 2], cKDTree(lanes))
+    lev, zr = ground.rows(np.eye(3), np.zeros(3), _RoadBand(), cfg)
+    np.testing.assert_allclose(lev, src[:2])
+    np.testing.assert_allclose(zr, 0.0)

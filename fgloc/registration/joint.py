@@ -781,8 +781,11 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
     registration as the start (``start``, computed here when None), then
     :func:`joint_refine` on the same trajectory subset of ``smoothed`` (the same tracks
     smoothed, ``[joint] smoother``; None: ``tracks`` themselves), the covariance mapped to the
-    sensor's (x, y, yaw) in L and the degeneracy report. Raises ValueError when ``smoothed``
-    holds other tracks than ``tracks``."""
+    sensor's (x, y, yaw) in L and the degeneracy report. Every mode of the start
+    (``start.mode_fits``: filter-sicp's registrations of the coarse modes) is refined from its
+    registration against lines seen from its sensor position, and the fits are compared as in
+    :mod:`fgloc.modes` (``status``, ``modes``, a covering covariance when ambiguous). Raises
+    ValueError when ``smoothed`` holds other tracks than ``tracks``."""
     from fgloc.fine import coarse_tilt_covariance, mode_targets, register_tracks, sensor_covariance
     from fgloc.modes import ModeFit, choose_mode, track_costs
     from fgloc.smoothing.graph import detection_range_rates, extent_trusted, placed_detections
@@ -806,7 +809,9 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
         tilt = coarse_tilt_covariance(coarse) if cfg.joint.consider_coarse_tilt else None
         runs: list[JointResult] = []
         fits: list[ModeFit] = []
-        for mode in start.mode_fits:
+        for mode in start.mode_fits or [ModeFit(
+                start.tracks.T_frame_to_L, start.T_local, None, np.zeros(0), 1.0,
+                start.converged, np.eye(3), start.z_std)]:
             mode_sensor = transform_points(mode.start, sensor_c[None])[0]
             lines = LaneLines.build(scn, target, cfg.fine.lane_sample_step, mode_sensor, offset)
             T0 = mode.T_fine if cfg.joint.start == "sicp" else mode.start
