@@ -428,9 +428,10 @@ def fit_vertical(
     height errors are largely systematic (body heights, field of view), so they weigh as
     ``vertical_effective_points`` measurements of sigma ``height_residual_sigma``. The static
     ones (at least ``static_min_points``) weigh as at most ``static_effective_points``
-    measurements of their own scatter (1.4826 MAD). Returns (wx, wy), z and the 5x5 covariance
-    of the unknowns (z's variance at [2, 2]), or None when fewer than 10 moving points lie on
-    the road.
+    measurements of their own scatter (1.4826 MAD), each row divided by
+    ``sqrt(1 + (range / static_noise_range)^2)`` (the elevation noise grows with range).
+    Returns (wx, wy), z and the 5x5 covariance of the unknowns (z's variance at [2, 2]), or
+    None when fewer than 10 moving points lie on the road.
     """
     zr, dn = road.road_height(xy_l)
     use = allowed & (dn <= cfg.icp_ranges[-1])
@@ -442,8 +443,10 @@ def fit_vertical(
     if statics is not None and len(statics[1]) >= cfg.static_min_points:
         ls, zg = statics
         ns = len(zg)
+        # the elevation noise makes a return's height noise grow with its range
+        scale = np.sqrt(1.0 + (np.hypot(ls[:, 0], ls[:, 1]) / cfg.static_noise_range) ** 2)
         groups.append((np.column_stack([ls[:, 1], -ls[:, 0], np.ones(ns), np.zeros(ns),
-                                        -np.ones(ns)]), zg - ls[:, 2]))
+                                        -np.ones(ns)]) / scale[:, None], (zg - ls[:, 2]) / scale))
     st = np.deg2rad(cfg.tilt_prior_sigma_deg)
     sd = np.array([st, st, cfg.height_prior_sigma, max(cfg.reflection_height_sigma, 1e-6),
                    max(cfg.static_height_sigma, 1e-6)])

@@ -106,6 +106,9 @@ class CoarseConfig:
     edges, road surface)."""
     static_height_sigma: float = 0.05
     """Prior std. dev. (m) of that height (shared by all static returns)."""
+    static_noise_range: float = 30.0
+    """Range (m) beyond which a static return's height noise grows with its range (elevation
+    noise): its row in the vertical fit is divided by ``sqrt(1 + (range / this)^2)``."""
     static_min_points: int = 30
     """Fewer qualifying static returns than this: the vertical fit uses the moving ones only."""
     static_effective_points: float = 100.0
