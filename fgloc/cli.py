@@ -48,8 +48,8 @@ def scenario_summary(path: str | Path) -> str:
     from fgloc.config import CoarseConfig, MapConfig
     from fgloc.io import load_scenario
     from fgloc.labels import NAMES
-    from fgloc.map import label_lanelet
-    from fgloc.scenario import ASPRS_CLASSES
+    from fgloc.map import map_labels
+    from fgloc.scenario import ASPRS_CLASSES, lanelet_kind
 
     scn = load_scenario(path)
     r, s = scn.radar, scn.sensor
@@ -61,9 +61,17 @@ def scenario_summary(path: str | Path) -> str:
         f"{ASPRS_CLASSES.get(int(c), f'class {int(c)}')} ({int(c)}): {n:,}"
         for c, n in zip(classes, counts)
     )
-    gamma = MapConfig().gamma
-    labels = [label_lanelet(ll, gamma) for ll in scn.lanelets.lanelets]
-    by_label = ", ".join(f"{NAMES[k]} {labels.count(k)}" for k in sorted(NAMES))
+    map_cfg = MapConfig()
+    labels = map_labels(scn.lanelets, map_cfg)
+    codes = list(labels.code.values())
+    by_label = ", ".join(f"{NAMES[k]} {codes.count(k)}" for k in sorted(NAMES))
+    n_routed = list(labels.source.values()).count("routing")
+    lmap = scn.lanelets
+    drivable_kinds = [lanelet_kind(ll) for ll in lmap.lanelets]
+    by_kind = ", ".join(f"{k} {drivable_kinds.count(k)}" for k in sorted(set(drivable_kinds)))
+
+    def counts(d: dict[str, int]) -> str:
+        return ", ".join(f"{k} {v}" for k, v in d.items()) or "none"
     rate = len(r) / r.duration if r.duration > 0 else float("nan")
     guess = (
         "absent (global yaw search)" if s.yaw_guess_deg is None else f"{s.yaw_guess_deg:.2f} deg"
@@ -79,7 +87,13 @@ def scenario_summary(path: str | Path) -> str:
         f"radar         {len(r):,} detections in {n_frames:,} frames over {r.duration:.1f} s "
         f"({rate:,.0f} /s); dynamic (|doppler| >= {lam:g} m/s): {100 * dyn:.1f} %",
         f"ALS           {len(scn.als):,} points in {len(scn.als.source_files)} tile(s); {cls_txt}",
-        f"lanelets      {len(scn.lanelets)} ({by_label}; Menger gamma {gamma:g} 1/m)",
+        f"lanelets      {len(lmap)} drivable ({by_kind}; {lmap.rules})",
+        f"  labels      {by_label} ({n_routed} from the routing graph's junction movements, "
+        f"the rest by Menger curvature, gamma {map_cfg.gamma:g} 1/m)",
+        f"  ignored     {sum(lmap.ignored_by_kind().values())} not drivable "
+        f"({counts(lmap.ignored_by_kind())})",
+        f"map areas     {len(lmap.areas)} ({counts(lmap.areas_by_kind())})",
+        f"regulatory    {sum(lmap.regulatory.values())} ({counts(lmap.regulatory)})",
         f"ground truth  {'yes' if scn.truth is not None else 'no'}"
         + (f" ({len(scn.truth.tracks)} vehicles)" if scn.truth is not None else ""),
     ]

@@ -18,7 +18,7 @@ from fgloc.geo import LocalFrame
 from fgloc.io.als import ALS_SUFFIXES, find_als_tiles, read_als, write_als
 from fgloc.io.atomic import current_umask
 from fgloc.io.ground_truth import read_ground_truth, write_ground_truth
-from fgloc.io.lanelet_map import read_lanelet_map, write_lanelet_map
+from fgloc.io.lanelet_map import als_ground, read_lanelet_map, write_lanelet_map
 from fgloc.io.radar import read_radar, write_radar
 from fgloc.io.sensor_file import read_sensor_toml, write_sensor_toml
 from fgloc.scenario import Scenario, SensorConfig
@@ -65,7 +65,8 @@ def load_scenario(path: str | Path) -> Scenario:
     lo, hi = als.xyz[:, :2].min(axis=0), als.xyz[:, :2].max(axis=0)
     bbox = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
     _check_sensor_near_als(d / SENSOR_FILE, sensor, frame, bbox)
-    lanelets = read_lanelet_map(d / MAP_FILE, frame.crs, frame, overlap_bbox=bbox)
+    lanelets = read_lanelet_map(d / MAP_FILE, frame.crs, frame, overlap_bbox=bbox,
+                                settings=sensor.map, ground=als_ground(als))
     gt_path = d / GROUND_TRUTH_FILE
     truth = read_ground_truth(gt_path, frame) if gt_path.is_file() else None
     return Scenario(frame=frame, sensor=sensor, radar=radar, als=als, lanelets=lanelets,
