@@ -36,9 +36,9 @@ def junction_movements(lmap: LaneletMap) -> list[list[int]]:
     """Chains of lanelet ids that form one movement through a junction in the routing graph.
 
     The graph is cut into links: maximal chains whose inner connections are one-to-one (one
-    successor, which has one predecessor). A link with a predecessor and a successor is a
-    junction movement when its predecessor branches (has several successors: a diverge) or its
-    successor is a merge (has several predecessors).
+    successor, which has one predecessor). A link is a junction movement when its predecessor
+    branches (has several successors: a diverge) or its successor is a merge (has several
+    predecessors).
     """
     succ = lmap.successors
     pred = lmap.predecessors()
@@ -62,46 +62,54 @@ def junction_movements(lmap: LaneletMap) -> list[list[int]]:
             chain.append(succ[chain[-1]][0])
         seen.update(chain)
         before, after = pred.get(chain[0], ()), succ.get(chain[-1], ())
-        if before and after and (any(len(succ.get(b, ())) > 1 for b in before)
-                                 or any(len(pred.get(a, ())) > 1 for a in after)):
+        if (any(len(succ.get(b, ())) > 1 for b in before)
+                or any(len(pred.get(a, ())) > 1 for a in after)):
             out.append(chain)
     return out
 
 
-def _turn(before: list[Lanelet], after: list[Lanelet]) -> float:
-    """Heading change (rad, CCW positive, wrapped) from the mean driving direction at the end of
-    ``before`` to the mean one at the start of ``after``."""
-    h_in = np.sum([_end_heading(ll, True) for ll in before], axis=0)
-    h_out = np.sum([_end_heading(ll, False) for ll in after], axis=0)
-    return float(wrap_angle(np.arctan2(h_out[1], h_out[0]) - np.arctan2(h_in[1], h_in[0])))
+def _direction(lanelets: list[Lanelet], at_end: bool) -> float:
+    """Mean driving direction (rad) at the end (start) of ``lanelets``."""
+    h = np.sum([_end_heading(ll, at_end) for ll in lanelets], axis=0)
+    return float(np.arctan2(h[1], h[0]))
 
 
 def routing_labels(lmap: LaneletMap, turn_angle: float) -> dict[int, int]:
     """Labels of the lanelets of junction movements (:func:`junction_movements`).
 
     A movement turns when the heading changes by more than ``turn_angle`` (rad) from its
-    predecessors' end to its successors' start (CCW positive: LEFT, else RIGHT). A movement can
-    be split into several lanelets and run on into the exit road, so each of its lanelets is
-    judged between its own neighbours: it carries the movement's turn when its heading change
-    has the same sign and exceeds ``turn_angle / 2``, else it is STRAIGHT. Lanelets outside
+    predecessors' end to its successors' start (CCW positive: LEFT, else RIGHT; the movement's
+    own start or end where the map has no predecessor or successor). A movement can be split
+    into several lanelets and run on into the exit road, so each of its lanelets carries the
+    turn only when it turns by more than ``turn_angle / 2`` the same way itself: the lanelet
+    next to the branch (after the diverge, before the merge) measured from its predecessor's end
+    to its successor's start (coarsely drawn junction lanelets make their turn in the kinks),
+    every other one from its own start to its own end. The rest are STRAIGHT; lanelets outside
     movements are not in the result.
     """
     by_id = {ll.id: ll for ll in lmap.lanelets}
     pred = lmap.predecessors()
     out: dict[int, int] = {}
     for chain in junction_movements(lmap):
-        lls = [by_id.get(i) for i in chain]
+        lls = [by_id[i] for i in chain if i in by_id]
+        if len(lls) != len(chain):
+            continue
         before = [by_id[i] for i in pred.get(chain[0], ()) if i in by_id]
         after = [by_id[i] for i in lmap.successors.get(chain[-1], ()) if i in by_id]
-        if not before or not after or None in lls:
-            continue
-        turn = _turn(before, after)
+        start = [_direction([ll], False) for ll in lls]
+        end = [_direction([ll], True) for ll in lls]
+        h_in = [_direction(before, True) if before else start[0], *end[:-1]]
+        h_out = [*start[1:], _direction(after, False) if after else end[-1]]
+        turn = float(wrap_angle(h_out[-1] - h_in[0]))
         if abs(turn) <= turn_angle:
             out.update({i: STRAIGHT for i in chain})
             continue
-        code = LEFT if turn > 0 else RIGHT
-        ends = [before, *[[ll] for ll in lls], after]
+        branch = {0} if any(len(lmap.successors.get(b.id, ())) > 1 for b in before) else set()
+        if any(len(pred.get(a.id, ())) > 1 for a in after):
+            branch.add(len(chain) - 1)
         for k, lid in enumerate(chain):
-            own = _turn(ends[k], ends[k + 2])
-            out[lid] = code if own * turn > 0 and abs(own) > turn_angle / 2 else STRAIGHT
+            a, b = (h_in[k], h_out[k]) if k in branch else (start[k], end[k])
+            own = float(wrap_angle(b - a))
+            out[lid] = (LEFT if turn > 0 else RIGHT) if own * turn > 0 and abs(own) > \
+                turn_angle / 2 else STRAIGHT
     return out

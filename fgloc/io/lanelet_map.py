@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import re
+import tempfile
 import xml.etree.ElementTree as ET
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -110,9 +111,17 @@ def read_lanelet_map(
     nodes, lanelet_ids = _parse_osm(p)
     if not lanelet_ids:
         raise InputError(p, "the map holds no lanelet (no relation tagged type=lanelet)")
-    raw = _load_with_lanelet2(p, nodes, lanelet_ids, settings)
-
     local = _node_coordinates(p, nodes, crs, frame, settings, ground)
+    if settings.local_crs is not None and np.isfinite(nodes.local).all(axis=1).any():
+        # lanelet2 orients bounds and builds areas from lat/lon: give it the local_x/local_y
+        lon, lat = transformer(horizontal_crs(crs).to_string(), WGS84).transform(
+            local[:, 0] + frame.origin[0], local[:, 1] + frame.origin[1])
+        with tempfile.TemporaryDirectory() as tmp:
+            patched = Path(tmp) / p.name
+            _write_latlon(p, patched, nodes.ids, np.asarray(lat), np.asarray(lon))
+            raw = _load_with_lanelet2(patched, nodes, lanelet_ids, settings)
+    else:
+        raw = _load_with_lanelet2(p, nodes, lanelet_ids, settings)
     index = {int(nid): k for k, nid in enumerate(nodes.ids.tolist())}
     used = np.concatenate([np.concatenate([lft, rgt]) for _, lft, rgt, _, _ in raw.lanelets])
     try:
@@ -188,6 +197,18 @@ def _node_coordinates(
     if missing.any():
         z[missing] = ground(xy[missing]) if ground is not None else 0.0
     return np.column_stack([xy, z])
+
+
+def _write_latlon(src: Path, dst: Path, ids: np.ndarray, lat: np.ndarray, lon: np.ndarray
+                  ) -> None:
+    """Copy of the OSM file ``src`` with every node's lat/lon replaced (nodes by id)."""
+    root = ET.parse(src).getroot()
+    where = {int(i): k for k, i in enumerate(ids.tolist())}
+    for node in root.iter("node"):
+        k = where[int(node.attrib["id"])]
+        node.set("lat", f"{lat[k]:.11f}")
+        node.set("lon", f"{lon[k]:.11f}")
+    ET.ElementTree(root).write(dst, encoding="utf-8", xml_declaration=True)
 
 
 def _parse_osm(path: Path) -> tuple[_Nodes, set[int]]:
@@ -411,3 +432,84 @@ def write_lanelet_map(path: str | Path, lanelet_map: LaneletMap, frame: LocalFra
     lines.extend(relations)
     lines.append("</osm>")
     write_text_atomic(path, "\n".join(lines) + "\n")
+
+
+# --------------------------------------------------------------------------------------------
+# cropping
+# --------------------------------------------------------------------------------------------
+def crop_lanelet_osm(
+    path: str | Path, lat: float, lon: float, radius: float, *, drop_ele: bool = False
+) -> str:
+    """OSM XML text of the part of a Lanelet2 map around (lat, lon).
+
+    Keeps every lanelet and area relation with a node within ``radius`` m (whole, with all its
+    ways and nodes), every regulatory element whose members are all kept, and drops references
+    to the regulatory elements that are not. ``drop_ele`` removes the nodes' ``ele`` tags (when
+    the heights are to come from another ALS). Distances use a local equirectangular
+    approximation (fine for a few hundred metres).
+    """
+    p = Path(path)
+    try:
+        root = ET.parse(p).getroot()
+    except ET.ParseError as exc:
+        raise InputError(p, f"not valid XML: {exc}", row=exc.position[0]) from None
+    nodes = {n.get("id"): n for n in root.iter("node")}
+    ways = {w.get("id"): w for w in root.iter("way")}
+    k_lat = np.deg2rad(1.0) * 6_371_000.0
+    k_lon = k_lat * np.cos(np.deg2rad(lat))
+
+    def near(node: ET.Element | None) -> bool:
+        if node is None:
+            return False
+        dy = (float(node.get("lat", "nan")) - lat) * k_lat
+        dx = (float(node.get("lon", "nan")) - lon) * k_lon
+        return bool(dx * dx + dy * dy <= radius * radius)
+
+    def way_nodes(wid: str | None) -> list[str]:
+        w = ways.get(wid or "")
+        return [] if w is None else [nd.get("ref", "") for nd in w.iter("nd")]
+
+    keep_rel: set[str] = set()
+    keep_way: set[str] = set()
+    relations = list(root.iter("relation"))
+    for rel in relations:
+        tags = {t.get("k"): t.get("v") for t in rel.iter("tag")}
+        if tags.get("type") not in ("lanelet", "multipolygon"):
+            continue
+        members = [m for m in rel.iter("member") if m.get("type") == "way"]
+        refs = [r for m in members for r in way_nodes(m.get("ref"))]
+        if any(near(nodes.get(r)) for r in refs) and all(r in nodes for r in refs):
+            keep_rel.add(rel.get("id", ""))
+            keep_way.update(m.get("ref", "") for m in members)
+    for rel in relations:  # regulatory elements whose members are all kept
+        tags = {t.get("k"): t.get("v") for t in rel.iter("tag")}
+        if tags.get("type") != "regulatory_element":
+            continue
+        members = list(rel.iter("member"))
+        if members and all(
+            (m.get("type") == "way" and m.get("ref") in ways)
+            or (m.get("type") == "relation" and m.get("ref") in keep_rel)
+            or (m.get("type") == "node" and m.get("ref") in nodes)
+            for m in members
+        ) and any(m.get("ref") in keep_rel for m in members if m.get("type") == "relation"):
+            keep_rel.add(rel.get("id", ""))
+            keep_way.update(m.get("ref", "") for m in members if m.get("type") == "way")
+    keep_node = {r for wid in keep_way for r in way_nodes(wid)}
+    keep_node.update(m.get("ref", "") for rel in relations if rel.get("id") in keep_rel
+                     for m in rel.iter("member") if m.get("type") == "node")
+    out = ET.Element("osm", dict(root.attrib))
+    for nid, node in nodes.items():
+        if nid in keep_node:
+            if drop_ele:
+                for t in [t for t in node.findall("tag") if t.get("k") == "ele"]:
+                    node.remove(t)
+            out.append(node)
+    out.extend(w for wid, w in ways.items() if wid in keep_way)
+    for rel in relations:
+        if rel.get("id") in keep_rel:
+            for m in [m for m in rel.findall("member") if m.get("type") == "relation"
+                      and m.get("ref") not in keep_rel]:
+                rel.remove(m)
+            out.append(rel)
+    ET.indent(out)
+    return ET.tostring(out, encoding="unicode", xml_declaration=True) + "\n"
