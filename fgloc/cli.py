@@ -33,6 +33,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     sim_cfg = None
     if args.sim_config is not None:
         sim_cfg = from_dict(SimConfig, read_toml(args.sim_config), args.sim_config)
+    if args.map is not None:
+        return _simulate_on_map(args, sim_cfg)
+    if args.site is not None:
+        raise FglocError("--site needs --map")
     scn = simulate(
         args.case, args.seed, duration=args.duration, vehicles=args.vehicles, config=sim_cfg
     )
@@ -40,6 +44,41 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     print(
         f"wrote {args.case} scenario (seed {args.seed}, {len(scn.radar)} detections) to {args.out}"
     )
+    return 0
+
+
+def _parse_site(text: str) -> tuple[float, float]:
+    """'LAT,LON' in degrees (WGS84)."""
+    from fgloc.errors import InputError
+
+    try:
+        lat, lon = (float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError("--site", f"expected LAT,LON in degrees, got {text!r}") from None
+    if not (abs(lat) <= 90.0 and abs(lon) <= 180.0):
+        raise InputError("--site", f"lat must be in [-90, 90] and lon in [-180, 180], got {text}")
+    return lat, lon
+
+
+def _simulate_on_map(args: argparse.Namespace, sim_cfg) -> int:
+    from fgloc.errors import InputError
+    from fgloc.io import write_scenario
+    from fgloc.sim.real_map import simulate_on_map
+
+    if not Path(args.map).is_file():
+        raise InputError(args.map, "Lanelet2 map not found")
+    site = None if args.site is None else _parse_site(args.site)
+    try:
+        sim = simulate_on_map(args.map, args.seed, site=site, duration=args.duration,
+                              vehicles=args.vehicles, config=sim_cfg)
+    except (ValueError, RuntimeError) as exc:
+        raise InputError(args.map, str(exc)) from None
+    write_scenario(sim.scenario, args.out, radar_format=args.radar_format, map_osm=sim.map_osm,
+                   extra_files=sim.notices)
+    w = sim.scenario.frame.to_world(sim.junction[None])[0]
+    print(f"wrote a scenario on {args.map} (junction at E {w[0]:.1f} N {w[1]:.1f}, seed "
+          f"{args.seed}, {len(sim.scenario.radar)} detections, "
+          f"{len(sim.scenario.truth.tracks)} vehicles) to {args.out}")
     return 0
 
 
@@ -329,9 +368,14 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("simulate", help="write a simulated scenario with ground truth")
-    s.add_argument(
-        "--case", required=True, choices=["intersection", "tjunction", "curve", "straight"]
-    )
+    where = s.add_mutually_exclusive_group(required=True)
+    where.add_argument("--case", choices=["intersection", "tjunction", "curve", "straight"],
+                       help="a synthetic layout")
+    where.add_argument("--map", default=None,
+                       help="a real Lanelet2 map (.osm): the sensor beside one of its junctions")
+    s.add_argument("--site", default=None, metavar="LAT,LON",
+                   help="with --map: take the junction nearest to this WGS84 point "
+                   "(default: a random one of the largest, from --seed)")
     s.add_argument("--seed", type=int, default=1)
     s.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
     s.add_argument(

@@ -145,7 +145,7 @@ def read_lanelet_map(
                          f"{LaneletMap([], ignored).ignored_by_kind()})")
     out = LaneletMap(drivable, ignored, areas, raw.successors, raw.regulatory, raw.rules)
     if ignored:
-        log.info("%s: %d drivable lanelets; ignored %s", p, len(drivable), out.ignored_by_kind())
+        log.debug("%s: %d drivable lanelets; ignored %s", p, len(drivable), out.ignored_by_kind())
     return out
 
 
