@@ -382,3 +382,100 @@ def test_inverted_shared_bound(tmp_path: Path) -> None:
         # left of the driving direction: north for eastbound, south for westbound
         assert np.sign(ll.left[:, 1].mean() - ll.right[:, 1].mean()) == direction
     np.testing.assert_allclose(by_id[21].left, by_id[20].left[::-1])
+
+
+# --------------------------------------------------------------------------------------------
+# simulate --map
+# --------------------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def crop_sim(tmp_path_factory: pytest.TempPathFactory):
+    from fgloc.io import load_scenario, write_scenario
+    from fgloc.sim.real_map import simulate_on_map
+
+    sim = simulate_on_map(CROP, 4, duration=10.0, crop_radius=150.0)
+    out = tmp_path_factory.mktemp("sim") / "scn"
+    write_scenario(sim.scenario, out, map_osm=sim.map_osm, extra_files=sim.notices)
+    return sim, out, load_scenario(out)
+
+
+def test_simulated_scenario_keeps_the_contract_and_the_real_map(crop_sim) -> None:
+    sim, out, loaded = crop_sim
+    assert (out / "LICENSE-lanelet2_mapping_example").read_text() == (
+        DATA / "LICENSE-lanelet2_mapping_example").read_text()
+    text = (out / "map.osm").read_text()
+    # the crop names its source and points to the licence beside it; heights come from the ALS
+    assert f"Crop of {CROP.name}" in text and "LICENSE" in text and 'k="ele"' not in text
+    assert {ll.id for ll in loaded.lanelets.lanelets} <= {ll.id for ll in read_lanelet_map(
+        CROP, CRS, site_frame()).lanelets}
+    assert loaded.lanelets.ignored_by_kind() == sim.scenario.lanelets.ignored_by_kind()
+    assert loaded.truth is not None and len(loaded.truth.tracks) >= 3
+    np.testing.assert_allclose(loaded.truth.sensor_pose, sim.scenario.truth.sensor_pose,
+                               atol=1e-3)
+    # nodes without ele took the simulated ALS ground: within the road raise and noise
+    for a, b in zip(loaded.lanelets.lanelets, sim.scenario.lanelets.lanelets):
+        near = np.abs(a.left[:, :2] - loaded.truth.sensor_pose[:2, 3]).max(axis=1) < 150
+        assert np.abs(a.left[near, 2] - b.left[near, 2]).max(initial=0.0) < 0.25
+
+
+def test_simulated_vehicles_drive_on_drivable_lanelets(crop_sim) -> None:
+    sim, _, scn = crop_sim
+    centres = np.vstack([t.states[:, 1:3] for t in scn.truth.tracks])
+    on_road = inside_any(centres, scn.lanelets.lanelets, margin=0.3)
+    assert on_road.mean() > 0.99
+    mast = scn.truth.sensor_pose[:2, 3]
+    assert not inside_any(mast[None], scn.lanelets.lanelets, margin=0.5)[0]
+    assert 15.0 < np.linalg.norm(mast - sim.junction) < 45.0
+    # road-surface ALS points lie in drivable lanelets only; roofs in the map's buildings
+    xy = scn.als.xyz[:, :2].astype(float)
+    road = scn.als.classification == 11
+    assert road.sum() > 1000 and inside_any(xy[road], scn.lanelets.lanelets).all()
+    walls = [a.outline for a in scn.lanelets.areas if a.subtype == "building"]
+    roof = scn.als.classification == 6
+    assert roof.any() and all(
+        np.any([points_in_polygon(xy[roof][k:k + 1], w)[0] for w in walls])
+        for k in range(0, int(roof.sum()), max(1, int(roof.sum()) // 50)))
+
+
+def test_simulate_on_map_is_deterministic_and_site_picks_the_junction() -> None:
+    from fgloc.sim.real_map import map_junctions, simulate_on_map
+
+    junctions, _ = map_junctions(CROP)
+    assert len(junctions) >= 2
+    far = junctions[-1].centre
+    a = simulate_on_map(CROP, 2, duration=2.0, site=(float(far[0]), float(far[1])))
+    b = simulate_on_map(CROP, 2, duration=2.0, site=(float(far[0]), float(far[1])))
+    np.testing.assert_array_equal(a.scenario.radar.xyz, b.scenario.radar.xyz)
+    w = a.scenario.frame.to_world(a.junction[None])[0]
+    lon, lat = transformer(CRS, "EPSG:4326").transform(w[0], w[1])
+    assert np.hypot((lat - far[0]) * 111e3, (lon - far[1]) * 73e3) < 5.0
+
+
+def test_cli_simulate_map_and_info(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from fgloc.cli import main
+
+    out = tmp_path / "scn"
+    assert main(["simulate", "--map", str(CROP), "--seed", "3", "--duration", "3",
+                 "--out", str(out)]) == 0
+    assert main(["info", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert re.search(r"lanelets\s+\d+ drivable \(road \d+; lanelet2 traffic rules de/vehicle\)",
+                     text)
+    assert "crosswalk" in text and "not drivable" in text and "from the routing graph" in text
+    assert main(["simulate", "--map", str(CROP), "--site", "49.0", "--out",
+                 str(tmp_path / "x")]) == 2
+    assert main(["simulate", "--case", "straight", "--site", "49.0,8.4", "--out",
+                 str(tmp_path / "y")]) == 2
+
+
+def test_every_method_on_the_crop_junction(crop_sim) -> None:
+    """Every method localizes the simulated crop junction (60 s of traffic)."""
+    from fgloc.evaluate import pose_error
+    from fgloc.pipeline import localize_many
+    from fgloc.sim.real_map import simulate_on_map
+
+    scn = simulate_on_map(CROP, 1, duration=60.0, crop_radius=150.0).scenario
+    res = localize_many(scn, ["icp", "filter-sicp", "smoother-sicp", "joint"])
+    for method, r in res.items():
+        e = pose_error(r.T_local, scn.truth.sensor_pose)
+        assert r.converged, method
+        assert e.d2d < (1.0 if method == "icp" else 0.5) and e.dyaw_deg < 0.5, (method, e)
