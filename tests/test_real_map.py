@@ -258,6 +258,36 @@ def test_broken_regulatory_element_is_logged_not_fatal(
     assert len(lmap) == len(read_lanelet_map(CROP, CRS, site_frame()))
 
 
+def test_broken_lanelet_is_skipped_while_the_map_has_drivable_ones(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """A crosswalk relation with a misspelt member role: lanelet2 rejects it; the rest of the
+    map is read (a map whose only lanelets are broken still fails, test_io)."""
+    ref = read_lanelet_map(CROP, CRS, site_frame())
+    victim = next(ll.id for ll in ref.ignored if ll.attributes.get("subtype") == "crosswalk")
+    text = CROP.read_text()
+    start = text.index(f'<relation id="{victim}"')
+    end = text.index("</relation>", start)
+    rel = text[start:end].replace('role="right"', 'role="rite"')
+    path = tmp_path / "map.osm"
+    path.write_text(text[:start] + rel + text[end:])
+    with caplog.at_level(logging.WARNING):
+        lmap = read_lanelet_map(path, CRS, site_frame())
+    assert f"relation {victim} skipped (not drivable)" in caplog.text
+    assert [ll.id for ll in lmap.lanelets] == [ll.id for ll in ref.lanelets]
+    assert victim not in {ll.id for ll in lmap.ignored}
+    assert len(lmap.ignored) == len(ref.ignored) - 1
+    # a broken road lanelet is an error naming it: a road must not silently vanish
+    road = ref.lanelets[0].id
+    start = text.index(f'<relation id="{road}"')
+    end = text.index("</relation>", start)
+    path.write_text(text[:start] + text[start:end].replace('role="right"', 'role="rite"')
+                    + text[end:])
+    with pytest.raises(InputError) as ei:
+        read_lanelet_map(path, CRS, site_frame())
+    assert ei.value.field == f"relation {road}"
+
+
 def test_nodes_without_ele_take_the_als_ground(crop_map: LaneletMap) -> None:
     frame = site_frame(100.0)
     grad = np.array([0.02, -0.01])

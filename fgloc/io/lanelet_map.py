@@ -55,6 +55,8 @@ PASSABLE_SUBTYPES: dict[str, frozenset[str]] = {
     "train": frozenset({"rail"}),
 }
 
+#: At most about this many ALS points build the ground-height KD-tree (a regular subsample).
+GROUND_MAX_POINTS = 2_000_000
 #: Ground height callback: (n, 2) xy in L (m) -> (n,) height in L (m).
 GroundFn = Callable[[np.ndarray], np.ndarray]
 
@@ -152,13 +154,17 @@ def read_lanelet_map(
 def als_ground(als: AlsCloud, classes: tuple[int, ...] = (2, 11), k: int = 8) -> GroundFn:
     """Ground height callback over an ALS in L: the median height (m, L) of the ``k`` nearest
     points of ``classes`` (ASPRS ground, road surface; all points when it has none) in 2D. The
-    KD-tree is built on the first call only."""
+    KD-tree is built on the first call only, from at most about :data:`GROUND_MAX_POINTS`
+    points (every n-th)."""
     cache: list[tuple[cKDTree, np.ndarray]] = []
 
     def height(xy: np.ndarray) -> np.ndarray:
         if not cache:
-            sel = np.isin(np.asarray(als.classification), classes)
-            pts = np.asarray(als.xyz[sel] if sel.any() else als.xyz, dtype=np.float64)
+            sel = np.flatnonzero(np.isin(np.asarray(als.classification), classes))
+            if not len(sel):
+                sel = np.arange(len(als.xyz))
+            sel = sel[:: max(1, len(sel) // GROUND_MAX_POINTS)]  # bounded KD-tree (big tiles)
+            pts = np.asarray(als.xyz[sel], dtype=np.float64)
             if not len(pts):
                 return np.zeros(len(xy))
             cache.append((cKDTree(pts[:, :2]), pts[:, 2]))
@@ -211,8 +217,8 @@ def _write_latlon(src: Path, dst: Path, ids: np.ndarray, lat: np.ndarray, lon: n
     ET.ElementTree(root).write(dst, encoding="utf-8", xml_declaration=True)
 
 
-def _parse_osm(path: Path) -> tuple[_Nodes, set[int]]:
-    """Every node and the ids of relations tagged type=lanelet."""
+def _parse_osm(path: Path) -> tuple[_Nodes, dict[int, dict[str, str]]]:
+    """Every node and the tags of the relations tagged type=lanelet, by id."""
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as exc:
@@ -241,12 +247,13 @@ def _parse_osm(path: Path) -> tuple[_Nodes, set[int]]:
     table = np.array([r[1:] for r in rows], dtype=np.float64).reshape(-1, 5)
     nodes = _Nodes(np.array([r[0] for r in rows], dtype=np.int64), table[:, 0], table[:, 1],
                    table[:, 2], table[:, 3:5])
-    lanelet_ids: set[int] = set()
+    lanelet_ids: dict[int, dict[str, str]] = {}
     bound_ways: set[str] = set()
     for rel in root.iter("relation"):
         if any(t.get("k") == "type" and t.get("v") == "lanelet" for t in rel.iter("tag")):
             try:
-                lanelet_ids.add(int(rel.attrib["id"]))
+                lanelet_ids[int(rel.attrib["id"])] = {
+                    t.get("k", ""): t.get("v", "") for t in rel.iter("tag")}
             except (KeyError, ValueError):
                 raise InputError(path, "a lanelet relation needs an integer id",
                                  field=f"relation {rel.get('id')}") from None
@@ -308,12 +315,15 @@ def _successors(lmap: object, rules: object | None, drivable: set[int]) -> dict[
 
 
 def _load_with_lanelet2(
-    path: Path, nodes: _Nodes, lanelet_ids: set[int], settings: MapSettings
+    path: Path, nodes: _Nodes, lanelet_ids: dict[int, dict[str, str]], settings: MapSettings
 ) -> _Raw:
     """Lanelets, areas and routing graph, validated by lanelet2.
 
-    lanelet2 errors about lanelet relations are fatal; errors about other primitives (areas,
-    regulatory elements fgloc ignores) are logged.
+    A lanelet lanelet2 rejects (or with a bound of fewer than 2 nodes) is fatal when its tags
+    make it drivable (:func:`passable_by_tags`: a road must not silently vanish) or when no
+    drivable lanelet is left; otherwise (a broken crosswalk, walkway, ...) it is skipped with a
+    warning. Errors about other primitives (areas, regulatory elements fgloc ignores) are
+    logged.
     """
     if not len(nodes.ids):
         raise InputError(path, "the map holds no nodes")
@@ -322,22 +332,33 @@ def _load_with_lanelet2(
         lmap, errors = lanelet2.io.loadRobust(str(path), projector)
     except RuntimeError as exc:
         raise InputError(path, f"lanelet2 cannot read the map: {exc}") from None
+    broken: dict[int, str] = {}  # lanelet id -> what is wrong with it
     for msg in errors:
         m = _PRIMITIVE_ID.search(msg)
         if m and int(m.group(1)) in lanelet_ids:
-            raise InputError(path, f"invalid lanelet: {msg.strip()}", field=f"relation {m[1]}")
-        log.warning("%s: lanelet2 (ignored, not a lanelet): %s", path, msg.strip())
+            broken.setdefault(int(m.group(1)), f"invalid lanelet: {msg.strip()}")
+        else:
+            log.warning("%s: lanelet2 (ignored, not a lanelet): %s", path, msg.strip())
     rules, how = _traffic_rules(path, settings)
     lanelets = []
     for ll in sorted(lmap.laneletLayer, key=lambda x: x.id):
         left = np.array([pt.id for pt in ll.leftBound], dtype=np.int64)
         right = np.array([pt.id for pt in ll.rightBound], dtype=np.int64)
         if len(left) < 2 or len(right) < 2:
-            raise InputError(path, "a lanelet bound needs >= 2 nodes", field=f"relation {ll.id}")
+            broken.setdefault(ll.id, "a lanelet bound needs >= 2 nodes")
+        if ll.id in broken:
+            continue
         attrs = {k: str(v) for k, v in ll.attributes.items()}
         ok = (bool(rules.canPass(ll)) if rules is not None
               else passable_by_tags(attrs, settings.participant))
         lanelets.append((int(ll.id), left, right, attrs, ok))
+    fatal = [lid for lid in sorted(broken)
+             if passable_by_tags(lanelet_ids.get(lid, {}), settings.participant)]
+    if fatal or (broken and not any(ok for *_, ok in lanelets)):
+        lid = fatal[0] if fatal else min(broken)
+        raise InputError(path, broken[lid], field=f"relation {lid}")
+    for lid, msg in sorted(broken.items()):
+        log.warning("%s: relation %d skipped (not drivable): %s", path, lid, msg)
     if not lanelets:
         raise InputError(path, "lanelet2 found no valid lanelet in the map")
     areas = []
