@@ -509,3 +509,19 @@ def test_every_method_on_the_crop_junction(crop_sim) -> None:
         e = pose_error(r.T_local, scn.truth.sensor_pose)
         assert r.converged, method
         assert e.d2d < (1.0 if method == "icp" else 0.5) and e.dyaw_deg < 0.5, (method, e)
+
+
+def test_simulate_on_a_map_in_another_utm_zone(tmp_path: Path) -> None:
+    """The crop moved 6 deg east (UTM zone 33): the world CRS follows the map."""
+    from fgloc.io import load_scenario, write_scenario
+    from fgloc.sim.real_map import simulate_on_map
+
+    text = re.sub(r'lon="([-\d.]+)"', lambda m: f'lon="{float(m.group(1)) + 6.0:.11f}"',
+                  CROP.read_text())
+    path = tmp_path / "east.osm"
+    path.write_text(text)
+    sim = simulate_on_map(path, 1, duration=2.0)
+    assert sim.scenario.crs == "EPSG:32633"
+    write_scenario(sim.scenario, tmp_path / "scn", map_osm=sim.map_osm)
+    loaded = load_scenario(tmp_path / "scn")
+    assert loaded.crs == "EPSG:32633" and len(loaded.lanelets) == len(sim.scenario.lanelets)
