@@ -493,6 +493,9 @@ def test_cli_simulate_map_and_info(tmp_path: Path, capsys: pytest.CaptureFixture
     assert "crosswalk" in text and "not drivable" in text and "from the routing graph" in text
     assert main(["simulate", "--map", str(CROP), "--site", "49.0", "--out",
                  str(tmp_path / "x")]) == 2
+    assert main(["simulate", "--map", str(CROP), "--site", "49.1,8.4", "--out",
+                 str(tmp_path / "far")]) == 2  # 10 km from every junction
+    assert "no junction of the routing graph within 500 m" in capsys.readouterr().err
     assert main(["simulate", "--case", "straight", "--site", "49.0,8.4", "--out",
                  str(tmp_path / "y")]) == 2
 

@@ -47,6 +47,8 @@ from fgloc.sim.terrain import Terrain
 from fgloc.sim.traffic import VEHICLE_CLASSES, simulate_traffic
 
 _STAGES = ("junction", "sensor", "site", "scenery", "als", "traffic", "radar")
+#: a --site farther than this (m) from every junction is an error
+SITE_RADIUS = 500.0
 #: height (m) of walkways above the ground around them
 SIDEWALK_RAISE = 0.12
 
@@ -170,7 +172,8 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
                     route_reach: float = 150.0) -> MapSimulation:
     """Simulate a recording at a junction of the Lanelet2 map ``map_path``.
 
-    site: (lat, lon) near which the junction is taken (the nearest one); None: a random one
+    site: (lat, lon) near which the junction is taken (the nearest one, within
+    :data:`SITE_RADIUS` m, else ValueError); None: a random one
     (from ``seed``) of those with the most movements. The world CRS is ``config.site.crs`` when
     the map lies in its UTM zone, else WGS 84 / UTM of the map's zone. ``crop_radius`` (m): the
     part of the map kept around the junction; ``route_reach`` (m): lead-in and lead-out of every
@@ -190,6 +193,11 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
         d = [np.hypot(j.centre[0] - site[0], (j.centre[1] - site[1]) * np.cos(np.radians(
             site[0]))) for j in junctions]
         chosen = junctions[int(np.argmin(d))]
+        if min(d) * 111_195.0 > SITE_RADIUS:
+            raise ValueError(f"no junction of the routing graph within {SITE_RADIUS:g} m of the "
+                             f"site ({site[0]:.6f}, {site[1]:.6f}); the nearest is at "
+                             f"({chosen.centre[0]:.6f}, {chosen.centre[1]:.6f}), "
+                             f"{min(d) * 111_195.0:.0f} m away")
     else:
         top = [j for j in junctions if len(j.movements) == len(junctions[0].movements)]
         chosen = top[int(rng["junction"].integers(len(top)))]
