@@ -511,7 +511,10 @@ def test_every_method_on_the_crop_junction(crop_sim) -> None:
     for method, r in res.items():
         e = pose_error(r.T_local, scn.truth.sensor_pose)
         assert r.converged, method
-        assert e.d2d < (1.0 if method == "icp" else 0.5) and e.dyaw_deg < 0.5, (method, e)
+        # measured (seed 1): icp 0.10 m / 0.10 deg, filter-sicp 0.26 / 0.35, smoother-sicp
+        # 0.20 / 0.34, joint 0.14 / 0.06
+        bound = (0.25, 0.2) if method == "joint" else (0.5, 0.5)
+        assert e.d2d < bound[0] and e.dyaw_deg < bound[1], (method, e)
 
 
 def test_simulate_on_a_map_in_another_utm_zone(tmp_path: Path) -> None:
