@@ -37,6 +37,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     sim_cfg = None
     if args.sim_config is not None:
         sim_cfg = from_dict(SimConfig, read_toml(args.sim_config), args.sim_config)
+    if args.map is not None:
+        return _simulate_on_map(args, sim_cfg)
+    if args.site is not None:
+        raise FglocError("--site needs --map")
     scn = simulate(
         args.case, args.seed, duration=args.duration, vehicles=args.vehicles, config=sim_cfg
     )
@@ -47,13 +51,48 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     return 0
 
 
+def _parse_site(text: str) -> tuple[float, float]:
+    """'LAT,LON' in degrees (WGS84)."""
+    from fgloc.errors import InputError
+
+    try:
+        lat, lon = (float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError("--site", f"expected LAT,LON in degrees, got {text!r}") from None
+    if not (abs(lat) <= 90.0 and abs(lon) <= 180.0):
+        raise InputError("--site", f"lat must be in [-90, 90] and lon in [-180, 180], got {text}")
+    return lat, lon
+
+
+def _simulate_on_map(args: argparse.Namespace, sim_cfg) -> int:
+    from fgloc.errors import InputError
+    from fgloc.io import write_scenario
+    from fgloc.sim.real_map import simulate_on_map
+
+    if not Path(args.map).is_file():
+        raise InputError(args.map, "Lanelet2 map not found")
+    site = None if args.site is None else _parse_site(args.site)
+    try:
+        sim = simulate_on_map(args.map, args.seed, site=site, duration=args.duration,
+                              vehicles=args.vehicles, config=sim_cfg)
+    except (ValueError, RuntimeError) as exc:
+        raise InputError(args.map, str(exc)) from None
+    write_scenario(sim.scenario, args.out, radar_format=args.radar_format, map_osm=sim.map_osm,
+                   extra_files=sim.notices)
+    w = sim.scenario.frame.to_world(sim.junction[None])[0]
+    print(f"wrote a scenario on {args.map} (junction at E {w[0]:.1f} N {w[1]:.1f}, seed "
+          f"{args.seed}, {len(sim.scenario.radar)} detections, "
+          f"{len(sim.scenario.truth.tracks)} vehicles) to {args.out}")
+    return 0
+
+
 def scenario_summary(path: str | Path) -> str:
     """One-screen text summary of a scenario directory (loads and validates it)."""
     from fgloc.config import CoarseConfig, MapConfig
     from fgloc.io import load_scenario
     from fgloc.labels import NAMES
-    from fgloc.map import label_lanelet
-    from fgloc.scenario import ASPRS_CLASSES
+    from fgloc.map import map_labels
+    from fgloc.scenario import ASPRS_CLASSES, lanelet_kind
 
     scn = load_scenario(path)
     r, s = scn.radar, scn.sensor
@@ -65,9 +104,17 @@ def scenario_summary(path: str | Path) -> str:
         f"{ASPRS_CLASSES.get(int(c), f'class {int(c)}')} ({int(c)}): {n:,}"
         for c, n in zip(classes, counts)
     )
-    gamma = MapConfig().gamma
-    labels = [label_lanelet(ll, gamma) for ll in scn.lanelets.lanelets]
-    by_label = ", ".join(f"{NAMES[k]} {labels.count(k)}" for k in sorted(NAMES))
+    map_cfg = MapConfig()
+    labels = map_labels(scn.lanelets, map_cfg)
+    codes = list(labels.code.values())
+    by_label = ", ".join(f"{NAMES[k]} {codes.count(k)}" for k in sorted(NAMES))
+    n_routed = list(labels.source.values()).count("routing")
+    lmap = scn.lanelets
+    drivable_kinds = [lanelet_kind(ll) for ll in lmap.lanelets]
+    by_kind = ", ".join(f"{k} {drivable_kinds.count(k)}" for k in sorted(set(drivable_kinds)))
+
+    def counts(d: dict[str, int]) -> str:
+        return ", ".join(f"{k} {v}" for k, v in d.items()) or "none"
     rate = len(r) / r.duration if r.duration > 0 else float("nan")
     guess = (
         "absent (global yaw search)" if s.yaw_guess_deg is None else f"{s.yaw_guess_deg:.2f} deg"
@@ -83,7 +130,13 @@ def scenario_summary(path: str | Path) -> str:
         f"radar         {len(r):,} detections in {n_frames:,} frames over {r.duration:.1f} s "
         f"({rate:,.0f} /s); dynamic (|doppler| >= {lam:g} m/s): {100 * dyn:.1f} %",
         f"ALS           {len(scn.als):,} points in {len(scn.als.source_files)} tile(s); {cls_txt}",
-        f"lanelets      {len(scn.lanelets)} ({by_label}; Menger gamma {gamma:g} 1/m)",
+        f"lanelets      {len(lmap)} drivable ({by_kind}; {lmap.rules})",
+        f"  labels      {by_label} ({n_routed} from the routing graph's junction movements, "
+        f"the rest by Menger curvature, gamma {map_cfg.gamma:g} 1/m)",
+        f"  ignored     {sum(lmap.ignored_by_kind().values())} not drivable "
+        f"({counts(lmap.ignored_by_kind())})",
+        f"map areas     {len(lmap.areas)} ({counts(lmap.areas_by_kind())})",
+        f"regulatory    {sum(lmap.regulatory.values())} ({counts(lmap.regulatory)})",
         f"ground truth  {'yes' if scn.truth is not None else 'no'}"
         + (f" ({len(scn.truth.tracks)} vehicles)" if scn.truth is not None else ""),
     ]
@@ -325,9 +378,14 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
 
     s = sub.add_parser("simulate", help="write a simulated scenario with ground truth")
-    s.add_argument(
-        "--case", required=True, choices=["intersection", "tjunction", "curve", "straight"]
-    )
+    where = s.add_mutually_exclusive_group(required=True)
+    where.add_argument("--case", choices=["intersection", "tjunction", "curve", "straight"],
+                       help="a synthetic layout")
+    where.add_argument("--map", default=None,
+                       help="a real Lanelet2 map (.osm): the sensor beside one of its junctions")
+    s.add_argument("--site", default=None, metavar="LAT,LON",
+                   help="with --map: take the junction nearest to this WGS84 point "
+                   "(default: a random one of the largest, from --seed)")
     s.add_argument("--seed", type=int, default=1)
     s.add_argument("--duration", type=float, default=60.0, help="seconds (default 60)")
     s.add_argument(

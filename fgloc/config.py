@@ -43,6 +43,20 @@ class MapConfig:
     sensor_margin: float = 50.0
     """ALS points farther than sensor.max_range + this (m) from the approximate sensor position
     are ignored (covers the position uncertainty and keeps big tiles cheap)."""
+    labels: str = "routing"
+    """Lanelet labels: "routing" = a lanelet of a junction movement in the map's routing graph
+    (between a diverge and a merge) is a turn when the headings of its predecessor and
+    successor differ by more than ``turn_angle_deg``, every other lanelet by Menger curvature;
+    "curvature" = Menger curvature for every lanelet (the paper's rule)."""
+    turn_angle_deg: float = 30.0
+    """Heading change (deg) from a junction movement's predecessor to its successor above which
+    the movement is a turn ("routing" labels)."""
+
+    def __post_init__(self) -> None:
+        if self.labels not in ("routing", "curvature"):
+            raise ValueError(f"labels must be 'routing' or 'curvature', got {self.labels!r}")
+        if not 0.0 < self.turn_angle_deg < 180.0:
+            raise ValueError(f"turn_angle_deg must be in (0, 180), got {self.turn_angle_deg}")
 
 
 @dataclass

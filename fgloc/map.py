@@ -3,8 +3,11 @@
 Every lanelet gets a driving-behaviour label (:mod:`fgloc.labels`) from the signed Menger
 curvature of its LEFT bound through the start point, the arc-length middle point and the end
 point: ``c > gamma`` and counter-clockwise -> LEFT, ``c > gamma`` and clockwise -> RIGHT, else
-STRAIGHT (gamma = 0.01 1/m in the paper). Every road point inside a lanelet's polygon inherits
-that lanelet's label and id.
+STRAIGHT (gamma = 0.01 1/m in the paper). With ``[map] labels = "routing"`` (default) the
+lanelets of a junction movement in the map's routing graph take the label the routing graph
+gives instead (:func:`fgloc.labels.routing_labels`). Every road point inside a lanelet's polygon
+inherits that lanelet's label and id. Only the map's drivable lanelets
+(:attr:`LaneletMap.lanelets`, decided when the map is read) hold target points.
 
 Rules chosen here (documented because the paper leaves them open):
 
@@ -31,7 +34,7 @@ from scipy.spatial import cKDTree
 
 from fgloc.config import MapConfig
 from fgloc.errors import InputError, LocalizationError
-from fgloc.labels import LEFT, NAMES, RIGHT, STRAIGHT
+from fgloc.labels import LEFT, NAMES, RIGHT, STRAIGHT, routing_labels
 from fgloc.scenario import AlsCloud, Lanelet, LaneletMap, Scenario, resample_polyline
 
 #: ASPRS codes that mean "not classified"; an ALS holding only these has no class information.
@@ -48,6 +51,9 @@ class TargetCloud:
     int64 id of the lanelet each point lies in. lanelet_labels / lanelet_curvature: label and
     signed Menger curvature (1/m, positive = counter-clockwise = left) of every lanelet of the map.
     warnings: what the construction had to work around (e.g. an unclassified ALS).
+    label_source: "routing" or "curvature" per lanelet id (see :func:`map_labels`).
+    ignored_lanelets: lanelets of the map not drivable by the configured participant, counted
+    per kind (they hold no target point).
     """
 
     xyz: np.ndarray
@@ -56,6 +62,8 @@ class TargetCloud:
     lanelet_labels: dict[int, int] = field(default_factory=dict)
     lanelet_curvature: dict[int, float] = field(default_factory=dict)
     warnings: list[str] = field(default_factory=list)
+    label_source: dict[int, str] = field(default_factory=dict)
+    ignored_lanelets: dict[str, int] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return int(self.xyz.shape[0])
@@ -69,13 +77,17 @@ class TargetCloud:
         return np.unique(self.xyz, axis=0)
 
     def summary(self) -> dict[str, object]:
-        """JSON-ready counts: points in total and per label name, lanelets per label name."""
+        """JSON-ready counts: points in total and per label name, lanelets per label name and
+        per label source, ignored (not drivable) lanelets per kind."""
+        sources = list(self.label_source.values())
         return {
             "n_points": len(self),
             "points_per_label": {NAMES[k]: int((self.label == k).sum()) for k in NAMES},
             "lanelets_per_label": {
                 NAMES[k]: sum(v == k for v in self.lanelet_labels.values()) for k in NAMES
             },
+            "lanelets_per_label_source": {k: sources.count(k) for k in sorted(set(sources))},
+            "ignored_lanelets": dict(self.ignored_lanelets),
         }
 
 
@@ -126,6 +138,31 @@ def lanelet_curvatures(lanelets: list[Lanelet]) -> np.ndarray:
 def label_lanelet(lanelet: Lanelet, gamma: float) -> int:
     """Label code of one lanelet (see the module docstring)."""
     return int(labels_from_curvature(lanelet_curvatures([lanelet]), gamma)[0])
+
+
+@dataclass
+class LaneletLabels:
+    """Label code, signed Menger curvature (1/m) and label source ("routing" or "curvature")
+    of every drivable lanelet, by id."""
+
+    code: dict[int, int]
+    curvature: dict[int, float]
+    source: dict[int, str]
+
+
+def map_labels(lmap: LaneletMap, cfg: MapConfig) -> LaneletLabels:
+    """Labels of the map's drivable lanelets (``cfg.labels``): the routing graph's for the
+    lanelets of junction movements (:func:`fgloc.labels.routing_labels`) when ``"routing"``,
+    Menger curvature for every other lanelet."""
+    ids = [ll.id for ll in lmap.lanelets]
+    curv = lanelet_curvatures(lmap.lanelets)
+    code = {i: int(c) for i, c in zip(ids, labels_from_curvature(curv, cfg.gamma))}
+    source = dict.fromkeys(ids, "curvature")
+    if cfg.labels == "routing":
+        routed = routing_labels(lmap, np.deg2rad(cfg.turn_angle_deg))
+        code.update(routed)
+        source.update(dict.fromkeys(routed, "routing"))
+    return LaneletLabels(code, {i: float(k) for i, k in zip(ids, curv)}, source)
 
 
 # --------------------------------------------------------------------------------------------
@@ -293,11 +330,8 @@ def build_target_cloud(scn: Scenario, cfg: MapConfig) -> TargetCloud:
     the ALS and :class:`LocalizationError` when no road point lies inside any lanelet there.
     """
     check_inside_als(scn)
-    ids = [ll.id for ll in scn.lanelets.lanelets]
-    curv = lanelet_curvatures(scn.lanelets.lanelets)
-    codes = labels_from_curvature(curv, cfg.gamma)
-    lanelet_labels = {i: int(c) for i, c in zip(ids, codes)}
-    lanelet_curvature = {i: float(k) for i, k in zip(ids, curv)}
+    labels = map_labels(scn.lanelets, cfg)
+    lanelet_labels = labels.code
 
     radius = scn.sensor.max_range + cfg.sensor_margin
     road, warnings = select_road_points(scn.als, cfg.road_classes)
@@ -323,6 +357,8 @@ def build_target_cloud(scn: Scenario, cfg: MapConfig) -> TargetCloud:
         label=label,
         lanelet_id=lid,
         lanelet_labels=lanelet_labels,
-        lanelet_curvature=lanelet_curvature,
+        lanelet_curvature=labels.curvature,
         warnings=warnings,
+        label_source=labels.source,
+        ignored_lanelets=scn.lanelets.ignored_by_kind(),
     )

@@ -137,11 +137,82 @@ def resample_polyline(p: np.ndarray, n: int) -> np.ndarray:
 
 
 @dataclass
+class MapArea:
+    """A Lanelet2 area (``type=multipolygon`` relation) fgloc does not drive on: its subtype
+    (building, vegetation, walkway, parking, keepout, ...) and its outer ring (m, 2) in L."""
+
+    id: int
+    subtype: str
+    outline: np.ndarray
+
+
+@dataclass
 class LaneletMap:
+    """The lanelets a motor vehicle may drive (``lanelets``; everything fgloc computes on uses
+    only these) plus what the map holds besides.
+
+    ignored: lanelets the traffic rules close to the configured participant (crosswalks,
+    walkways, bicycle lanes, rails, roads for other participants), kept for ``fgloc info`` and
+    for ALS synthesis, never for localization. areas: the map's areas. successors: the routing
+    graph among ``lanelets`` (lanelet id -> ids it leads to; empty when the map was not read
+    with lanelet2, e.g. in memory). regulatory: regulatory elements per type (counts only).
+    rules: how drivability was decided (e.g. "lanelet2 traffic rules de/vehicle").
+    """
+
     lanelets: list[Lanelet]
+    ignored: list[Lanelet] = field(default_factory=list)
+    areas: list[MapArea] = field(default_factory=list)
+    successors: dict[int, tuple[int, ...]] = field(default_factory=dict)
+    regulatory: dict[str, int] = field(default_factory=dict)
+    rules: str = "all lanelets"
 
     def __len__(self) -> int:
         return len(self.lanelets)
+
+    def predecessors(self) -> dict[int, tuple[int, ...]]:
+        """Inverse of :attr:`successors` (lanelet id -> ids leading to it)."""
+        out: dict[int, list[int]] = {}
+        for a, succ in self.successors.items():
+            for b in succ:
+                out.setdefault(b, []).append(a)
+        return {k: tuple(sorted(v)) for k, v in out.items()}
+
+    def ignored_by_kind(self) -> dict[str, int]:
+        """Number of ignored lanelets per kind (:func:`lanelet_kind`), sorted by kind."""
+        kinds = [lanelet_kind(ll) for ll in self.ignored]
+        return {k: kinds.count(k) for k in sorted(set(kinds))}
+
+    def areas_by_kind(self) -> dict[str, int]:
+        """Number of areas per subtype, sorted by subtype."""
+        kinds = [a.subtype for a in self.areas]
+        return {k: kinds.count(k) for k in sorted(set(kinds))}
+
+
+def lanelet_kind(lanelet: Lanelet) -> str:
+    """A lanelet's kind as counted by ``fgloc info``: its subtype (``road`` when untagged), with
+    `` (participants: a, b)`` appended when ``participant:*=yes`` tags restrict it."""
+    sub = lanelet.attributes.get("subtype", "road")
+    allowed = sorted(k.split(":", 1)[1] for k, v in lanelet.attributes.items()
+                     if k.startswith("participant:") and v == "yes")
+    return f"{sub} (participants: {', '.join(allowed)})" if allowed else sub
+
+
+@dataclass
+class MapSettings:
+    """sensor.toml's ``[map]`` table: how the scenario's Lanelet2 map is read.
+
+    location / participant: lanelet2 traffic rules deciding which lanelets are drivable
+    (``lanelet2.traffic_rules.create(location, participant)``; "de" and "vehicle" by default,
+    e.g. "vehicle:truck"); where lanelet2 has no rules for them, the subtype and participant
+    tags decide. local_crs / local_offset: for maps whose nodes carry ``local_x`` /
+    ``local_y`` tags (Autoware style, m): the projected CRS of those coordinates and the
+    coordinates (E, N, m, in local_crs) of their origin; None = use the nodes' lat/lon.
+    """
+
+    location: str = "de"
+    participant: str = "vehicle"
+    local_crs: str | None = None
+    local_offset: tuple[float, float] = (0.0, 0.0)
 
 
 @dataclass
@@ -159,6 +230,7 @@ class SensorConfig:
     hfov_deg: float = 120.0
     vfov_deg: float = 30.0
     max_range: float = 250.0
+    map: MapSettings = field(default_factory=MapSettings)
 
 
 @dataclass

@@ -11,7 +11,10 @@ from __future__ import annotations
 
 import logging
 import re
+import tempfile
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
@@ -19,11 +22,12 @@ import lanelet2
 import numpy as np
 from lanelet2.io import Origin
 from lanelet2.projection import UtmProjector
+from scipy.spatial import cKDTree
 
 from fgloc.errors import InputError
 from fgloc.geo import LocalFrame, horizontal_crs, natural_utm_zone, transformer, utm_zone
 from fgloc.io.atomic import write_text_atomic
-from fgloc.scenario import Lanelet, LaneletMap
+from fgloc.scenario import AlsCloud, Lanelet, LaneletMap, MapArea, MapSettings
 
 log = logging.getLogger(__name__)
 
@@ -42,97 +46,220 @@ _PRIMITIVE_ID = re.compile(r"primitive (-?\d+)")
 # --------------------------------------------------------------------------------------------
 # reading
 # --------------------------------------------------------------------------------------------
+#: Fallback when lanelet2 has no traffic rules for the location/participant: subtypes open to
+#: each participant class (the part before ":"), as lanelet2's German rules have them.
+PASSABLE_SUBTYPES: dict[str, frozenset[str]] = {
+    "vehicle": frozenset({"road", "highway", "play_street"}),
+    "bicycle": frozenset({"road", "bicycle_lane", "play_street"}),
+    "pedestrian": frozenset({"crosswalk", "walkway", "play_street"}),
+    "train": frozenset({"rail"}),
+}
+
+#: At most about this many ALS points build the ground-height KD-tree (a regular subsample).
+GROUND_MAX_POINTS = 2_000_000
+#: Ground height callback: (n, 2) xy in L (m) -> (n,) height in L (m).
+GroundFn = Callable[[np.ndarray], np.ndarray]
+
+
+@dataclass
+class _Nodes:
+    """Every XML node: ids (n,), lat, lon, ele (NaN when absent), local_x/local_y (NaN)."""
+
+    ids: np.ndarray
+    lat: np.ndarray
+    lon: np.ndarray
+    ele: np.ndarray
+    local: np.ndarray
+
+
+@dataclass
+class _Raw:
+    """What lanelet2 made of the file: per lanelet (id, left ids, right ids, tags, drivable),
+    areas (id, subtype, outline ids), successors among drivable lanelets, regulatory counts."""
+
+    lanelets: list[tuple[int, np.ndarray, np.ndarray, dict[str, str], bool]]
+    areas: list[tuple[int, str, np.ndarray]]
+    successors: dict[int, tuple[int, ...]]
+    regulatory: dict[str, int]
+    rules: str
+
+
 def read_lanelet_map(
     path: str | Path,
     crs: str,
     frame: LocalFrame,
     *,
     overlap_bbox: tuple[float, float, float, float] | None = None,
+    settings: MapSettings | None = None,
+    ground: GroundFn | None = None,
 ) -> LaneletMap:
     """Read a Lanelet2 map into L.
 
-    crs: the world CRS the lat/lon nodes are projected to. Bounds are (n, 3) in L: z is the
-    node's ``ele`` tag (same vertical datum as the ALS) minus Z0, or 0 without ``ele``.
+    crs: the world CRS the nodes are projected to (from lat/lon, or from ``local_x`` /
+    ``local_y`` in ``settings.local_crs`` plus ``settings.local_offset``). Bounds are (n, 3)
+    in L: z is the node's ``ele`` tag (same vertical datum as the ALS) minus Z0; nodes without
+    ``ele`` get ``ground(xy)`` (the ALS ground under them), or 0 when ``ground`` is None.
     overlap_bbox: (xmin, ymin, xmax, ymax) in L of the ALS; when given, a map that does not
     overlap it grown by :data:`OVERLAP_MARGIN` raises :class:`InputError` (typically a map in
-    another UTM zone). Relation tags go to :attr:`Lanelet.attributes`; non-lanelet relations
-    are ignored.
+    another UTM zone). Only lanelets the traffic rules of ``settings`` (location,
+    participant) let pass go to :attr:`LaneletMap.lanelets`; the others to ``ignored``. Areas
+    are kept with their subtype; regulatory elements are only counted. Relation tags go to
+    :attr:`Lanelet.attributes`.
     """
     p = Path(path)
     if not p.is_file():
         raise InputError(p, "Lanelet2 map not found")
+    settings = settings or MapSettings()
     nodes, lanelet_ids = _parse_osm(p)
     if not lanelet_ids:
         raise InputError(p, "the map holds no lanelet (no relation tagged type=lanelet)")
-    lanelets = _load_with_lanelet2(p, nodes, lanelet_ids)
-
-    all_ids = np.concatenate([np.concatenate([lft, rgt]) for _, lft, rgt, _ in lanelets])
-    index = {nid: k for k, nid in enumerate(nodes)}
+    local = _node_coordinates(p, nodes, crs, frame, settings, ground)
+    if settings.local_crs is not None and np.isfinite(nodes.local).all(axis=1).any():
+        # lanelet2 orients bounds and builds areas from lat/lon: give it the local_x/local_y
+        lon, lat = transformer(horizontal_crs(crs).to_string(), WGS84).transform(
+            local[:, 0] + frame.origin[0], local[:, 1] + frame.origin[1])
+        with tempfile.TemporaryDirectory() as tmp:
+            patched = Path(tmp) / p.name
+            _write_latlon(p, patched, nodes.ids, np.asarray(lat), np.asarray(lon))
+            raw = _load_with_lanelet2(patched, nodes, lanelet_ids, settings)
+    else:
+        raw = _load_with_lanelet2(p, nodes, lanelet_ids, settings)
+    index = {int(nid): k for k, nid in enumerate(nodes.ids.tolist())}
+    used = np.concatenate([np.concatenate([lft, rgt]) for _, lft, rgt, _, _ in raw.lanelets])
     try:
-        rows = np.array([index[i] for i in all_ids.tolist()], dtype=np.int64)
+        rows = np.array([index[i] for i in used.tolist()], dtype=np.int64)
     except KeyError as exc:
         raise InputError(p, f"a lanelet bound references the missing node {exc.args[0]}") from None
-    table = np.array(list(nodes.values()), dtype=np.float64)  # (n, 3) lat, lon, ele
-    lat, lon, ele = table[rows, 0], table[rows, 1], table[rows, 2]
-    east, north = transformer(WGS84, horizontal_crs(crs).to_string()).transform(lon, lat)
-    local = np.column_stack(
-        [
-            np.asarray(east) - frame.origin[0],
-            np.asarray(north) - frame.origin[1],
-            np.where(np.isnan(ele), 0.0, ele - frame.origin[2]),
-        ]
-    )
-    if not np.isfinite(local).all():
-        raise InputError(p, f"some nodes cannot be projected to {crs}")
     if overlap_bbox is not None:
-        _check_overlap(p, local, lon, crs, overlap_bbox)
+        _check_overlap(p, local[rows], nodes.lon[rows], crs, overlap_bbox)
 
-    out: list[Lanelet] = []
-    k = 0
-    for lid, left_ids, right_ids, attrs in lanelets:
-        nl, nr = len(left_ids), len(right_ids)
-        left, right = local[k : k + nl].copy(), local[k + nl : k + nl + nr].copy()
-        out.append(Lanelet(lid, left, right, attrs))
-        k += nl + nr
-    return LaneletMap(out)
+    def xyz(ids: np.ndarray) -> np.ndarray:
+        return local[[index[int(i)] for i in ids]].copy()
+
+    drivable: list[Lanelet] = []
+    ignored: list[Lanelet] = []
+    for lid, left_ids, right_ids, attrs, ok in raw.lanelets:
+        (drivable if ok else ignored).append(Lanelet(lid, xyz(left_ids), xyz(right_ids), attrs))
+    areas = [MapArea(aid, sub, xyz(ring)[:, :2]) for aid, sub, ring in raw.areas
+             if all(int(i) in index for i in ring)]
+    if not drivable:
+        raise InputError(p, f"no lanelet of the map is drivable under {raw.rules} (kinds: "
+                         f"{LaneletMap([], ignored).ignored_by_kind()})")
+    out = LaneletMap(drivable, ignored, areas, raw.successors, raw.regulatory, raw.rules)
+    if ignored:
+        log.debug("%s: %d drivable lanelets; ignored %s", p, len(drivable), out.ignored_by_kind())
+    return out
 
 
-def _parse_osm(path: Path) -> tuple[dict[int, tuple[float, float, float]], set[int]]:
-    """Nodes {id: (lat, lon, ele or NaN)} and the ids of relations tagged type=lanelet."""
+def als_ground(als: AlsCloud, classes: tuple[int, ...] = (2, 11), k: int = 8) -> GroundFn:
+    """Ground height callback over an ALS in L: the median height (m, L) of the ``k`` nearest
+    points of ``classes`` (ASPRS ground, road surface; all points when it has none) in 2D. The
+    KD-tree is built on the first call only, from at most about :data:`GROUND_MAX_POINTS`
+    points (every n-th)."""
+    cache: list[tuple[cKDTree, np.ndarray]] = []
+
+    def height(xy: np.ndarray) -> np.ndarray:
+        if not cache:
+            sel = np.flatnonzero(np.isin(np.asarray(als.classification), classes))
+            if not len(sel):
+                sel = np.arange(len(als.xyz))
+            sel = sel[:: max(1, len(sel) // GROUND_MAX_POINTS)]  # bounded KD-tree (big tiles)
+            pts = np.asarray(als.xyz[sel], dtype=np.float64)
+            if not len(pts):
+                return np.zeros(len(xy))
+            cache.append((cKDTree(pts[:, :2]), pts[:, 2]))
+        tree, z = cache[0]
+        _, idx = tree.query(np.asarray(xy, dtype=np.float64)[:, :2], k=min(k, len(z)))
+        return np.median(z[np.asarray(idx).reshape(len(xy), -1)], axis=1)
+
+    return height
+
+
+def _node_coordinates(
+    path: Path, nodes: _Nodes, crs: str, frame: LocalFrame, settings: MapSettings,
+    ground: GroundFn | None,
+) -> np.ndarray:
+    """(n, 3) coordinates in L of every node (see :func:`read_lanelet_map`)."""
+    world_crs = horizontal_crs(crs).to_string()
+    has_local = np.isfinite(nodes.local).all(axis=1)
+    if has_local.any() and settings.local_crs is None and not np.any(
+        (nodes.lat != 0.0) | (nodes.lon != 0.0)
+    ):
+        raise InputError(path, "the nodes carry local_x/local_y but no lat/lon: declare their "
+                         "CRS and origin in sensor.toml ([map] local_crs, local_offset)")
+    east, north = (np.asarray(v, dtype=np.float64) for v in
+                   transformer(WGS84, world_crs).transform(nodes.lon, nodes.lat))
+    if settings.local_crs is not None and has_local.any():
+        lx = nodes.local[has_local, 0] + settings.local_offset[0]
+        ly = nodes.local[has_local, 1] + settings.local_offset[1]
+        src = horizontal_crs(settings.local_crs).to_string()
+        le, ln = transformer(src, world_crs).transform(lx, ly) if src != world_crs else (lx, ly)
+        east[has_local], north[has_local] = le, ln
+    xy = np.column_stack([east - frame.origin[0], north - frame.origin[1]])
+    if not np.isfinite(xy).all():
+        raise InputError(path, f"some nodes cannot be projected to {crs}")
+    z = nodes.ele - frame.origin[2]
+    missing = np.isnan(z)
+    if missing.any():
+        z[missing] = ground(xy[missing]) if ground is not None else 0.0
+    return np.column_stack([xy, z])
+
+
+def _write_latlon(src: Path, dst: Path, ids: np.ndarray, lat: np.ndarray, lon: np.ndarray
+                  ) -> None:
+    """Copy of the OSM file ``src`` with every node's lat/lon replaced (nodes by id)."""
+    root = ET.parse(src).getroot()
+    where = {int(i): k for k, i in enumerate(ids.tolist())}
+    for node in root.iter("node"):
+        k = where[int(node.attrib["id"])]
+        node.set("lat", f"{lat[k]:.11f}")
+        node.set("lon", f"{lon[k]:.11f}")
+    ET.ElementTree(root).write(dst, encoding="utf-8", xml_declaration=True)
+
+
+def _parse_osm(path: Path) -> tuple[_Nodes, dict[int, dict[str, str]]]:
+    """Every node and the tags of the relations tagged type=lanelet, by id."""
     try:
         root = ET.parse(path).getroot()
     except ET.ParseError as exc:
         raise InputError(path, f"not valid XML: {exc}", row=exc.position[0]) from None
-    nodes: dict[int, tuple[float, float, float]] = {}
+    rows: list[tuple[int, float, float, float, float, float]] = []
     for node in root.iter("node"):
+        tags = {t.get("k"): t.get("v") for t in node.iter("tag")}
         try:
             nid = int(node.attrib["id"])
-            lat, lon = float(node.attrib["lat"]), float(node.attrib["lon"])
-            ele_tags = [t.get("v") for t in node.iter("tag") if t.get("k") == "ele"]
-            ele = float(ele_tags[0]) if ele_tags else float("nan")
+            if not ("local_x" in tags and "local_y" in tags):
+                node.attrib["lat"], node.attrib["lon"]  # noqa: B018 (required without local_x/y)
+            lat, lon = float(node.get("lat", "0")), float(node.get("lon", "0"))
+            ele, lx, ly = (float(tags[k]) if k in tags else float("nan")
+                           for k in ("ele", "local_x", "local_y"))
         except (KeyError, TypeError, ValueError) as exc:
             raise InputError(
-                path, f"node needs integer id, numeric lat/lon (and ele): {exc}",
+                path, f"node needs integer id, numeric lat/lon (and ele, local_x/local_y): {exc}",
                 field=f"node {node.get('id')}",
             ) from None
-        if not (abs(lat) <= 90.0 and abs(lon) <= 180.0 and not np.isinf(ele)):
+        if not (abs(lat) <= 90.0 and abs(lon) <= 180.0 and not np.isinf([ele, lx, ly]).any()):
             raise InputError(
                 path, f"expected WGS84 lat in [-90, 90], lon in [-180, 180] and a finite ele, "
                 f"got lat={lat!r} lon={lon!r} ele={ele!r}", field=f"node {nid}",
             )
-        nodes[nid] = (lat, lon, ele)
-    lanelet_ids: set[int] = set()
+        rows.append((nid, lat, lon, ele, lx, ly))
+    table = np.array([r[1:] for r in rows], dtype=np.float64).reshape(-1, 5)
+    nodes = _Nodes(np.array([r[0] for r in rows], dtype=np.int64), table[:, 0], table[:, 1],
+                   table[:, 2], table[:, 3:5])
+    lanelet_ids: dict[int, dict[str, str]] = {}
     bound_ways: set[str] = set()
     for rel in root.iter("relation"):
         if any(t.get("k") == "type" and t.get("v") == "lanelet" for t in rel.iter("tag")):
             try:
-                lanelet_ids.add(int(rel.attrib["id"]))
+                lanelet_ids[int(rel.attrib["id"])] = {
+                    t.get("k", ""): t.get("v", "") for t in rel.iter("tag")}
             except (KeyError, ValueError):
                 raise InputError(path, "a lanelet relation needs an integer id",
                                  field=f"relation {rel.get('id')}") from None
             bound_ways.update(m.get("ref", "") for m in rel.iter("member")
                               if m.get("type") == "way" and m.get("role") in ("left", "right"))
-    known = {str(nid) for nid in nodes}
+    known = {str(nid) for nid in nodes.ids.tolist()}
     for way in root.iter("way"):
         if way.get("id") in bound_ways:
             missing = [nd.get("ref") for nd in way.iter("nd") if nd.get("ref") not in known]
@@ -142,38 +269,111 @@ def _parse_osm(path: Path) -> tuple[dict[int, tuple[float, float, float]], set[i
     return nodes, lanelet_ids
 
 
-def _load_with_lanelet2(
-    path: Path, nodes: dict[int, tuple[float, float, float]], lanelet_ids: set[int]
-) -> list[tuple[int, np.ndarray, np.ndarray, dict[str, str]]]:
-    """(id, left node ids, right node ids, tags) per lanelet, validated by lanelet2.
+def passable_by_tags(attributes: dict[str, str], participant: str) -> bool:
+    """Fallback drivability from tags: explicit ``participant:<p>`` tags decide (the most
+    specific of ``participant:vehicle:car``, ``participant:vehicle``; any participant tag
+    present but none matching means closed), else the subtype (:data:`PASSABLE_SUBTYPES`)."""
+    explicit = {k.split(":", 1)[1]: v for k, v in attributes.items()
+                if k.startswith("participant:")}
+    parts = participant.split(":")
+    if explicit:
+        for n in range(len(parts), 0, -1):
+            key = ":".join(parts[:n])
+            if key in explicit:
+                return explicit[key] == "yes"
+        return False
+    return attributes.get("subtype", "road") in PASSABLE_SUBTYPES.get(parts[0], frozenset())
 
-    lanelet2 errors about lanelet relations are fatal; errors about other primitives (areas,
-    regulatory elements fgloc ignores) are logged.
-    """
-    if not nodes:
-        raise InputError(path, "the map holds no nodes")
-    lat0, lon0, _ = next(iter(nodes.values()))
-    projector = UtmProjector(Origin(lat0, lon0))  # any projector: coordinates come from the XML
+
+def _traffic_rules(path: Path, settings: MapSettings) -> tuple[object | None, str]:
+    """lanelet2 traffic rules for the settings, or None (tags decide) when it has none."""
     try:
+        rules = lanelet2.traffic_rules.create(settings.location, settings.participant)
+    except RuntimeError as exc:
+        log.warning("%s: %s; drivable lanelets are decided by subtype/participant tags",
+                    path, exc)
+        return None, f"subtype/participant tags ({settings.location}/{settings.participant})"
+    return rules, f"lanelet2 traffic rules {settings.location}/{settings.participant}"
+
+
+def _successors(lmap: object, rules: object | None, drivable: set[int]) -> dict[
+        int, tuple[int, ...]]:
+    """Routing graph among the drivable lanelets in their own direction: lanelet2's
+    ``RoutingGraph.following`` with the rules, else lanelets whose bounds start at the points
+    where another's end (lanelet2's ``follows``)."""
+    lanelets = [ll for ll in lmap.laneletLayer if ll.id in drivable]
+    if rules is not None:
+        graph = lanelet2.routing.RoutingGraph(lmap, rules)
+        succ = {ll.id: [f.id for f in graph.following(ll) if not f.inverted()] for ll in lanelets}
+    else:
+        starts: dict[tuple[int, int], list[int]] = {}
+        for ll in lanelets:
+            starts.setdefault((ll.leftBound[0].id, ll.rightBound[0].id), []).append(ll.id)
+        succ = {ll.id: starts.get((ll.leftBound[-1].id, ll.rightBound[-1].id), [])
+                for ll in lanelets}
+    return {k: tuple(sorted(set(v) & drivable)) for k, v in succ.items() if v}
+
+
+def _load_with_lanelet2(
+    path: Path, nodes: _Nodes, lanelet_ids: dict[int, dict[str, str]], settings: MapSettings
+) -> _Raw:
+    """Lanelets, areas and routing graph, validated by lanelet2.
+
+    A lanelet lanelet2 rejects (or with a bound of fewer than 2 nodes) is fatal when its tags
+    make it drivable (:func:`passable_by_tags`: a road must not silently vanish) or when no
+    drivable lanelet is left; otherwise (a broken crosswalk, walkway, ...) it is skipped with a
+    warning. Errors about other primitives (areas, regulatory elements fgloc ignores) are
+    logged.
+    """
+    if not len(nodes.ids):
+        raise InputError(path, "the map holds no nodes")
+    projector = UtmProjector(Origin(float(nodes.lat[0]), float(nodes.lon[0])))
+    try:  # any projector: coordinates come from the XML
         lmap, errors = lanelet2.io.loadRobust(str(path), projector)
     except RuntimeError as exc:
         raise InputError(path, f"lanelet2 cannot read the map: {exc}") from None
+    broken: dict[int, str] = {}  # lanelet id -> what is wrong with it
     for msg in errors:
         m = _PRIMITIVE_ID.search(msg)
         if m and int(m.group(1)) in lanelet_ids:
-            raise InputError(path, f"invalid lanelet: {msg.strip()}", field=f"relation {m[1]}")
-        if m:
+            broken.setdefault(int(m.group(1)), f"invalid lanelet: {msg.strip()}")
+        else:
             log.warning("%s: lanelet2 (ignored, not a lanelet): %s", path, msg.strip())
-    out = []
+    rules, how = _traffic_rules(path, settings)
+    lanelets = []
     for ll in sorted(lmap.laneletLayer, key=lambda x: x.id):
         left = np.array([pt.id for pt in ll.leftBound], dtype=np.int64)
         right = np.array([pt.id for pt in ll.rightBound], dtype=np.int64)
         if len(left) < 2 or len(right) < 2:
-            raise InputError(path, "a lanelet bound needs >= 2 nodes", field=f"relation {ll.id}")
-        out.append((int(ll.id), left, right, {k: str(v) for k, v in ll.attributes.items()}))
-    if not out:
+            broken.setdefault(ll.id, "a lanelet bound needs >= 2 nodes")
+        if ll.id in broken:
+            continue
+        attrs = {k: str(v) for k, v in ll.attributes.items()}
+        ok = (bool(rules.canPass(ll)) if rules is not None
+              else passable_by_tags(attrs, settings.participant))
+        lanelets.append((int(ll.id), left, right, attrs, ok))
+    fatal = [lid for lid in sorted(broken)
+             if passable_by_tags(lanelet_ids.get(lid, {}), settings.participant)]
+    if fatal or (broken and not any(ok for *_, ok in lanelets)):
+        lid = fatal[0] if fatal else min(broken)
+        raise InputError(path, broken[lid], field=f"relation {lid}")
+    for lid, msg in sorted(broken.items()):
+        log.warning("%s: relation %d skipped (not drivable): %s", path, lid, msg)
+    if not lanelets:
         raise InputError(path, "lanelet2 found no valid lanelet in the map")
-    return out
+    areas = []
+    for area in sorted(lmap.areaLayer, key=lambda x: x.id):
+        ring = np.array([pt.id for pt in area.outerBoundPolygon()], dtype=np.int64)
+        sub = str(area.attributes["subtype"]) if "subtype" in area.attributes else "unknown"
+        if len(ring) >= 3:
+            areas.append((int(area.id), sub, ring))
+    regulatory: dict[str, int] = {}
+    for reg in lmap.regulatoryElementLayer:
+        sub = str(reg.attributes["subtype"]) if "subtype" in reg.attributes else "unknown"
+        regulatory[sub] = regulatory.get(sub, 0) + 1
+    drivable = {lid for lid, *_, ok in lanelets if ok}
+    return _Raw(lanelets, areas, _successors(lmap, rules, drivable),
+                dict(sorted(regulatory.items())), how)
 
 
 def _check_overlap(
@@ -204,7 +404,8 @@ def _check_overlap(
 # writing
 # --------------------------------------------------------------------------------------------
 def write_lanelet_map(path: str | Path, lanelet_map: LaneletMap, frame: LocalFrame) -> None:
-    """Write a Lanelet2 OSM file atomically.
+    """Write a Lanelet2 OSM file atomically (the drivable and the ignored lanelets; areas and
+    regulatory elements are not written).
 
     Bounds (L) go to world (``frame``) and to WGS84 lat/lon with 10 decimals (~0.01 mm); the
     world height goes to the ``ele`` tag (mm). Each bound is its own way (type=line_thin,
@@ -212,7 +413,7 @@ def write_lanelet_map(path: str | Path, lanelet_map: LaneletMap, frame: LocalFra
     :data:`DEFAULT_LANELET_TAGS` and the lanelet's attributes. Node and way ids count up from
     the largest |lanelet id| + 1.
     """
-    lls = lanelet_map.lanelets
+    lls = [*lanelet_map.lanelets, *lanelet_map.ignored]
     ids = [ll.id for ll in lls]
     if len(set(ids)) != len(ids) or 0 in ids:
         raise ValueError("lanelet ids must be unique and non-zero")
@@ -252,3 +453,84 @@ def write_lanelet_map(path: str | Path, lanelet_map: LaneletMap, frame: LocalFra
     lines.extend(relations)
     lines.append("</osm>")
     write_text_atomic(path, "\n".join(lines) + "\n")
+
+
+# --------------------------------------------------------------------------------------------
+# cropping
+# --------------------------------------------------------------------------------------------
+def crop_lanelet_osm(
+    path: str | Path, lat: float, lon: float, radius: float, *, drop_ele: bool = False
+) -> str:
+    """OSM XML text of the part of a Lanelet2 map around (lat, lon).
+
+    Keeps every lanelet and area relation with a node within ``radius`` m (whole, with all its
+    ways and nodes), every regulatory element whose members are all kept, and drops references
+    to the regulatory elements that are not. ``drop_ele`` removes the nodes' ``ele`` tags (when
+    the heights are to come from another ALS). Distances use a local equirectangular
+    approximation (fine for a few hundred metres).
+    """
+    p = Path(path)
+    try:
+        root = ET.parse(p).getroot()
+    except ET.ParseError as exc:
+        raise InputError(p, f"not valid XML: {exc}", row=exc.position[0]) from None
+    nodes = {n.get("id"): n for n in root.iter("node")}
+    ways = {w.get("id"): w for w in root.iter("way")}
+    k_lat = np.deg2rad(1.0) * 6_371_000.0
+    k_lon = k_lat * np.cos(np.deg2rad(lat))
+
+    def near(node: ET.Element | None) -> bool:
+        if node is None:
+            return False
+        dy = (float(node.get("lat", "nan")) - lat) * k_lat
+        dx = (float(node.get("lon", "nan")) - lon) * k_lon
+        return bool(dx * dx + dy * dy <= radius * radius)
+
+    def way_nodes(wid: str | None) -> list[str]:
+        w = ways.get(wid or "")
+        return [] if w is None else [nd.get("ref", "") for nd in w.iter("nd")]
+
+    keep_rel: set[str] = set()
+    keep_way: set[str] = set()
+    relations = list(root.iter("relation"))
+    for rel in relations:
+        tags = {t.get("k"): t.get("v") for t in rel.iter("tag")}
+        if tags.get("type") not in ("lanelet", "multipolygon"):
+            continue
+        members = [m for m in rel.iter("member") if m.get("type") == "way"]
+        refs = [r for m in members for r in way_nodes(m.get("ref"))]
+        if any(near(nodes.get(r)) for r in refs) and all(r in nodes for r in refs):
+            keep_rel.add(rel.get("id", ""))
+            keep_way.update(m.get("ref", "") for m in members)
+    for rel in relations:  # regulatory elements whose members are all kept
+        tags = {t.get("k"): t.get("v") for t in rel.iter("tag")}
+        if tags.get("type") != "regulatory_element":
+            continue
+        members = list(rel.iter("member"))
+        if members and all(
+            (m.get("type") == "way" and m.get("ref") in ways)
+            or (m.get("type") == "relation" and m.get("ref") in keep_rel)
+            or (m.get("type") == "node" and m.get("ref") in nodes)
+            for m in members
+        ) and any(m.get("ref") in keep_rel for m in members if m.get("type") == "relation"):
+            keep_rel.add(rel.get("id", ""))
+            keep_way.update(m.get("ref", "") for m in members if m.get("type") == "way")
+    keep_node = {r for wid in keep_way for r in way_nodes(wid)}
+    keep_node.update(m.get("ref", "") for rel in relations if rel.get("id") in keep_rel
+                     for m in rel.iter("member") if m.get("type") == "node")
+    out = ET.Element("osm", dict(root.attrib))
+    for nid, node in nodes.items():
+        if nid in keep_node:
+            if drop_ele:
+                for t in [t for t in node.findall("tag") if t.get("k") == "ele"]:
+                    node.remove(t)
+            out.append(node)
+    out.extend(w for wid, w in ways.items() if wid in keep_way)
+    for rel in relations:
+        if rel.get("id") in keep_rel:
+            for m in [m for m in rel.findall("member") if m.get("type") == "relation"
+                      and m.get("ref") not in keep_rel]:
+                rel.remove(m)
+            out.append(rel)
+    ET.indent(out)
+    return ET.tostring(out, encoding="unicode", xml_declaration=True) + "\n"

@@ -16,9 +16,9 @@ import numpy as np
 from fgloc.errors import InputError
 from fgloc.geo import LocalFrame
 from fgloc.io.als import ALS_SUFFIXES, find_als_tiles, read_als, write_als
-from fgloc.io.atomic import current_umask
+from fgloc.io.atomic import current_umask, write_text_atomic
 from fgloc.io.ground_truth import read_ground_truth, write_ground_truth
-from fgloc.io.lanelet_map import read_lanelet_map, write_lanelet_map
+from fgloc.io.lanelet_map import als_ground, read_lanelet_map, write_lanelet_map
 from fgloc.io.radar import read_radar, write_radar
 from fgloc.io.sensor_file import read_sensor_toml, write_sensor_toml
 from fgloc.scenario import Scenario, SensorConfig
@@ -65,7 +65,8 @@ def load_scenario(path: str | Path) -> Scenario:
     lo, hi = als.xyz[:, :2].min(axis=0), als.xyz[:, :2].max(axis=0)
     bbox = (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
     _check_sensor_near_als(d / SENSOR_FILE, sensor, frame, bbox)
-    lanelets = read_lanelet_map(d / MAP_FILE, frame.crs, frame, overlap_bbox=bbox)
+    lanelets = read_lanelet_map(d / MAP_FILE, frame.crs, frame, overlap_bbox=bbox,
+                                settings=sensor.map, ground=als_ground(als))
     gt_path = d / GROUND_TRUTH_FILE
     truth = read_ground_truth(gt_path, frame) if gt_path.is_file() else None
     return Scenario(frame=frame, sensor=sensor, radar=radar, als=als, lanelets=lanelets,
@@ -93,14 +94,17 @@ def _check_sensor_near_als(
         )
 
 
-def write_scenario(scn: Scenario, out_dir: str | Path, *, radar_format: str = "csv") -> None:
+def write_scenario(scn: Scenario, out_dir: str | Path, *, radar_format: str = "csv",
+                   map_osm: str | None = None, extra_files: dict[str, str] | None = None) -> None:
     """Write ``scn`` as a scenario directory.
 
     radar_format: "csv", "npz" or "parquet". The ALS goes to ``als/<E_km>_<N_km>.laz`` tiles of
     :data:`ALS_TILE_SIZE` m aligned to the world grid. A new ``out_dir`` is written as a
     hidden sibling directory and renamed into place; in an existing one every file is replaced
     atomically, then stale scenario files (other radar formats, ALS tiles not written now, a
-    ground truth when ``scn.truth`` is None) are removed.
+    ground truth when ``scn.truth`` is None) are removed. ``map_osm``: the text to write as
+    map.osm instead of serializing ``scn.lanelets`` (e.g. a real map's crop, which must hold the
+    same lanelets); ``extra_files``: further text files (name -> text), e.g. a map's licence.
     """
     if radar_format not in ("csv", "npz", "parquet"):
         raise ValueError(f"radar_format must be csv, npz or parquet, got {radar_format!r}")
@@ -108,27 +112,36 @@ def write_scenario(scn: Scenario, out_dir: str | Path, *, radar_format: str = "c
     if out.exists():
         if not out.is_dir():
             raise InputError(out, "exists and is not a directory")
-        written = _write_files(scn, out, radar_format)
+        written = _write_files(scn, out, radar_format, map_osm, extra_files or {})
         _remove_stale(out, written)
         return
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".tmp", dir=out.parent))
     os.chmod(tmp, 0o777 & ~current_umask())  # mkdtemp makes 0700; give the usual mode
     try:
-        _write_files(scn, tmp, radar_format)
+        _write_files(scn, tmp, radar_format, map_osm, extra_files or {})
         os.rename(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
 
 
-def _write_files(scn: Scenario, d: Path, radar_format: str) -> set[Path]:
+def _write_files(scn: Scenario, d: Path, radar_format: str, map_osm: str | None,
+                 extra_files: dict[str, str]) -> set[Path]:
     """Write every file of ``scn`` into ``d``; return the paths written."""
     frame = scn.frame
     written = {d / SENSOR_FILE, d / f"radar.{radar_format}", d / MAP_FILE}
     write_sensor_toml(d / SENSOR_FILE, scn.sensor)
     write_radar(d / f"radar.{radar_format}", scn.radar)
-    write_lanelet_map(d / MAP_FILE, scn.lanelets, frame)
+    if map_osm is None:
+        write_lanelet_map(d / MAP_FILE, scn.lanelets, frame)
+    else:
+        write_text_atomic(d / MAP_FILE, map_osm)
+    for name, text in extra_files.items():
+        if Path(name).name != name or name.startswith("."):
+            raise ValueError(f"extra file names must be plain file names, got {name!r}")
+        write_text_atomic(d / name, text)
+        written.add(d / name)
     world = frame.to_world(scn.als.xyz)
     keys = np.floor(world[:, :2] / ALS_TILE_SIZE).astype(np.int64)
     tiles, inverse = np.unique(keys, axis=0, return_inverse=True)

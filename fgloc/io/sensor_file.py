@@ -3,6 +3,9 @@
 Top level: optional ``crs`` (the world CRS). Table ``[sensor]``: ``approx_position = [E, N]``
 (required, world CRS, m), optional ``approx_height`` (m above the road), ``yaw_guess_deg``
 (degrees CCW from grid east), ``hfov_deg`` / ``vfov_deg`` (degrees), ``max_range`` (m).
+Optional table ``[map]``: how map.osm is read (:class:`fgloc.scenario.MapSettings`):
+``location`` / ``participant`` of lanelet2's traffic rules, ``local_crs`` / ``local_offset`` for
+maps with ``local_x`` / ``local_y`` node tags.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ from fgloc.config import dumps_toml, from_dict, read_toml
 from fgloc.errors import InputError
 from fgloc.io._crs import canonical_world_crs
 from fgloc.io.atomic import write_text_atomic
-from fgloc.scenario import SensorConfig
+from fgloc.scenario import MapSettings, SensorConfig
 
 #: Largest |E| or |N| (m) accepted for approx_position (projected CRS coordinates, including
 #: zone-prefixed eastings such as EPSG:4647's 32 500 000 m, stay far below it).
@@ -35,9 +38,20 @@ class _SensorTable:
 
 
 @dataclass
+class _MapTable:
+    """The optional ``[map]`` table (see :class:`fgloc.scenario.MapSettings`)."""
+
+    location: str = MapSettings.location
+    participant: str = MapSettings.participant
+    local_crs: str | None = None
+    local_offset: tuple[float, float] = MapSettings.local_offset
+
+
+@dataclass
 class _SensorFile:
     crs: str | None = None
     sensor: _SensorTable = field(default_factory=_SensorTable)
+    map: _MapTable = field(default_factory=_MapTable)
 
 
 def read_sensor_toml(path: str | Path) -> SensorConfig:
@@ -75,16 +89,30 @@ def read_sensor_toml(path: str | Path) -> SensorConfig:
     for key, (ok, expected) in ranges.items():
         if not ok:
             raise InputError(p, f"must be {expected}, got {numbers[key]!r}", field=f"sensor.{key}")
-    return SensorConfig(crs=raw.crs, **numbers)
+    m = raw.map
+    if m.local_crs is not None:
+        canonical_world_crs(m.local_crs, p, "map.local_crs")
+    if not all(math.isfinite(v) and abs(v) <= MAX_COORDINATE for v in m.local_offset):
+        raise InputError(p, f"must be finite coordinates within +-{MAX_COORDINATE:g} m, got "
+                         f"{m.local_offset!r}", field="map.local_offset")
+    for key in ("location", "participant"):
+        if not getattr(m, key).strip():
+            raise InputError(p, "must not be empty", field=f"map.{key}")
+    settings = MapSettings(m.location, m.participant, m.local_crs,
+                           tuple(float(v) for v in m.local_offset))
+    return SensorConfig(crs=raw.crs, **numbers, map=settings)
 
 
 def write_sensor_toml(path: str | Path, sensor: SensorConfig) -> None:
     """Write ``sensor.toml`` atomically (optional fields that are None are left out)."""
-    table = {k: v for k, v in asdict(sensor).items() if k != "crs"}
+    table = {k: v for k, v in asdict(sensor).items() if k not in ("crs", "map")}
     table["approx_position"] = [float(v) for v in sensor.approx_position]
     data: dict[str, object] = {} if sensor.crs is None else {"crs": sensor.crs}
     # float(): numpy scalars would otherwise be written as "np.float64(...)"
     data["sensor"] = {
         k: (v if isinstance(v, list) else float(v)) for k, v in table.items() if v is not None
     }
+    if sensor.map != MapSettings():
+        data["map"] = {k: (list(v) if isinstance(v, tuple) else v)
+                       for k, v in asdict(sensor.map).items() if v is not None}
     write_text_atomic(path, dumps_toml(data))

@@ -1,0 +1,121 @@
+"""Every method on junctions of a real Lanelet2 map (issue 22).
+
+For each of the map's largest junctions (``--junctions``, ranked by the number of movements of
+the routing graph) and each seed, ``fgloc.sim.real_map.simulate_on_map`` builds a scenario at
+that junction (``--duration`` s of traffic) and ``fgloc.localize_many`` runs every method on it;
+once per ``[map] labels`` mode (routing graph, Menger curvature); the 2D and yaw errors against
+the simulated truth are printed per run, then the mean and the worst seed per junction and
+method, and with ``--write`` the table goes into the
+``real-map`` section of docs/benchmarks.md.
+
+    OMP_NUM_THREADS=1 python bench/real_map.py --seeds 1 2 3 --write
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import platform
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from bench.report_section import replace_section  # noqa: E402
+from fgloc.config import Config  # noqa: E402
+from fgloc.evaluate import pose_error  # noqa: E402
+from fgloc.pipeline import localize_many  # noqa: E402
+from fgloc.sim.real_map import map_junctions, simulate_on_map  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
+DEFAULT_MAP = ROOT.parent / "shared" / "data" / "maps" / "lanelet2_mapping_example.osm"
+METHODS = ["icp", "filter-sicp", "smoother-sicp", "joint"]
+
+
+Errors = dict[tuple[str, int, str], list[tuple[float, float]]]
+
+
+def run(map_path: Path, n_junctions: int, seeds: list[int], duration: float,
+        labels: list[str]) -> tuple[list[tuple[float, float]], Errors]:
+    """Junction sites (lat, lon) and per (labels, junction, method) the (2D m, yaw deg) of
+    every seed; every scenario is localized once per ``[map] labels`` mode."""
+    junctions, _ = map_junctions(map_path)
+    sites = [(float(j.centre[0]), float(j.centre[1])) for j in junctions[:n_junctions]]
+    errors: Errors = {}
+    for k, site in enumerate(sites):
+        for seed in seeds:
+            scn = simulate_on_map(map_path, seed, site=site, duration=duration).scenario
+            for mode in labels:
+                t0 = time.perf_counter()
+                cfg = Config()
+                cfg.map.labels = mode
+                res = localize_many(scn, METHODS, cfg)
+                line = [f"junction {k + 1} seed {seed} labels {mode}:"]
+                for m, r in res.items():
+                    e = pose_error(r.T_local, scn.truth.sensor_pose)
+                    errors.setdefault((mode, k, m), []).append((e.d2d, e.dyaw_deg))
+                    line.append(f"{m} {e.d2d:.3f} m {e.dyaw_deg:.3f} deg"
+                                + ("" if r.converged else " (not converged)"))
+                print(" ".join(line) + f"  [{time.perf_counter() - t0:.0f} s]", flush=True)
+    return sites, errors
+
+
+def table(sites: list[tuple[float, float]], seeds: list[int], labels: list[str],
+          errors: Errors) -> str:
+    rows = ["| junction (lat, lon) | labels | method | 2D mean (m) | 2D worst (m) "
+            "| yaw mean (deg) | yaw worst (deg) |", "|---|---|---|---|---|---|---|"]
+
+    def row(name: str, mode: str, m: str, e: np.ndarray) -> str:
+        return (f"| {name} | {mode} | {m} | {e[:, 0].mean():.3f} | {e[:, 0].max():.3f} | "
+                f"{e[:, 1].mean():.3f} | {e[:, 1].max():.3f} |")
+
+    for mode in labels:
+        for k, (lat, lon) in enumerate(sites):
+            rows += [row(f"{k + 1} ({lat:.5f}, {lon:.5f})", mode, m,
+                         np.array(errors[(mode, k, m)])) for m in METHODS]
+        rows += [row(f"all {len(sites)} x {len(seeds)} runs", mode, m,
+                     np.vstack([errors[(mode, k, m)] for k in range(len(sites))]))
+                 for m in METHODS]
+    return "\n".join(rows)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--map", type=Path, default=DEFAULT_MAP)
+    ap.add_argument("--junctions", type=int, default=3)
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
+    ap.add_argument("--duration", type=float, default=60.0)
+    ap.add_argument("--labels", choices=["routing", "curvature"], nargs="+",
+                    default=["routing", "curvature"], help="[map] labels modes compared")
+    ap.add_argument("--write", action="store_true", help="write docs/benchmarks.md's section")
+    args = ap.parse_args()
+    sites, errors = run(args.map, args.junctions, args.seeds, args.duration, args.labels)
+    body = table(sites, args.seeds, args.labels, errors)
+    print(body)
+    if args.write:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
+                                capture_output=True, text=True).stdout.strip()
+        cmd = ("OMP_NUM_THREADS=1 python bench/real_map.py --seeds "
+               + " ".join(map(str, args.seeds)) + f" --junctions {args.junctions} --duration "
+               f"{args.duration:g} --labels {' '.join(args.labels)} --write")
+        head = (f"## Real Lanelet2 map: every method at junctions of the Lanelet2 example map\n\n"
+                f"Scenarios simulated on `{args.map.name}` (Karlsruhe, BSD-3-Clause, FZI) with "
+                "`fgloc.sim.real_map.simulate_on_map` at its largest junctions of the routing "
+                f"graph, {args.duration:g} s each, seeds {args.seeds}; errors against the "
+                "simulated truth (mean and worst seed); each scenario localized with the "
+                "routing-graph labels (default) and with Menger curvature labels only.\n\n"
+                f"Command: `{cmd}`  \nCommit: {commit}, date: "
+                f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, machine: "
+                f"{platform.machine()} {os.cpu_count()} cores, Python "
+                f"{platform.python_version()}, OMP_NUM_THREADS="
+                f"{os.environ.get('OMP_NUM_THREADS', 'unset')}\n")
+        replace_section(ROOT / "docs" / "benchmarks.md", "real-map", head + "\n" + body)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,274 @@
+"""simulate_on_map(): a scenario with ground truth on any real Lanelet2 map.
+
+The sensor stands on a mast beside a junction of the map's routing graph (the one nearest to
+``site``, else a random one of the largest), vehicles drive the junction's routes (each
+movement with its lead-in and lead-out along the routing graph), the ALS is made from the
+drivable lanelets' polygons (road surface, class 11), the rest of the ground (class 2; walkways
+raised by a curb height), the map's buildings (class 6) and trees in its vegetation areas
+(class 5) over a gently sloped terrain. The radar model, traffic, ALS synthesis and sensor
+distributions are the synthetic simulator's (:mod:`fgloc.sim`).
+
+The scenario's map is the real map cropped around the junction (``crop_radius``), its
+``ele`` tags removed (the heights come from the simulated ALS when the scenario is read back);
+:attr:`MapSimulation.map_osm` holds that text and :attr:`MapSimulation.notices` the licence
+files found beside the map (``LICENSE*``), to be written next to it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from fgloc.geo import LocalFrame, natural_utm_zone, transformer, utm_zone, wrap_angle
+from fgloc.io.lanelet_map import WGS84, crop_lanelet_osm, read_lanelet_map
+from fgloc.map import points_in_polygon
+from fgloc.scenario import GroundTruth, Lanelet, LaneletMap, Scenario, SensorConfig
+from fgloc.sim.als import BUILDING, GROUND, synthesize_als
+from fgloc.sim.config import SensorSimConfig, SimConfig
+from fgloc.sim.core import SimResult
+from fgloc.sim.mounting import Mounting
+from fgloc.sim.radar import simulate_radar
+from fgloc.sim.real_roads import (
+    DrivableArea,
+    Junction,
+    Roof,
+    build_map_network,
+    find_junctions,
+    junction_routes,
+    map_scenery,
+)
+from fgloc.sim.roads import RoadArea, RoadNetwork
+from fgloc.sim.scenery import place_scenery
+from fgloc.sim.terrain import Terrain
+from fgloc.sim.traffic import VEHICLE_CLASSES, simulate_traffic
+
+_STAGES = ("junction", "sensor", "site", "scenery", "als", "traffic", "radar")
+#: a --site farther than this (m) from every junction is an error
+SITE_RADIUS = 500.0
+#: height (m) of walkways above the ground around them
+SIDEWALK_RAISE = 0.12
+
+
+@dataclass
+class MapSimulation:
+    """A simulated scenario on a real map plus what its directory needs besides: the cropped
+    map's OSM text and the licence notices (file name -> text)."""
+
+    result: SimResult
+    map_osm: str
+    junction: np.ndarray
+    notices: dict[str, str] = field(default_factory=dict)
+
+    @property
+    def scenario(self) -> Scenario:
+        return self.result.scenario
+
+
+def map_crs(lat: float, lon: float, preferred: str) -> str:
+    """``preferred`` when it is the UTM zone of (lat, lon), else WGS 84 / UTM of that zone."""
+    zone = natural_utm_zone(lon)
+    if utm_zone(preferred) == zone:
+        return preferred
+    return f"EPSG:{(32600 if lat >= 0 else 32700) + zone}"
+
+
+def map_junctions(map_path: str | Path, crs: str = "EPSG:25832") -> tuple[list[Junction], str]:
+    """Junctions of a map (:func:`find_junctions`) with their centres as (lat, lon) in
+    ``Junction.centre``, and the CRS used; for choosing sites."""
+    text = Path(map_path).read_text(encoding="utf-8")
+    lat, lon = _first_latlon(text)
+    crs = map_crs(lat, lon, crs)
+    e, n = transformer(WGS84, crs).transform(lon, lat)
+    frame = LocalFrame.around(e, n, 0.0, crs)
+    lmap = read_lanelet_map(map_path, crs, frame)
+    out = []
+    for j in find_junctions(lmap):
+        w = frame.to_world(j.centre[None])[0]
+        jlon, jlat = transformer(crs, WGS84).transform(w[0], w[1])
+        out.append(Junction(np.array([jlat, jlon]), j.movements))
+    return out, crs
+
+
+def _first_latlon(text: str) -> tuple[float, float]:
+    import re
+
+    m = re.search(r"""lat=['"]([-\d.]+)['"]\s+lon=['"]([-\d.]+)['"]""", text)
+    if m is None:
+        raise ValueError("the map has no node with lat/lon")
+    return float(m.group(1)), float(m.group(2))
+
+
+def _read_text_map(text: str, crs: str, frame: LocalFrame) -> LaneletMap:
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "map.osm"
+        path.write_text(text, encoding="utf-8")
+        return read_lanelet_map(path, crs, frame)
+
+
+def _place_mast(rng: np.random.Generator, cfg: SensorSimConfig, net: RoadNetwork,
+                area: RoadArea, lmap: LaneletMap, target: np.ndarray) -> Mounting:
+    """Mast ``setback`` m off a road edge ``junction_distance`` m from the junction centre
+    ``target``, clear of the lanes, the drivable lanelets and the map's buildings; looking at
+    the junction (yaw jitter, height, pitch and roll as the synthetic simulator's)."""
+    edge, normal = net.curb_line(1.0)
+    dist = np.linalg.norm(edge - target, axis=1)
+    blocked = [ll.polygon() for ll in lmap.lanelets]
+    blocked += [a.outline for a in lmap.areas if a.subtype == "building"]
+    for _ in range(400):
+        cand = np.flatnonzero(np.abs(dist - rng.uniform(*cfg.junction_distance)) < 2.0)
+        if not len(cand):
+            continue
+        i = int(rng.choice(cand))
+        xy = edge[i] + rng.uniform(*cfg.setback) * normal[i]
+        if area.clearance(xy[None])[0] < 0.9 * cfg.setback[0]:
+            continue
+        if any(points_in_polygon(xy[None], poly, 0.5)[0] for poly in blocked):
+            continue
+        break
+    else:
+        raise RuntimeError("no roadside position for the sensor near the junction")
+    look = target - xy
+    yaw = float(np.arctan2(look[1], look[0])) + np.deg2rad(rng.uniform(-1, 1) * cfg.yaw_jitter_deg)
+    return Mounting(xy, float(rng.uniform(*cfg.mast_height)), float(wrap_angle(yaw)),
+                    float(np.deg2rad(rng.uniform(*cfg.pitch_deg))),
+                    float(np.deg2rad(rng.uniform(-1, 1) * cfg.roll_deg)))
+
+
+def _with_heights(lmap: LaneletMap, terrain: Terrain) -> LaneletMap:
+    """The map with every bound's z on the simulated road surface."""
+    def lift(ll: Lanelet) -> Lanelet:
+        left, right = ll.left.copy(), ll.right.copy()
+        left[:, 2], right[:, 2] = terrain.road(left[:, :2]), terrain.road(right[:, :2])
+        return dataclasses.replace(ll, left=left, right=right)
+    return dataclasses.replace(lmap, lanelets=[lift(ll) for ll in lmap.lanelets],
+                               ignored=[lift(ll) for ll in lmap.ignored])
+
+
+def _sidewalks_and_roofs(als_xyz: np.ndarray, cls: np.ndarray, lmap: LaneletMap,
+                         roofs: list[Roof], terrain: Terrain) -> None:
+    """In place: ground points on walkways (lanelets and areas) raised by SIDEWALK_RAISE;
+    ground points inside a building's outline on its flat roof (class 6)."""
+    walks = [ll.polygon() for ll in lmap.ignored if ll.attributes.get("subtype") == "walkway"]
+    walks += [a.outline for a in lmap.areas if a.subtype == "walkway"]
+    xy = als_xyz[:, :2].astype(float)
+    for poly, roof in [*((w, None) for w in walks), *((r.outline, r) for r in roofs)]:
+        lo, hi = poly.min(axis=0), poly.max(axis=0)
+        box = np.flatnonzero(np.all((xy >= lo) & (xy <= hi), axis=1) & (cls == GROUND))
+        hit = box[points_in_polygon(xy[box], poly)]
+        if roof is None:
+            als_xyz[hit, 2] += SIDEWALK_RAISE
+        else:
+            als_xyz[hit, 2] = terrain.ground(poly.mean(axis=0)) + roof.height
+            cls[hit] = BUILDING
+
+
+def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float] | None = None,
+                    duration: float = 60.0, vehicles: int | None = None,
+                    config: SimConfig | None = None, crop_radius: float = 300.0,
+                    route_reach: float = 150.0) -> MapSimulation:
+    """Simulate a recording at a junction of the Lanelet2 map ``map_path``.
+
+    site: (lat, lon) near which the junction is taken (the nearest one, within
+    :data:`SITE_RADIUS` m, else ValueError); None: a random one
+    (from ``seed``) of those with the most movements. The world CRS is ``config.site.crs`` when
+    the map lies in its UTM zone, else WGS 84 / UTM of the map's zone. ``crop_radius`` (m): the
+    part of the map kept around the junction; ``route_reach`` (m): lead-in and lead-out of every
+    route. Deterministic in (map, seed, site, duration, vehicles, config).
+    """
+    if duration <= 0:
+        raise ValueError(f"duration must be positive, got {duration}")
+    cfg = config or SimConfig()
+    rng = dict(zip(_STAGES, (np.random.default_rng(s)
+                             for s in np.random.SeedSequence(seed).spawn(len(_STAGES)))))
+    map_path = Path(map_path)
+    junctions, crs = map_junctions(map_path, cfg.site.crs)
+    if not junctions:
+        raise ValueError(f"{map_path}: the routing graph has no junction (no lanelet with "
+                         "several drivable successors or predecessors)")
+    if site is not None:
+        d = [np.hypot(j.centre[0] - site[0], (j.centre[1] - site[1]) * np.cos(np.radians(
+            site[0]))) for j in junctions]
+        chosen = junctions[int(np.argmin(d))]
+        if min(d) * 111_195.0 > SITE_RADIUS:
+            raise ValueError(f"no junction of the routing graph within {SITE_RADIUS:g} m of the "
+                             f"site ({site[0]:.6f}, {site[1]:.6f}); the nearest is at "
+                             f"({chosen.centre[0]:.6f}, {chosen.centre[1]:.6f}), "
+                             f"{min(d) * 111_195.0:.0f} m away")
+    else:
+        top = [j for j in junctions if len(j.movements) == len(junctions[0].movements)]
+        chosen = top[int(rng["junction"].integers(len(top)))]
+    jlat, jlon = (float(v) for v in chosen.centre)
+    notice = ("Crop of " + map_path.name + f" ({crop_radius:g} m around lat {jlat:.6f}, lon "
+              f"{jlon:.6f}; ele tags removed) written by the fgloc map simulator; see the LICENSE "
+              "files beside this map for its copyright and licence.")
+    text = crop_lanelet_osm(map_path, jlat, jlon, crop_radius, drop_ele=True)
+    text = text.replace("?>", f"?>\n<!-- {notice} -->", 1)
+
+    # junction frame: the junction centre at ground height; the final frame follows the mast
+    je, jn = transformer(WGS84, crs).transform(jlon, jlat)
+    site_rng = rng["site"]
+    centre_h = site_rng.uniform(*cfg.site.ground_height)
+    frame0 = LocalFrame.around(je, jn, centre_h, crs)
+    lmap0 = _read_text_map(text, crs, frame0)
+    centre0 = np.array([je, jn]) - np.asarray(frame0.origin[:2])
+    junction = next((j for j in find_junctions(lmap0)
+                     if np.linalg.norm(j.centre - centre0) < 30.0), None)
+    if junction is None:
+        raise RuntimeError(f"the junction at lat {jlat:.6f}, lon {jlon:.6f} fell apart in the crop")
+    routes = junction_routes(lmap0, junction, route_reach)
+    net = build_map_network(lmap0, routes, junction.centre, cfg.als.extent)
+    mount = _place_mast(rng["sensor"], cfg.sensor, net, RoadArea(net), lmap0, junction.centre)
+
+    slope = site_rng.uniform(*cfg.als.slope)
+    downhill = site_rng.uniform(-np.pi, np.pi)
+    grad = slope * np.array([np.cos(downhill), np.sin(downhill)])
+    mast_en = mount.xy + np.asarray(frame0.origin[:2])
+    approx_en = mast_en + site_rng.normal(0.0, cfg.sensor.approx_position_sigma, 2)
+    ground_at_mast = centre_h + float(grad @ (mount.xy - junction.centre))
+    frame = LocalFrame.around(approx_en[0], approx_en[1], ground_at_mast, crs)
+    offset = np.asarray(frame0.origin[:2]) - np.asarray(frame.origin[:2])
+    net.translate(offset)
+    mount.xy = mount.xy + offset
+    centre = junction.centre + offset
+    terrain = Terrain(centre_h - frame.origin[2] - float(grad @ centre), grad,
+                      cfg.als.road_raise)
+    lmap = _with_heights(_read_text_map(text, crs, frame), terrain)
+    area = RoadArea(net)
+    road = DrivableArea(lmap.lanelets)
+
+    poles = place_scenery(rng["scenery"], dataclasses.replace(cfg.als, buildings=0, trees=0),
+                          net, area, mount.xy)
+    scenery, roofs = map_scenery(rng["scenery"], cfg.als, lmap.areas, poles, road, mount.xy)
+    no_boxes = dataclasses.replace(scenery, building_centre=np.zeros((0, 2)),
+                                   building_size=np.zeros((0, 2)), building_yaw=np.zeros(0),
+                                   building_height=np.zeros(0))
+    als = synthesize_als(rng["als"], cfg.als, terrain, road, no_boxes, mount.xy)
+    _sidewalks_and_roofs(als.xyz, als.classification, lmap, roofs, terrain)
+    n_frames = max(1, int(round(duration * cfg.radar.rate_hz)))
+    times = np.arange(n_frames) / cfg.radar.rate_hz
+    traffic = simulate_traffic(rng["traffic"], cfg.traffic, net, times, vehicles)
+    pose = mount.pose(terrain)
+    radar, source = simulate_radar(rng["radar"], cfg.radar, pose, traffic.tracks, traffic.kinds,
+                                   net, scenery, terrain, n_frames)
+
+    yaw_guess = np.rad2deg(mount.yaw) + site_rng.normal(0.0, cfg.sensor.yaw_guess_sigma_deg)
+    sensor = SensorConfig(
+        approx_position=(float(approx_en[0]), float(approx_en[1])),
+        crs=crs,
+        approx_height=round(mount.height * 2.0) / 2.0,
+        yaw_guess_deg=float((yaw_guess + 180.0) % 360.0 - 180.0),
+        hfov_deg=cfg.radar.hfov_deg,
+        vfov_deg=cfg.radar.vfov_deg,
+        max_range=cfg.radar.max_range,
+    )
+    scenario = Scenario(frame=frame, sensor=sensor, radar=radar, als=als, lanelets=lmap,
+                        truth=GroundTruth(crs, pose, traffic.tracks), path=None)
+    notices = {p.name: p.read_text(encoding="utf-8")
+               for p in sorted(map_path.parent.glob("LICENSE*")) if p.is_file()}
+    return MapSimulation(SimResult(scenario, source, [VEHICLE_CLASSES[k].name
+                                                      for k in traffic.kinds]),
+                         text, centre, notices)
