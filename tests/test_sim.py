@@ -419,3 +419,32 @@ def test_write_load_round_trip(tmp_path: Path) -> None:
     for f in dataclasses.fields(scn.sensor):
         got, want = getattr(back.sensor, f.name), getattr(scn.sensor, f.name)
         assert got == (want if isinstance(want, str) else pytest.approx(want)), f.name
+
+
+@pytest.mark.parametrize("band", [None, (0.2, 1.5), (0.5, 0.9)])
+def test_return_height_setting(band: tuple[float, float] | None) -> None:
+    """Vehicle returns lie within [low, high] above the road (clipped at the roof), mean as
+    expected; default (None): 0.3 m to 90 % of the roof."""
+    cfg = SimConfig(radar=RadarSimConfig(return_height=band, sigma_elevation_deg=0.0,
+                                         sigma_range=0.0, sigma_azimuth_deg=0.0))
+    res = simulate_detailed("straight", 5, 12.0, config=cfg)
+    scn = res.scenario
+    det = np.flatnonzero(res.source >= 0)
+    assert len(det) > 300
+    p = transform_points(scn.truth.sensor_pose, scn.radar.xyz[det])
+    # road under each return: median of the nearest ALS road points
+    road = scn.als.xyz[scn.als.classification == 11].astype(float)
+    tree = cKDTree(road[:, :2])
+    _, k = tree.query(p[:, :2], k=8)
+    h = p[:, 2] - np.median(road[k, 2], axis=1)
+    cls = {tr.id: name for tr, name in zip(scn.truth.tracks, res.vehicle_class, strict=True)}
+    roof = np.array([{"car": 1.5, "van": 2.2, "truck": 3.6}[cls[s]] for s in res.source[det]])
+    tol = 0.1    # ALS height noise and road interpolation
+    if band is None:
+        lo, hi = 0.3 * np.ones_like(roof), 0.9 * roof
+    else:
+        lo, hi = np.minimum(band[0], roof), np.minimum(band[1], roof)
+    assert np.all(h > lo - tol) and np.all(h < hi + tol)
+    assert abs(np.mean(h) - np.mean(0.5 * (lo + hi))) < 0.05
+    with pytest.raises(Exception, match="return_height"):
+        from_dict(SimConfig, {"radar": {"return_height": [1.5, 0.2]}}, None)

@@ -110,6 +110,16 @@ class RadarSimConfig:
     """False-alarm doppler is uniform in +- this (m/s)."""
     rcs_sigma: float = 4.0
     """Std. dev. (dB) of the per-detection RCS around the source's mean."""
+    return_height: tuple[float, float] | None = None
+    """Height range (m above the road surface under the return) of vehicle returns: uniform
+    in ``[low, high]``, clipped to the vehicle's roof height. None (default): uniform between
+    0.3 m and 90 % of the vehicle class's roof height (car 1.5 m, van 2.2 m, truck 3.6 m)."""
+
+    def __post_init__(self) -> None:
+        if self.return_height is not None and not 0.0 <= self.return_height[0] \
+                <= self.return_height[1]:
+            raise ValueError(f"return_height must be [low, high] with 0 <= low <= high (m), "
+                             f"got {list(self.return_height)}")
 
 
 @dataclass

@@ -5,7 +5,8 @@ Per frame (vectorized over all frames at once):
 * vehicles: the footprint edges facing the sensor (back-face culling) reflect; the expected
   count is ``points_per_degree`` x the vehicle's angular extent x the detection probability
   (logistic in range), split over the visible edges by their projected length, with a share
-  concentrated at the corner nearest to the sensor; heights between 0.3 m and 90 % of the roof.
+  concentrated at the corner nearest to the sensor; heights from ``return_height`` (default
+  between 0.3 m and 90 % of the roof).
   Doppler is the range rate of the rigid-body point velocity ``v_c + yawrate x (p - c)``.
 * static clutter: persistent scatterers on curbs, poles, building facades and tree trunks,
   each detected per frame with a probability scaled to ``clutter_per_frame``.
@@ -124,6 +125,17 @@ class VehicleRows:
         return box_corners(self.centre, self.yaw, self.length, self.width)
 
 
+def return_heights(rng: np.random.Generator, cfg: RadarSimConfig,
+                   kind: np.ndarray) -> np.ndarray:
+    """(m,) heights (m above the road) of vehicle returns of class indices ``kind``:
+    ``cfg.return_height`` uniform and clipped to the roof, or 0.3 m to 90 % of the roof."""
+    roof = np.array([vc.height for vc in VEHICLE_CLASSES])[kind]
+    if cfg.return_height is None:
+        return rng.uniform(0.3, 0.9 * roof)
+    low, high = cfg.return_height
+    return np.minimum(rng.uniform(low, high, len(kind)), roof)
+
+
 def vehicle_points(rng: np.random.Generator, cfg: RadarSimConfig, rows: VehicleRows,
                    pose: np.ndarray, terrain: Terrain) -> Points:
     """Reflections on the visible footprint edges of every vehicle in every frame (rows wholly
@@ -164,8 +176,7 @@ def vehicle_points(rng: np.random.Generator, cfg: RadarSimConfig, rows: VehicleR
     frac = np.where(start_near, along, 1.0 - along)
     p = start + frac[:, None] * (end - start)
     kind = rows.kind[r]
-    top = np.array([0.9 * vc.height for vc in VEHICLE_CLASSES])[kind]
-    z = terrain.road(p) + rng.uniform(0.3, top)
+    z = terrain.road(p) + return_heights(rng, cfg, kind)
     heading = np.column_stack([np.cos(rows.yaw[r]), np.sin(rows.yaw[r])])
     arm = p - rows.centre[r]
     vel = rows.v[r, None] * heading + rows.yawrate[r, None] * np.column_stack([-arm[:, 1],
