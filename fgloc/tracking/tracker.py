@@ -100,6 +100,10 @@ class _Record:
     side_hits: int = 0
     #: promoted to the long-vehicle prior (see :meth:`Tracker._long_vehicles`)
     long: bool = False
+    #: lengthwise spans (m) of the associated detections of recent updates
+    spans: list[float] = field(default_factory=list)
+    #: lower bound (m) of the vehicle's length from ``spans`` (0: none yet)
+    span_length: float = 0.0
     t: list[float] = field(default_factory=list)
     states: list[np.ndarray] = field(default_factory=list)
     covs: list[np.ndarray] = field(default_factory=list)
@@ -177,6 +181,7 @@ class Tracker:
         self._misfit(owner, excess, dt)
         updated = self._update(det, owner)
         self._long_vehicles(updated)
+        self._span_length(det, owner, updated)
         self._record(t, det, owner, updated)
         self._births(det, owner == -1)
         self._manage(t)
@@ -394,6 +399,13 @@ class Tracker:
                                                 * (rax[:, 1] + rax[:, 3]))
             enough = vall.sum(axis=1) >= cfg.extent_min_points
             zj = np.take_along_axis(zall, j[..., None], axis=1)                # (T, 4, 2)
+            zm = zj
+            if cfg.extent_gap_correction:
+                # lengthwise only: a wider contour would trip the long-vehicle hypothesis
+                n_det = np.maximum(vall.sum(axis=1) - 1, 1)
+                gap = np.where(np.isfinite(span_lo), span_lo, 0.0) / n_det
+                gap = np.clip(gap, 0.0, cfg.extent_gap_max)[:, None] * np.array([1, 0, 1, 0])
+                zm = zj + axes * gap[..., None]
             # an extreme detection next to the FOV's edge (or the blind range) may be where
             # the view is cut, not where the vehicle ends
             zin = ((self.fov.outside_distance(zj) < -cfg.extent_edge_margin)
@@ -401,7 +413,7 @@ class Tracker:
                       > self.fov.min_range + cfg.extent_edge_margin))
             use = (np.stack([side, face, side, face], axis=1) & enough[:, None] & ok_end
                    & zin)
-            zr[:, K:], nm[:, K:], ok[:, K:] = zj, axes, use
+            zr[:, K:], nm[:, K:], ok[:, K:] = zm, axes, use
             th[:, K:] = np.arange(4) * (np.pi / 2)
             jidx[:, K:] = np.where(use, j, -1)
             beyond = np.where(use, np.sum(axes * (zj - ends), axis=2) - cfg.grow_margin, 0.0)
@@ -541,8 +553,49 @@ class Tracker:
         Pa = P @ a                                                      # (T, n)
         s = Pa @ a + cfg.long_sigma_length**2                           # (T,)
         K = Pa / s[:, None]
-        self.x[tracks] += K * (cfg.long_length - self.x[tracks] @ a)[:, None]
+        target = np.maximum(cfg.long_length, [self.recs[i].span_length for i in tracks])
+        self.x[tracks] += K * (target - self.x[tracks] @ a)[:, None]
         self.P[tracks] = P - K[:, :, None] * Pa[:, None, :]
+
+    def _span_length(self, det: _Frame, owner: np.ndarray, updated: np.ndarray) -> None:
+        """Visible length over the track history (``span_history``): record each updated
+        track's lengthwise detection span less twice the position noise along the heading,
+        keep the ``span_quantile`` of the recent ones as ``span_length`` and grow a contour
+        shorter than it by more than ``span_margin`` by ``span_gain`` of the shortfall,
+        towards the end beyond which the detections reach farther (centre moved by half the
+        growth, radii to the rectangle of the new length)."""
+        cfg = self.cfg
+        if cfg.span_history <= 0 or not len(updated):
+            return
+        sensor = self.fov.sensor
+        q = self.gp.n // 4
+        sig_az = np.deg2rad(cfg.sigma_azimuth_deg)
+        for i in updated:
+            z = det.z[owner == i]
+            if len(z) < cfg.extent_min_points:
+                continue
+            rec, x = self.recs[i], self.x[i]
+            h = unit(np.asarray(x[YAW]))
+            lo = (z - x[[X, Y]]) @ h
+            los = z - sensor
+            r = np.maximum(np.linalg.norm(los, axis=1), 1e-6)
+            cos_a = np.abs(los @ h) / r
+            noise = float(np.median(np.hypot(cfg.sigma_range * cos_a, sig_az * r
+                                             * np.sqrt(np.maximum(1.0 - cos_a**2, 0.0)))))
+            rec.spans.append(float(np.ptp(lo)) - 2.0 * noise)
+            del rec.spans[:-cfg.span_history]
+            rec.span_length = float(np.quantile(rec.spans, cfg.span_quantile))
+            f = x[N_KIN:]
+            length, width = f[0] + f[2 * q], f[q] + f[3 * q]
+            short = rec.span_length - length
+            if short <= cfg.span_margin:
+                continue
+            grow = cfg.span_gain * short
+            beyond_front, beyond_rear = lo.max() - f[0], -lo.min() - f[2 * q]
+            direction = h if beyond_front >= beyond_rear else -h
+            self.x[i, [X, Y]] += 0.5 * grow * direction
+            self.x[i, N_KIN:] += (rectangle_radius(self.gp.angles, length + grow, width)
+                                  - rectangle_radius(self.gp.angles, length, width))
 
     def _plausible(self, x: np.ndarray) -> np.ndarray:
         """States (T, n) clipped to road-vehicle limits: 0 <= v <= max_speed, |a| <= max_accel,
