@@ -191,6 +191,9 @@ class TrackingConfig:
     duplicate_long: float = 4.0
     """A track whose centre is within gate (m) sideways and this (m) lengthwise of a stronger
     track's contour extent is a duplicate (e.g. on a truck's front) and is dropped."""
+    drop_duplicates: bool = True
+    """A track ended by the duplicate rule is not reported (it followed part of a vehicle that
+    a stronger track follows, e.g. a truck's far end: reporting it makes a false track)."""
     confirm_hits_zone: int = 3
     """A track born in a birth zone is confirmed after this many updates ..."""
     confirm_window_zone: int = 5

@@ -695,6 +695,8 @@ class Tracker:
         pos[order] = np.arange(n)
         for j in order:
             end[j] = bool(np.any(dup[:, j] & ~end & (pos < pos[j])))
+        # a duplicate followed part of a vehicle a stronger track follows: not reported
+        silent = end.copy() if cfg.drop_duplicates else np.zeros(n, dtype=bool)
         blind = self.fov.blind(self.x[:, [X, Y]])
         for i, rec in enumerate(self.recs):
             if rec.misfit > cfg.diverge_excess:
@@ -710,13 +712,17 @@ class Tracker:
                 rec.confirmed = True
             elif self.frame - rec.birth_frame >= window - 1:
                 end[i] = True
-        self._end(end)
+        self._end(end, silent)
 
-    def _end(self, mask: np.ndarray) -> None:
+    def _end(self, mask: np.ndarray, silent: np.ndarray | None = None) -> None:
+        """End the tracks in ``mask``; report the confirmed ones with enough updates unless
+        ``silent``."""
         if not mask.any():
             return
         for i in np.flatnonzero(mask):
             rec = self.recs[i]
+            if silent is not None and silent[i]:
+                continue
             if rec.confirmed and rec.hits >= self.cfg.min_output_hits:
                 self.done.append(self._to_track(rec))
         keep = ~mask
