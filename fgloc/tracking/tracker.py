@@ -563,9 +563,10 @@ class Tracker:
         keep the ``span_quantile`` of the recent ones as ``span_length`` and grow a contour
         shorter than it by more than ``span_margin`` by ``span_gain`` of the shortfall,
         towards the end beyond which the detections reach farther (centre moved by half the
-        growth, radii to the rectangle of the new length)."""
+        growth, radii to the rectangle of the new length). Sensor-aware model only (the
+        plain model has no extent rows to hold the seen end)."""
         cfg = self.cfg
-        if cfg.span_history <= 0 or not len(updated):
+        if cfg.span_history <= 0 or not len(updated) or cfg.measurement_model != "sensor-aware":
             return
         sensor = self.fov.sensor
         q = self.gp.n // 4
@@ -652,30 +653,37 @@ class Tracker:
             if yaw is None:
                 yaw = float(np.arctan2(los[1], los[0]) + (0.0 if md > 0 else np.pi))
                 yaw_sigma = LOS_YAW_SIGMA
-            noise = max(cfg.sigma_range, np.deg2rad(cfg.sigma_azimuth_deg) * float(rng.mean()))
-            centre, yaw, v, size = initial_kinematics(z, dop, rng, yaw, sensor, cfg.mean_length,
-                                                      cfg.mean_width, cfg.default_speed, noise)
-            x0 = np.zeros(N_STATE)
-            x0[[X, Y]] = centre
-            x0[V], x0[YAW] = v, yaw
-            x0[N_KIN:] = rectangle_radius(self.gp.angles, size[0], size[1])
-            P0 = np.zeros((N_STATE, N_STATE))
-            P0[:N_KIN, :N_KIN] = np.diag(np.square([
-                cfg.init_sigma_pos, cfg.init_sigma_pos, cfg.init_sigma_speed,
-                cfg.init_sigma_accel, yaw_sigma, cfg.init_sigma_yawrate]))
-            P0[N_KIN:, N_KIN:] = self.gp.K
-            rec = _Record(self.next_id, self.frame, zone is not None, self.t)
-            self.next_id += 1
-            rec.t.append(self.t)
-            rec.states.append(x0.copy())
-            if cfg.store_covariances:
-                rec.covs.append(P0.copy())
-            rec.det_index.append(det.index[k])
-            rec.det_step.append(np.zeros(len(k), dtype=np.int64))
-            rec.hits, rec.last_update_step = 1, 0
-            self.recs.append(rec)
-            self.x = np.vstack([self.x, x0[None]])
-            self.P = np.concatenate([self.P, P0[None]])
+            self._birth(det, k, z, dop, rng, yaw, yaw_sigma, zone)
+
+    def _birth(self, det: _Frame, k: np.ndarray, z: np.ndarray, dop: np.ndarray,
+               rng: np.ndarray, yaw: float, yaw_sigma: float, zone: int | None) -> None:
+        """A tentative track from the detections k (indices into the frame) z, dop, rng."""
+        cfg = self.cfg
+        sensor = self.fov.sensor
+        noise = max(cfg.sigma_range, np.deg2rad(cfg.sigma_azimuth_deg) * float(rng.mean()))
+        centre, yaw, v, size = initial_kinematics(z, dop, rng, yaw, sensor, cfg.mean_length,
+                                                  cfg.mean_width, cfg.default_speed, noise)
+        x0 = np.zeros(N_STATE)
+        x0[[X, Y]] = centre
+        x0[V], x0[YAW] = v, yaw
+        x0[N_KIN:] = rectangle_radius(self.gp.angles, size[0], size[1])
+        P0 = np.zeros((N_STATE, N_STATE))
+        P0[:N_KIN, :N_KIN] = np.diag(np.square([
+            cfg.init_sigma_pos, cfg.init_sigma_pos, cfg.init_sigma_speed,
+            cfg.init_sigma_accel, yaw_sigma, cfg.init_sigma_yawrate]))
+        P0[N_KIN:, N_KIN:] = self.gp.K
+        rec = _Record(self.next_id, self.frame, zone is not None, self.t)
+        self.next_id += 1
+        rec.t.append(self.t)
+        rec.states.append(x0.copy())
+        if cfg.store_covariances:
+            rec.covs.append(P0.copy())
+        rec.det_index.append(det.index[k])
+        rec.det_step.append(np.zeros(len(k), dtype=np.int64))
+        rec.hits, rec.last_update_step = 1, 0
+        self.recs.append(rec)
+        self.x = np.vstack([self.x, x0[None]])
+        self.P = np.concatenate([self.P, P0[None]])
 
     def _manage(self, t: float) -> None:
         cfg = self.cfg
