@@ -34,12 +34,17 @@ class RoadSimConfig:
     """Choices for the number of lanes per direction of each road."""
     crossing_angle_jitter_deg: float = 12.0
     """Crossing/branching angle is 90 deg +- up to this (uniform)."""
+    crossing_angle_deg: tuple[float, float] | None = None
+    """If set, the crossing/branching angle (deg, between the two roads of an intersection or
+    the major road and the branch of a T-junction) is uniform in this range instead (e.g.
+    [70, 80] for an oblique junction)."""
     arm_length: float = 150.0
     """Length of each junction arm from the junction centre (m); also the half length of the
     straight road and the length of the curve's straight legs beyond the arc's end."""
     junction_margin: float = 8.0
-    """Stop line distance beyond the crossing road's edge (m); sets the junction turn radii
-    (about 8-16 m)."""
+    """Stop line distance beyond the crossing road's edge (m): the junction-box size (the box
+    extends ``half road width / sin(angle) + junction_margin`` from the centre along each arm);
+    sets the junction turn radii (about 8-16 m at the default)."""
     curve_radius: tuple[float, float] = (40.0, 90.0)
     """Radius of the road centre line in the ``curve`` case (m). Keep < 100 m so the curve
     lanelets label as turns with the Menger rule (gamma = 0.01 1/m)."""
@@ -92,10 +97,29 @@ class RadarSimConfig:
     points_per_degree: float = 14.0
     """Expected vehicle detections per degree of the vehicle's angular extent seen from the
     sensor (so the count falls roughly as 1/range), before the detection probability."""
+    returns_at_reference: float | None = None
+    """Returns-per-range model: expected vehicle detections per vehicle and frame at
+    ``reference_range``, falling as ``(reference_range / range) ** returns_exponent`` (then times
+    the detection probability). None (default): the ``points_per_degree`` model."""
+    reference_range: float = 20.0
+    """Reference range (m) of ``returns_at_reference``."""
+    returns_exponent: float = 1.0
+    """Fall-off exponent of the returns-per-range model (1: as 1/range)."""
     corner_fraction: float = 0.4
-    """Fraction of vehicle detections concentrated at the corner nearest to the sensor."""
+    """Fraction of vehicle detections concentrated at a corner (see ``corners``)."""
     corner_spread: float = 0.6
     """Std. dev. (m) of the distance of those corner detections from the corner."""
+    corners: str = "nearest"
+    """Which corners the corner detections concentrate at: "nearest" (the corner nearest to the
+    sensor, default) or "visible" (either end of the visible edge they fall on, i.e. every
+    visible corner)."""
+    wheel_fraction: float = 0.0
+    """Fraction of vehicle detections at the wheels of the visible long side: at 1/6 of the
+    length from the front or the rear (equally likely), spread along the side by
+    ``wheel_spread``. Vehicles seen head-on or from behind only (no long side visible) get
+    these on their visible edges instead. Default 0 (no wheel concentration)."""
+    wheel_spread: float = 0.3
+    """Std. dev. (m) along the side of the wheel detections around the axle."""
     range_half_detection: float = 0.75
     """Range (fraction of max_range) where the detection probability is 0.5."""
     range_falloff: float = 12.0
@@ -116,6 +140,11 @@ class RadarSimConfig:
     0.3 m and 90 % of the vehicle class's roof height (car 1.5 m, van 2.2 m, truck 3.6 m)."""
 
     def __post_init__(self) -> None:
+        if self.corners not in ("nearest", "visible"):
+            raise ValueError(f"corners must be 'nearest' or 'visible', got {self.corners!r}")
+        if not 0.0 <= self.corner_fraction + self.wheel_fraction <= 1.0:
+            raise ValueError("corner_fraction + wheel_fraction must lie in [0, 1], got "
+                             f"{self.corner_fraction} + {self.wheel_fraction}")
         if self.return_height is not None and not 0.0 <= self.return_height[0] \
                 <= self.return_height[1]:
             raise ValueError(f"return_height must be [low, high] with 0 <= low <= high (m), "
@@ -127,7 +156,8 @@ class TrafficSimConfig:
     """Vehicle arrivals, classes and driving behaviour."""
 
     arrival_interval: float = 2.5
-    """Mean time between vehicle arrivals (s) when the vehicle count is not given."""
+    """Mean time between vehicle arrivals (s) when the vehicle count is not given: the traffic
+    density is 60 / arrival_interval vehicles per minute (before the headway delays)."""
     class_mix: tuple[float, float, float] = (0.7, 0.2, 0.1)
     """Probabilities of car, van, truck."""
     speed_straight: tuple[float, float] = (8.0, 15.0)
@@ -146,6 +176,22 @@ class TrafficSimConfig:
     """Length (m) over which the path curvature ramps in and out (smooth yaw rate)."""
     headway: float = 1.0
     """Minimum time gap (s) between two vehicles using the same piece of road."""
+    truck_length: tuple[float, float] | None = None
+    """If set, truck lengths (m) are uniform in this range; None: normal, 11.0 +- 0.6 m."""
+    platoon_size: tuple[int, int] = (1, 1)
+    """Vehicles per platoon, uniform in [low, high]; (1, 1) (default) = independent arrivals.
+    A platoon drives one route at one speed profile; its arrivals are Poisson with mean
+    interval ``arrival_interval`` x the mean platoon size (same vehicles per minute)."""
+    platoon_headway: tuple[float, float] = (1.0, 1.0)
+    """Time headway (s, front to front) of each platoon follower behind its predecessor,
+    uniform in this range; never closer than ``headway`` between them (time gap, rear to
+    front)."""
+
+    def __post_init__(self) -> None:
+        lo, hi = self.platoon_size
+        if not 1 <= lo <= hi:
+            raise ValueError(f"platoon_size must be [low, high] with 1 <= low <= high, "
+                             f"got {list(self.platoon_size)}")
 
 
 @dataclass

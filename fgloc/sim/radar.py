@@ -3,9 +3,11 @@
 Per frame (vectorized over all frames at once):
 
 * vehicles: the footprint edges facing the sensor (back-face culling) reflect; the expected
-  count is ``points_per_degree`` x the vehicle's angular extent x the detection probability
-  (logistic in range), split over the visible edges by their projected length, with a share
-  concentrated at the corner nearest to the sensor; heights from ``return_height`` (default
+  count is ``points_per_degree`` x the vehicle's angular extent (or ``returns_at_reference``
+  x (reference_range / range) ** returns_exponent) x the detection probability (logistic in
+  range), split over the visible edges by their projected length, with a share concentrated
+  at the corner nearest to the sensor (or at every visible corner) and optionally a share at
+  the wheels of the visible long side; heights from ``return_height`` (default
   between 0.3 m and 90 % of the roof).
   Doppler is the range rate of the rigid-body point velocity ``v_c + yawrate x (p - c)``.
 * static clutter: persistent scatterers on curbs, poles, building facades and tree trunks,
@@ -125,6 +127,36 @@ class VehicleRows:
         return box_corners(self.centre, self.yaw, self.length, self.width)
 
 
+def expected_returns(cfg: RadarSimConfig, extent_deg: np.ndarray, rng: np.ndarray) -> np.ndarray:
+    """Expected detections per vehicle and frame at centre range ``rng`` (m), angular extent
+    ``extent_deg``: the returns-per-range model if set, else points_per_degree x extent; times
+    the detection probability."""
+    if cfg.returns_at_reference is None:
+        base = cfg.points_per_degree * extent_deg
+    else:
+        base = cfg.returns_at_reference * (cfg.reference_range / np.maximum(rng, 1.0)) \
+            ** cfg.returns_exponent
+    return base * detection_probability(rng, cfg)
+
+
+def _wheels(rng: np.random.Generator, cfg: RadarSimConfig, rows: VehicleRows,
+            visible: np.ndarray, r: np.ndarray, u: np.ndarray, edge: np.ndarray,
+            frac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Move the share ``wheel_fraction`` of detections (``u`` in [corner_fraction,
+    corner_fraction + wheel_fraction)) to an axle of the visible long side (edge 1 = left side
+    from the front, edge 3 = right side from the rear); returns the new edge and fraction."""
+    wheel = (u >= cfg.corner_fraction) & (u < cfg.corner_fraction + cfg.wheel_fraction)
+    side = np.where(visible[r, 1], 1, 3)
+    wheel &= visible[r, 1] | visible[r, 3]
+    n = int(wheel.sum())
+    from_front = np.where(rng.random(n) < 0.5, 1.0 / 6.0, 5.0 / 6.0)
+    f = from_front + rng.normal(0.0, cfg.wheel_spread, n) / rows.length[r[wheel]]
+    edge, frac = edge.copy(), frac.copy()
+    edge[wheel] = side[wheel]
+    frac[wheel] = np.clip(np.where(side[wheel] == 1, f, 1.0 - f), 0.0, 1.0)
+    return edge, frac
+
+
 def return_heights(rng: np.random.Generator, cfg: RadarSimConfig,
                    kind: np.ndarray) -> np.ndarray:
     """(m,) heights (m above the road) of vehicle returns of class indices ``kind``:
@@ -154,7 +186,7 @@ def vehicle_points(rng: np.random.Generator, cfg: RadarSimConfig, rows: VehicleR
     rel = wrap_angle(np.arctan2(c[..., 1] - s2[1], c[..., 0] - s2[0]) - centre_ang[:, None])
     extent = np.degrees(np.ptp(rel, axis=1))
     rng_c = np.linalg.norm(to_centre, axis=1)
-    lam = cfg.points_per_degree * extent * detection_probability(rng_c, cfg)
+    lam = expected_returns(cfg, extent, rng_c)
     boresight = np.arctan2(pose[1, 0], pose[0, 0])
     centre_rel = wrap_angle(centre_ang - boresight)
     half = np.deg2rad(cfg.hfov_deg / 2 + 3.0)
@@ -167,13 +199,19 @@ def vehicle_points(rng: np.random.Generator, cfg: RadarSimConfig, rows: VehicleR
     edge = np.minimum(((rng.random(m) * cdf[:, -1])[:, None] >= cdf).sum(axis=1), 3)
     length = elen[r, edge]
     along = rng.random(m)
-    corner = rng.random(m) < cfg.corner_fraction
+    u = rng.random(m)
+    corner = u < cfg.corner_fraction
     along[corner] = np.minimum(np.abs(rng.normal(0.0, cfg.corner_spread, corner.sum()))
                                / length[corner], 1.0)
     start = c[r, edge]
     end = c[r, (edge + 1) % 4]
     start_near = np.linalg.norm(start - s2, axis=1) <= np.linalg.norm(end - s2, axis=1)
+    if cfg.corners == "visible":
+        start_near[corner] = rng.random(int(corner.sum())) < 0.5
     frac = np.where(start_near, along, 1.0 - along)
+    if cfg.wheel_fraction > 0:
+        edge, frac = _wheels(rng, cfg, rows, visible, r, u, edge, frac)
+        start, end = c[r, edge], c[r, (edge + 1) % 4]
     p = start + frac[:, None] * (end - start)
     kind = rows.kind[r]
     z = terrain.road(p) + return_heights(rng, cfg, kind)

@@ -215,6 +215,8 @@ def build_network(case: str, rng: np.random.Generator, cfg: RoadSimConfig,
     rot = rng.uniform(-np.pi, np.pi)
     jitter = np.deg2rad(rng.uniform(-1, 1) * cfg.crossing_angle_jitter_deg)
     distance = rng.uniform(*sensor_distance)
+    if cfg.crossing_angle_deg is not None and case in ("intersection", "tjunction"):
+        jitter = np.deg2rad(rng.uniform(*cfg.crossing_angle_deg)) - np.pi / 2
     if case == "intersection":
         alpha = np.pi / 2 + jitter
         n1, n2 = lanes(), lanes()

@@ -8,9 +8,11 @@ with a speed profile of piecewise constant acceleration (cruise on straights, tu
 junction turns, lateral-acceleration cap in curves). Hence yaw is the path tangent and
 yawrate = v * curvature.
 
-Vehicles never overlap: each vehicle's entry time is delayed until its occupancy of every
-point it shares with an earlier vehicle's route (same lane, merge or crossing) is separated
-from that vehicle's occupancy by at least the headway.
+Vehicles arrive singly or in platoons (``platoon_size``): a platoon's followers drive the
+leader's route at the leader's speed profile, ``platoon_headway`` s (front to front) behind
+their predecessor. Vehicles never overlap: each vehicle's entry time is delayed until its
+occupancy of every point it shares with an earlier vehicle's route (same lane, merge or
+crossing) is separated from that vehicle's occupancy by at least the headway.
 """
 
 from __future__ import annotations
@@ -220,25 +222,49 @@ def _earliest(t: float, intervals: list[tuple[float, float]]) -> float:
 
 
 def _new_vehicle(rng: np.random.Generator, cfg: TrafficSimConfig, routes: list[Route],
-                 t_nominal: float) -> Vehicle:
+                 t_nominal: float, leader: Vehicle | None = None) -> Vehicle:
+    """A random vehicle entering at ``t_nominal``; a platoon follower (``leader`` given) takes
+    the leader's route and speed profile and enters one platoon headway (front to front)
+    behind it."""
     kind = int(rng.choice(len(VEHICLE_CLASSES), p=np.asarray(cfg.class_mix) / sum(cfg.class_mix)))
     vc = VEHICLE_CLASSES[kind]
-    lo, hi = cfg.speed_straight
-    v_cruise = rng.uniform(lo, hi if vc.name != "truck" else lo + 0.6 * (hi - lo))
-    r = int(rng.integers(len(routes)))
-    v = speed_profile(routes[r], v_cruise, rng.uniform(*cfg.speed_turn), cfg)
-    return Vehicle(kind, rng.normal(*vc.length), rng.normal(*vc.width), r, t_nominal, v,
-                   _cumtrapz(1.0 / v, ROUTE_DS))
+    if leader is None:
+        lo, hi = cfg.speed_straight
+        v_cruise = rng.uniform(lo, hi if vc.name != "truck" else lo + 0.6 * (hi - lo))
+        r = int(rng.integers(len(routes)))
+        v = speed_profile(routes[r], v_cruise, rng.uniform(*cfg.speed_turn), cfg)
+    else:
+        r, v = leader.route, leader.v
+    if vc.name == "truck" and cfg.truck_length is not None:
+        length = rng.uniform(*cfg.truck_length)
+    else:
+        length = rng.normal(*vc.length)
+    veh = Vehicle(kind, length, rng.normal(*vc.width), r, t_nominal, v,
+                  _cumtrapz(1.0 / v, ROUTE_DS))
+    if leader is not None:
+        veh.t0 = (leader.t0 + rng.uniform(*cfg.platoon_headway)
+                  + 0.5 * (veh.length - leader.length) / v[0])
+    return veh
 
 
 def _arrivals(rng: np.random.Generator, cfg: TrafficSimConfig, start: float, end: float,
-              count: int | None) -> np.ndarray:
-    """Nominal entry times: Poisson with the mean interval, or ``count`` uniform ones."""
+              count: int | None) -> list[tuple[float, int]]:
+    """Nominal entry times and sizes of the platoons (size 1: a single vehicle): Poisson with
+    the mean interval x the mean platoon size, or uniform ones until ``count`` vehicles."""
+    lo, hi = cfg.platoon_size
     if count is not None:
-        return np.sort(rng.uniform(start, end, count))
-    n_max = int((end - start) / cfg.arrival_interval * 2 + 20)
-    t = start + np.cumsum(rng.exponential(cfg.arrival_interval, n_max))
-    return t[t < end]
+        t = np.sort(rng.uniform(start, end, count))
+    else:
+        interval = cfg.arrival_interval * 0.5 * (lo + hi)
+        n_max = int((end - start) / interval * 2 + 20)
+        t = start + np.cumsum(rng.exponential(interval, n_max))
+        t = t[t < end]
+    sizes = np.ones(len(t), dtype=np.int64) if lo == hi == 1 else rng.integers(lo, hi + 1, len(t))
+    if count is not None:   # platoons until count vehicles in total
+        keep = np.cumsum(sizes) - sizes < count
+        t, sizes = t[keep], sizes[keep]
+        sizes[-1:] -= max(int(sizes.sum()) - count, 0)
+    return [(float(a), int(b)) for a, b in zip(t, sizes)]
 
 
 def _states(veh: Vehicle, route: Route, times: np.ndarray) -> np.ndarray:
@@ -266,19 +292,22 @@ def simulate_traffic(rng: np.random.Generator, cfg: TrafficSimConfig, net: RoadN
     duration = float(times[-1] - times[0]) if len(times) else 0.0
     cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
     vehicles: list[Vehicle] = []
-    for t_nom in _arrivals(rng, cfg, times[0] - warm, times[0] + duration, count):
-        f = _new_vehicle(rng, cfg, routes, float(t_nom))
-        intervals = []
-        for lead in vehicles:
-            key = (f.route, lead.route)
-            if key not in cache:
-                cache[key] = _conflicts(routes[f.route], routes[lead.route])
-            iv = _forbidden(f, routes[f.route], lead, routes[lead.route], cache[key],
-                            cfg.headway)
-            if iv is not None:
-                intervals.append(iv)
-        f.t0 = _earliest(f.t0, intervals)
-        vehicles.append(f)
+    for t_nom, size in _arrivals(rng, cfg, times[0] - warm, times[0] + duration, count):
+        leader = None
+        for _ in range(size):
+            f = _new_vehicle(rng, cfg, routes, t_nom, leader)
+            intervals = []
+            for lead in vehicles:
+                key = (f.route, lead.route)
+                if key not in cache:
+                    cache[key] = _conflicts(routes[f.route], routes[lead.route])
+                iv = _forbidden(f, routes[f.route], lead, routes[lead.route], cache[key],
+                                cfg.headway)
+                if iv is not None:
+                    intervals.append(iv)
+            f.t0 = _earliest(f.t0, intervals)
+            vehicles.append(f)
+            leader = f
     tracks, kinds = [], []
     for veh in vehicles:
         states = _states(veh, routes[veh.route], times)

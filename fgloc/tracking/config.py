@@ -56,6 +56,14 @@ class TrackingConfig:
     extent_min_cover: float = 0.5
     """... and only if its detections span at least this share of the contour's extent along
     the face (else the face is partly occluded or cut by the FOV: its extremes are not ends)."""
+    extent_gap_correction: bool = True
+    """The extreme detection along an axis lies inside the vehicle's end by about one sampling
+    gap: with n detections spanning s (m) along that axis, the end is measured at the extreme
+    plus s / (n - 1) (the unbiased end estimate of uniform samples; negligible with dense
+    returns, ~1 m per end with 4-8 returns on a car far out), at most ``extent_gap_max``; the
+    growth test (``grow_margin``) uses the extreme detection itself."""
+    extent_gap_max: float = 0.6
+    """Cap (m) of that sampling-gap correction."""
     extent_min_incidence: float = 0.25
     """A face gives extent rows only if sin(angle between the line of sight and the face) is at
     least this (a face seen at grazing incidence holds too few detections to reach its ends)."""
@@ -102,6 +110,19 @@ class TrackingConfig:
     """Width (m) of the long-vehicle rectangle its contour decays towards (with long_length)."""
     long_sigma_length: float = 1.0
     """Std. dev. (m) of the long vehicle's length added along the unobservable direction."""
+    span_history: int = 40
+    """Visible length over the track's history: the lengthwise span (m) of a track's
+    associated detections in each update with at least ``extent_min_points`` of them, less
+    twice their position noise along the heading, is kept for this many updates (0 = off);
+    its ``span_quantile`` quantile is a lower bound of the vehicle's length ..."""
+    span_quantile: float = 0.8
+    """... (a high quantile: sparse returns rarely reach both ends in one frame; not the
+    maximum, so a frame that caught the vehicle behind does not count) ..."""
+    span_margin: float = 0.4
+    """... and a contour shorter than that bound by more than this (m) grows ..."""
+    span_gain: float = 0.3
+    """... by this share of the shortfall per update, towards the end beyond which its
+    detections reach farther (the seen end stays put)."""
     tau: float = 0.05
     """Contour forgetting rate (1/s): f' = mu + exp(-tau dt) (f - mu), Q = (1-exp(-2 tau dt)) K."""
 
@@ -170,6 +191,9 @@ class TrackingConfig:
     duplicate_long: float = 4.0
     """A track whose centre is within gate (m) sideways and this (m) lengthwise of a stronger
     track's contour extent is a duplicate (e.g. on a truck's front) and is dropped."""
+    drop_duplicates: bool = True
+    """A track ended by the duplicate rule is not reported (it followed part of a vehicle that
+    a stronger track follows, e.g. a truck's far end: reporting it makes a false track)."""
     confirm_hits_zone: int = 3
     """A track born in a birth zone is confirmed after this many updates ..."""
     confirm_window_zone: int = 5

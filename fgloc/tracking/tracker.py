@@ -100,6 +100,10 @@ class _Record:
     side_hits: int = 0
     #: promoted to the long-vehicle prior (see :meth:`Tracker._long_vehicles`)
     long: bool = False
+    #: lengthwise spans (m) of the associated detections of recent updates
+    spans: list[float] = field(default_factory=list)
+    #: lower bound (m) of the vehicle's length from ``spans`` (0: none yet)
+    span_length: float = 0.0
     t: list[float] = field(default_factory=list)
     states: list[np.ndarray] = field(default_factory=list)
     covs: list[np.ndarray] = field(default_factory=list)
@@ -177,6 +181,7 @@ class Tracker:
         self._misfit(owner, excess, dt)
         updated = self._update(det, owner)
         self._long_vehicles(updated)
+        self._span_length(det, owner, updated)
         self._record(t, det, owner, updated)
         self._births(det, owner == -1)
         self._manage(t)
@@ -394,6 +399,13 @@ class Tracker:
                                                 * (rax[:, 1] + rax[:, 3]))
             enough = vall.sum(axis=1) >= cfg.extent_min_points
             zj = np.take_along_axis(zall, j[..., None], axis=1)                # (T, 4, 2)
+            zm = zj
+            if cfg.extent_gap_correction:
+                # lengthwise only: a wider contour would trip the long-vehicle hypothesis
+                n_det = np.maximum(vall.sum(axis=1) - 1, 1)
+                gap = np.where(np.isfinite(span_lo), span_lo, 0.0) / n_det
+                gap = np.clip(gap, 0.0, cfg.extent_gap_max)[:, None] * np.array([1, 0, 1, 0])
+                zm = zj + axes * gap[..., None]
             # an extreme detection next to the FOV's edge (or the blind range) may be where
             # the view is cut, not where the vehicle ends
             zin = ((self.fov.outside_distance(zj) < -cfg.extent_edge_margin)
@@ -401,7 +413,7 @@ class Tracker:
                       > self.fov.min_range + cfg.extent_edge_margin))
             use = (np.stack([side, face, side, face], axis=1) & enough[:, None] & ok_end
                    & zin)
-            zr[:, K:], nm[:, K:], ok[:, K:] = zj, axes, use
+            zr[:, K:], nm[:, K:], ok[:, K:] = zm, axes, use
             th[:, K:] = np.arange(4) * (np.pi / 2)
             jidx[:, K:] = np.where(use, j, -1)
             beyond = np.where(use, np.sum(axes * (zj - ends), axis=2) - cfg.grow_margin, 0.0)
@@ -541,8 +553,50 @@ class Tracker:
         Pa = P @ a                                                      # (T, n)
         s = Pa @ a + cfg.long_sigma_length**2                           # (T,)
         K = Pa / s[:, None]
-        self.x[tracks] += K * (cfg.long_length - self.x[tracks] @ a)[:, None]
+        target = np.maximum(cfg.long_length, [self.recs[i].span_length for i in tracks])
+        self.x[tracks] += K * (target - self.x[tracks] @ a)[:, None]
         self.P[tracks] = P - K[:, :, None] * Pa[:, None, :]
+
+    def _span_length(self, det: _Frame, owner: np.ndarray, updated: np.ndarray) -> None:
+        """Visible length over the track history (``span_history``): record each updated
+        track's lengthwise detection span less twice the position noise along the heading,
+        keep the ``span_quantile`` of the recent ones as ``span_length`` and grow a contour
+        shorter than it by more than ``span_margin`` by ``span_gain`` of the shortfall,
+        towards the end beyond which the detections reach farther (centre moved by half the
+        growth, radii to the rectangle of the new length). Sensor-aware model only (the
+        plain model has no extent rows to hold the seen end)."""
+        cfg = self.cfg
+        if cfg.span_history <= 0 or not len(updated) or cfg.measurement_model != "sensor-aware":
+            return
+        sensor = self.fov.sensor
+        q = self.gp.n // 4
+        sig_az = np.deg2rad(cfg.sigma_azimuth_deg)
+        for i in updated:
+            z = det.z[owner == i]
+            if len(z) < cfg.extent_min_points:
+                continue
+            rec, x = self.recs[i], self.x[i]
+            h = unit(np.asarray(x[YAW]))
+            lo = (z - x[[X, Y]]) @ h
+            los = z - sensor
+            r = np.maximum(np.linalg.norm(los, axis=1), 1e-6)
+            cos_a = np.abs(los @ h) / r
+            noise = float(np.median(np.hypot(cfg.sigma_range * cos_a, sig_az * r
+                                             * np.sqrt(np.maximum(1.0 - cos_a**2, 0.0)))))
+            rec.spans.append(float(np.ptp(lo)) - 2.0 * noise)
+            del rec.spans[:-cfg.span_history]
+            rec.span_length = float(np.quantile(rec.spans, cfg.span_quantile))
+            f = x[N_KIN:]
+            length, width = f[0] + f[2 * q], f[q] + f[3 * q]
+            short = rec.span_length - length
+            if short <= cfg.span_margin:
+                continue
+            grow = cfg.span_gain * short
+            beyond_front, beyond_rear = lo.max() - f[0], -lo.min() - f[2 * q]
+            direction = h if beyond_front >= beyond_rear else -h
+            self.x[i, [X, Y]] += 0.5 * grow * direction
+            self.x[i, N_KIN:] += (rectangle_radius(self.gp.angles, length + grow, width)
+                                  - rectangle_radius(self.gp.angles, length, width))
 
     def _plausible(self, x: np.ndarray) -> np.ndarray:
         """States (T, n) clipped to road-vehicle limits: 0 <= v <= max_speed, |a| <= max_accel,
@@ -599,30 +653,37 @@ class Tracker:
             if yaw is None:
                 yaw = float(np.arctan2(los[1], los[0]) + (0.0 if md > 0 else np.pi))
                 yaw_sigma = LOS_YAW_SIGMA
-            noise = max(cfg.sigma_range, np.deg2rad(cfg.sigma_azimuth_deg) * float(rng.mean()))
-            centre, yaw, v, size = initial_kinematics(z, dop, rng, yaw, sensor, cfg.mean_length,
-                                                      cfg.mean_width, cfg.default_speed, noise)
-            x0 = np.zeros(N_STATE)
-            x0[[X, Y]] = centre
-            x0[V], x0[YAW] = v, yaw
-            x0[N_KIN:] = rectangle_radius(self.gp.angles, size[0], size[1])
-            P0 = np.zeros((N_STATE, N_STATE))
-            P0[:N_KIN, :N_KIN] = np.diag(np.square([
-                cfg.init_sigma_pos, cfg.init_sigma_pos, cfg.init_sigma_speed,
-                cfg.init_sigma_accel, yaw_sigma, cfg.init_sigma_yawrate]))
-            P0[N_KIN:, N_KIN:] = self.gp.K
-            rec = _Record(self.next_id, self.frame, zone is not None, self.t)
-            self.next_id += 1
-            rec.t.append(self.t)
-            rec.states.append(x0.copy())
-            if cfg.store_covariances:
-                rec.covs.append(P0.copy())
-            rec.det_index.append(det.index[k])
-            rec.det_step.append(np.zeros(len(k), dtype=np.int64))
-            rec.hits, rec.last_update_step = 1, 0
-            self.recs.append(rec)
-            self.x = np.vstack([self.x, x0[None]])
-            self.P = np.concatenate([self.P, P0[None]])
+            self._birth(det, k, z, dop, rng, yaw, yaw_sigma, zone)
+
+    def _birth(self, det: _Frame, k: np.ndarray, z: np.ndarray, dop: np.ndarray,
+               rng: np.ndarray, yaw: float, yaw_sigma: float, zone: int | None) -> None:
+        """A tentative track from the detections k (indices into the frame) z, dop, rng."""
+        cfg = self.cfg
+        sensor = self.fov.sensor
+        noise = max(cfg.sigma_range, np.deg2rad(cfg.sigma_azimuth_deg) * float(rng.mean()))
+        centre, yaw, v, size = initial_kinematics(z, dop, rng, yaw, sensor, cfg.mean_length,
+                                                  cfg.mean_width, cfg.default_speed, noise)
+        x0 = np.zeros(N_STATE)
+        x0[[X, Y]] = centre
+        x0[V], x0[YAW] = v, yaw
+        x0[N_KIN:] = rectangle_radius(self.gp.angles, size[0], size[1])
+        P0 = np.zeros((N_STATE, N_STATE))
+        P0[:N_KIN, :N_KIN] = np.diag(np.square([
+            cfg.init_sigma_pos, cfg.init_sigma_pos, cfg.init_sigma_speed,
+            cfg.init_sigma_accel, yaw_sigma, cfg.init_sigma_yawrate]))
+        P0[N_KIN:, N_KIN:] = self.gp.K
+        rec = _Record(self.next_id, self.frame, zone is not None, self.t)
+        self.next_id += 1
+        rec.t.append(self.t)
+        rec.states.append(x0.copy())
+        if cfg.store_covariances:
+            rec.covs.append(P0.copy())
+        rec.det_index.append(det.index[k])
+        rec.det_step.append(np.zeros(len(k), dtype=np.int64))
+        rec.hits, rec.last_update_step = 1, 0
+        self.recs.append(rec)
+        self.x = np.vstack([self.x, x0[None]])
+        self.P = np.concatenate([self.P, P0[None]])
 
     def _manage(self, t: float) -> None:
         cfg = self.cfg
@@ -642,6 +703,8 @@ class Tracker:
         pos[order] = np.arange(n)
         for j in order:
             end[j] = bool(np.any(dup[:, j] & ~end & (pos < pos[j])))
+        # a duplicate followed part of a vehicle a stronger track follows: not reported
+        silent = end.copy() if cfg.drop_duplicates else np.zeros(n, dtype=bool)
         blind = self.fov.blind(self.x[:, [X, Y]])
         for i, rec in enumerate(self.recs):
             if rec.misfit > cfg.diverge_excess:
@@ -657,13 +720,17 @@ class Tracker:
                 rec.confirmed = True
             elif self.frame - rec.birth_frame >= window - 1:
                 end[i] = True
-        self._end(end)
+        self._end(end, silent)
 
-    def _end(self, mask: np.ndarray) -> None:
+    def _end(self, mask: np.ndarray, silent: np.ndarray | None = None) -> None:
+        """End the tracks in ``mask``; report the confirmed ones with enough updates unless
+        ``silent``."""
         if not mask.any():
             return
         for i in np.flatnonzero(mask):
             rec = self.recs[i]
+            if silent is not None and silent[i]:
+                continue
             if rec.confirmed and rec.hits >= self.cfg.min_output_hits:
                 self.done.append(self._to_track(rec))
         keep = ~mask

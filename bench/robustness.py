@@ -1,0 +1,304 @@
+"""Robustness matrix: tracking (oracle pose; filter and batch smoother) and localization
+(filter-sicp, joint) under simulator settings our defaults do not make (issue 20).
+
+Settings (``SETTINGS``; each a change of :class:`fgloc.sim.config.SimConfig`): default;
+platoons of 2-4 vehicles at 0.8-1.2 s headway; 15 % trucks 9-12 m long; low returns (0.2-1.5 m
+above the road); far and sparse returns (25 per vehicle and frame at 20 m falling to 4 at
+150 m); an oblique 70-80 deg junction with a large junction box; 10 vehicles per minute; and
+all of these at once ("combined", with returns at every visible corner and at the wheels and
+more clutter). Seeds: odd ones simulate an intersection, even ones a T-junction.
+
+Per run: tracks per eligible true vehicle (all tracks, false ones included), tracks covering
+two vehicles (a track whose contour covers at least half of the footprints of two true
+vehicles at once for 10 steps or more), truck length error (|median contour extent along the
+heading - true length| of the tracks following a truck, m) and centre bias towards the sensor
+(m, > 0: towards it), per-track centre RMS (the paper's average RMS), yaw error and IoU of the
+filter and the batch smoother (:func:`fgloc.evaluate_tracking.evaluate_tracks`, visibility
+from the true pose and the FOV), and the 2D / yaw error of filter-sicp and joint
+(:func:`fgloc.localize_many`). The table gives per setting the mean over the seeds and the
+worst seed.
+
+    OMP_NUM_THREADS=1 python bench/robustness.py            # seeds 1-5, the full matrix
+    OMP_NUM_THREADS=1 python bench/robustness.py --quick    # seeds 1-2, 30 s, a smoke set
+
+``--write`` puts the table into docs/benchmarks.md between the ``robustness`` markers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bench.report_section import replace_section
+from fgloc import localize_many, track
+from fgloc.config import Config, from_dict, load_config
+from fgloc.evaluate import pose_error
+from fgloc.evaluate_tracking import (
+    TrackingMetrics,
+    box_intersection_area,
+    contour_polygons,
+    evaluate_tracks,
+)
+from fgloc.scenario import Scenario
+from fgloc.sim import simulate_detailed
+from fgloc.sim.config import SimConfig
+from fgloc.smoothing.run import smooth_tracks
+from fgloc.tracks import N_KIN, YAW, TrackSet
+
+_PLATOONS = {"platoon_size": [2, 4], "platoon_headway": [0.8, 1.2], "headway": 0.3}
+_TRUCKS = {"class_mix": [0.65, 0.2, 0.15], "truck_length": [9.0, 12.0]}
+_SPARSE = {"returns_at_reference": 25.0, "reference_range": 20.0, "returns_exponent": 0.91,
+           "range_half_detection": 0.95}
+_OBLIQUE = {"crossing_angle_deg": [70.0, 80.0], "junction_margin": 16.0}
+SETTINGS: dict[str, dict] = {
+    "default": {},
+    "platoons": {"traffic": _PLATOONS},
+    "trucks": {"traffic": _TRUCKS},
+    "low-returns": {"radar": {"return_height": [0.2, 1.5]}},
+    "far-sparse": {"radar": _SPARSE},
+    "oblique": {"road": _OBLIQUE},
+    "10-per-min": {"traffic": {"arrival_interval": 6.0}},
+    "combined": {
+        "traffic": {**_PLATOONS, **_TRUCKS, "class_mix": [0.75, 0.15, 0.1]},
+        "radar": {**_SPARSE, "return_height": [0.2, 1.5], "corners": "visible",
+                  "corner_fraction": 0.35, "wheel_fraction": 0.25, "clutter_per_frame": 400.0},
+        "road": _OBLIQUE,
+    },
+}
+METHODS = ("filter-sicp", "joint")
+#: a true vehicle counts as a truck above this length (m)
+TRUCK_LENGTH = 8.0
+#: share of a vehicle's footprint a track contour must cover to count as covering it
+COVER_SHARE = 0.5
+#: steps a track must cover two vehicles at once to count as covering two
+COVER_STEPS = 10
+
+
+@dataclass
+class RunResult:
+    """One (setting, seed): the figures of the module docstring (NaN where not defined)."""
+
+    setting: str
+    seed: int
+    case: str
+    vehicles: int
+    figures: dict[str, float] = field(default_factory=dict)
+
+
+def sim_config(setting: str) -> SimConfig:
+    return from_dict(SimConfig, SETTINGS[setting], None)
+
+
+def _truth_at(tr, t: np.ndarray) -> np.ndarray:
+    """(k, 3) x, y, yaw of a true vehicle at times t (inside its span)."""
+    s = tr.states
+    return np.column_stack([np.interp(t, s[:, 0], s[:, 1]), np.interp(t, s[:, 0], s[:, 2]),
+                            np.interp(t, s[:, 0], np.unwrap(s[:, 3]))])
+
+
+def covered_share(poly: np.ndarray, pose: np.ndarray, length: float,
+                  width: float) -> np.ndarray:
+    """(k,) share of a length x width footprint at poses (k, 3) [x, y, yaw] covered by the
+    polygons (k, m, 2) (all in L)."""
+    c, s = np.cos(pose[:, 2])[:, None], np.sin(pose[:, 2])[:, None]
+    d = poly - pose[:, None, :2]
+    local = np.stack([c * d[..., 0] + s * d[..., 1], -s * d[..., 0] + c * d[..., 1]], axis=-1)
+    k = len(pose)
+    inter = np.abs(box_intersection_area(local, np.full(k, length / 2), np.full(k, width / 2)))
+    return inter / (length * width)
+
+
+def tracks_covering_two(tracks: TrackSet, scn: Scenario) -> int:
+    """Tracks whose contour covers >= COVER_SHARE of two true footprints at once for at least
+    COVER_STEPS steps."""
+    assert scn.truth is not None
+    out = 0
+    for tr in tracks.in_local().tracks:
+        poly = contour_polygons(tr.states)
+        reach = float(np.max(tr.states[:, N_KIN:]))
+        covers = np.zeros(len(tr), dtype=int)
+        for gt in scn.truth.tracks:
+            m = (tr.t >= gt.states[0, 0]) & (tr.t <= gt.states[-1, 0])
+            if not m.any():
+                continue
+            pose = _truth_at(gt, tr.t[m])
+            near = np.hypot(*(pose[:, :2] - tr.states[m, :2]).T) < reach + gt.length / 2
+            if not near.any():
+                continue
+            idx = np.flatnonzero(m)[near]
+            share = covered_share(poly[idx], pose[near], gt.length, gt.width)
+            covers[idx] += share >= COVER_SHARE
+        out += int(np.sum(covers >= 2) >= COVER_STEPS)
+    return out
+
+
+def truck_figures(tracks: TrackSet, metrics: TrackingMetrics, scn: Scenario,
+                  ) -> tuple[float, float]:
+    """Mean |length error| (m) over the tracks following a truck (median contour extent
+    along the heading against the true length) and their mean centre offset towards the
+    sensor (m); NaN without trucks."""
+    assert scn.truth is not None
+    truth = {gt.id: gt for gt in scn.truth.tracks}
+    by_id = {tr.id: tr for tr in tracks.in_local().tracks}
+    sensor = scn.truth.sensor_pose[:2, 3]
+    err, bias = [], []
+    for row in metrics.rows:
+        gt = truth.get(row.truth_id) if row.truth_id is not None else None
+        if gt is None or gt.length < TRUCK_LENGTH:
+            continue
+        tr = by_id[row.track_id]
+        poly = contour_polygons(tr.states)
+        h = np.column_stack([np.cos(tr.states[:, YAW]), np.sin(tr.states[:, YAW])])
+        proj = np.einsum("kmd,kd->km", poly, h)
+        err.append(abs(float(np.median(np.ptp(proj, axis=1))) - gt.length))
+        m = (tr.t >= gt.states[0, 0]) & (tr.t <= gt.states[-1, 0])
+        pose = _truth_at(gt, tr.t[m])
+        to_sensor = sensor - pose[:, :2]
+        to_sensor /= np.linalg.norm(to_sensor, axis=1, keepdims=True)
+        bias.append(float(np.mean(np.sum((tr.states[m, :2] - pose[:, :2]) * to_sensor,
+                                         axis=1))))
+    return (float(np.mean(err)) if err else math.nan, float(np.mean(bias)) if bias
+            else math.nan)
+
+
+def run_one(setting: str, seed: int, duration: float, cfg: Config,
+            localization: bool) -> RunResult:
+    case = "intersection" if seed % 2 else "tjunction"
+    res = simulate_detailed(case, seed, duration, config=sim_config(setting))
+    scn = res.scenario
+    assert scn.truth is not None
+    run = track(scn, cfg, oracle_pose=True)
+    smoothed = smooth_tracks(scn, run.tracks, run.T_placement, "batch", cfg)
+    out = RunResult(setting, seed, case, len(scn.truth.tracks))
+    f = out.figures
+    for name, ts in (("filter", run.tracks), ("batch", smoothed)):
+        m = evaluate_tracks(ts, scn.truth, eta=cfg.tracking.eta,
+                            sensor_pose=scn.truth.sensor_pose, hfov_deg=scn.sensor.hfov_deg,
+                            max_range=scn.sensor.max_range)
+        f[f"{name}.rms"] = m.centre_rms_track_mean
+        f[f"{name}.yaw"] = m.yaw_error_deg
+        f[f"{name}.iou"] = m.iou
+        f[f"{name}.truck_len"], f[f"{name}.truck_bias"] = truck_figures(ts, m, scn)
+        if name == "filter":
+            f["tracks_per_vehicle"] = m.n_tracks / max(m.n_true, 1)
+            f["false"] = m.false_tracks
+            f["fragments"] = m.fragments
+            f["missed"] = m.missed
+            f["covering_two"] = tracks_covering_two(ts, scn)
+    if localization:
+        for meth, r in localize_many(scn, list(METHODS), cfg).items():
+            e = pose_error(r.T_local, scn.truth.sensor_pose)
+            f[f"{meth}.2d"], f[f"{meth}.yaw"] = e.d2d, e.dyaw_deg
+    return out
+
+
+#: table columns: (header, figure key, worst = max or min, format)
+COLUMNS: list[tuple[str, str, Callable, str]] = [
+    ("tracks/veh", "tracks_per_vehicle", max, "{:.2f}"),
+    ("cover 2", "covering_two", max, "{:.1f}"),
+    ("truck len err m", "filter.truck_len", max, "{:.2f}"),
+    ("truck bias m", "filter.truck_bias", max, "{:.2f}"),
+    ("filter RMS m", "filter.rms", max, "{:.3f}"),
+    ("filter yaw deg", "filter.yaw", max, "{:.2f}"),
+    ("filter IoU", "filter.iou", min, "{:.3f}"),
+    ("batch len err m", "batch.truck_len", max, "{:.2f}"),
+    ("batch RMS m", "batch.rms", max, "{:.3f}"),
+    ("batch yaw deg", "batch.yaw", max, "{:.2f}"),
+    ("batch IoU", "batch.iou", min, "{:.3f}"),
+    ("filter-sicp 2D m", "filter-sicp.2d", max, "{:.3f}"),
+    ("filter-sicp yaw deg", "filter-sicp.yaw", max, "{:.3f}"),
+    ("joint 2D m", "joint.2d", max, "{:.3f}"),
+    ("joint yaw deg", "joint.yaw", max, "{:.3f}"),
+]
+
+
+def table(results: list[RunResult], settings: list[str]) -> list[str]:
+    """Markdown table: per setting ``mean / worst seed`` of every column."""
+    cols = [c for c in COLUMNS if any(c[1] in r.figures for r in results)]
+    lines = ["| setting | runs | vehicles | " + " | ".join(c[0] for c in cols) + " |",
+             "|---|---|---|" + "---|" * len(cols)]
+    for s in settings:
+        rs = [r for r in results if r.setting == s]
+        if not rs:
+            continue
+        cells = []
+        for _, key, worst, fmt in cols:
+            v = np.array([r.figures.get(key, math.nan) for r in rs], dtype=float)
+            v = v[np.isfinite(v)]
+            cells.append("-" if v.size == 0 else
+                         f"{fmt.format(np.mean(v))} / {fmt.format(worst(v))}")
+        n_veh = np.mean([r.vehicles for r in rs])
+        lines.append(f"| {s} | {len(rs)} | {n_veh:.0f} | " + " | ".join(cells) + " |")
+    return lines
+
+
+def _commit() -> str:
+    try:
+        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="seeds 1-2, 30 s scenarios")
+    ap.add_argument("--settings", nargs="+", default=list(SETTINGS), choices=list(SETTINGS))
+    ap.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3, 4, 5])
+    ap.add_argument("--duration", type=float, default=60.0, help="scenario length (s)")
+    ap.add_argument("--no-localization", action="store_true",
+                    help="tracking only (faster, while iterating on the tracker)")
+    ap.add_argument("--config", default=None, help="fgloc config TOML (default: all defaults)")
+    ap.add_argument("--json", default=None, help="also write every run's figures here")
+    ap.add_argument("--write", default=None, metavar="BENCHMARKS_MD",
+                    help="write the table into this file between the robustness markers")
+    args = ap.parse_args()
+    if args.quick:
+        args.seeds, args.duration = [1, 2], 30.0
+    cfg = load_config(args.config)
+    t0 = time.perf_counter()
+    results: list[RunResult] = []
+    for setting in args.settings:
+        for seed in args.seeds:
+            r = run_one(setting, seed, args.duration, cfg, not args.no_localization)
+            results.append(r)
+            print(f"{setting:<11} {seed:>2} {r.case:<12} " + " ".join(
+                f"{k}={v:.3f}" for k, v in r.figures.items()), flush=True)
+            if args.json:
+                Path(args.json).write_text(json.dumps(
+                    [{"setting": x.setting, "seed": x.seed, "case": x.case,
+                      "vehicles": x.vehicles, **x.figures} for x in results], indent=1))
+    elapsed = time.perf_counter() - t0
+    command = "OMP_NUM_THREADS=1 python bench/robustness.py" + (" --quick" if args.quick else "")
+    extra = [a for a in sys.argv[1:] if a not in ("--quick",)]
+    if extra:
+        command += " " + " ".join(extra)
+    head = [f"### Robustness matrix (`bench/robustness.py{' --quick' if args.quick else ''}`)",
+            "", f"Command: `{command}`", "",
+            f"Commit {_commit()}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
+            f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
+            f"{args.duration:g} s scenarios, seeds {args.seeds} (odd: intersection, even: "
+            f"T-junction), {elapsed:.0f} s in total. Cells: mean over the seeds / worst seed. "
+            "Tracking with the true pose; truck figures over the tracks following a truck "
+            "(> 8 m); cover 2 = tracks covering two vehicles at once."]
+    text = "\n".join(head + [""] + table(results, args.settings))
+    print("\n" + text)
+    if args.write:
+        replace_section(args.write, "robustness", text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,207 @@
+"""Simulator settings of the robustness dimensions, each checked against the simulator's truth:
+returns per vehicle against range, scattering-centre mix, platoon headway, truck share and
+length, junction angle and box size, traffic density."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from fgloc.config import from_dict
+from fgloc.geo import transform_points
+from fgloc.sim import SimConfig, simulate_detailed
+from fgloc.sim.config import RadarSimConfig, RoadSimConfig, TrafficSimConfig
+from fgloc.sim.radar import detection_probability
+from fgloc.sim.roads import build_network
+from fgloc.sim.scenery import box_corners
+from fgloc.sim.traffic import VEHICLE_CLASSES, simulate_traffic
+
+
+def _traffic(cfg: TrafficSimConfig, duration: float, seed: int, lanes: int = 1,
+             count: int | None = None):
+    net = build_network("straight", np.random.default_rng(seed),
+                        RoadSimConfig(lanes_per_direction=[lanes]), (18.0, 32.0))
+    times = np.arange(0.0, duration, 0.05)
+    return simulate_traffic(np.random.default_rng(seed + 100), cfg, net, times, count)
+
+
+def _per_vehicle_frame(res) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(track id, frame, count of detections) of every (vehicle, frame) whose vehicle centre is
+    inside the FOV (20 deg margin), plus its true centre range (m)."""
+    scn = res.scenario
+    pose = scn.truth.sensor_pose
+    rate = 1.0 / np.median(np.diff(np.unique(scn.radar.t)))
+    det = res.source >= 0
+    key = res.source[det] * 100000 + scn.radar.frame[det]
+    ids, counts = np.unique(key, return_counts=True)
+    lookup = dict(zip(ids.tolist(), counts.tolist()))
+    boresight = np.arctan2(pose[1, 0], pose[0, 0])
+    out = []
+    for tr in scn.truth.tracks:
+        rel = tr.states[:, 1:3] - pose[:2, 3]
+        az = np.angle(np.exp(1j * (np.arctan2(rel[:, 1], rel[:, 0]) - boresight)))
+        frame = np.rint(tr.states[:, 0] * rate).astype(int)
+        for f, a, r in zip(frame, az, np.linalg.norm(rel, axis=1)):
+            if abs(a) < np.deg2rad(40.0):
+                out.append((r, lookup.get(tr.id * 100000 + f, 0)))
+    arr = np.array(out)
+    return arr[:, 0], arr[:, 1], rate
+
+
+def test_returns_per_range_model() -> None:
+    """Mean detections per vehicle and frame follow ref * (ref_range / r) ** k * p_det(r)."""
+    radar = RadarSimConfig(returns_at_reference=25.0, reference_range=20.0,
+                           returns_exponent=0.91, range_half_detection=0.95,
+                           false_alarms_per_frame=0.0)
+    cfg = SimConfig(radar=radar, road=RoadSimConfig(lanes_per_direction=[1]))
+    ranges, counts = [], []
+    for seed in (1, 2, 3):
+        r, n, _ = _per_vehicle_frame(simulate_detailed("straight", seed, 30.0, vehicles=1,
+                                                       config=cfg))
+        ranges.append(r)
+        counts.append(n)
+    r, n = np.concatenate(ranges), np.concatenate(counts)
+    expected = 25.0 * (20.0 / r) ** 0.91 * detection_probability(r, radar)
+    for lo, hi in ((15.0, 40.0), (40.0, 90.0), (90.0, 170.0)):
+        m = (r >= lo) & (r < hi)
+        assert m.sum() > 40
+        assert np.mean(n[m]) == pytest.approx(np.mean(expected[m]), rel=0.15), (lo, hi)
+    far = (r > 140) & (r < 160)
+    assert 2.5 < np.mean(n[far]) < 5.0
+
+
+def _corner_shares(cfg: SimConfig) -> tuple[float, float, float]:
+    """Shares of vehicle detections within 0.4 m of the corner nearest to the sensor, of
+    another corner, and within 0.4 m of an axle (1/6 or 5/6 of the length) on a long side."""
+    res = simulate_detailed("intersection", 4, 12.0, config=cfg)
+    scn = res.scenario
+    det = np.flatnonzero(res.source >= 0)
+    pose = scn.truth.sensor_pose
+    p = transform_points(pose, scn.radar.xyz[det])[:, :2]
+    near = other = wheel = 0
+    for tr in scn.truth.tracks:
+        m = res.source[det] == tr.id
+        if not m.any():
+            continue
+        k = np.searchsorted(tr.states[:, 0], scn.radar.t[det][m] - 1e-9)
+        st = tr.states[k]
+        c = box_corners(st[:, 1:3], st[:, 3], np.full(len(k), tr.length),
+                        np.full(len(k), tr.width))
+        d = np.linalg.norm(c - p[m][:, None], axis=2)
+        nearest = np.argmin(np.linalg.norm(c - pose[:2, 3], axis=2), axis=1)
+        close = d < 0.4
+        near += int(close[np.arange(len(k)), nearest].sum())
+        other += int((close.sum(axis=1) - close[np.arange(len(k)), nearest]).sum())
+        # along/across the vehicle
+        rel = p[m] - st[:, 1:3]
+        along = rel[:, 0] * np.cos(st[:, 3]) + rel[:, 1] * np.sin(st[:, 3])
+        across = -rel[:, 0] * np.sin(st[:, 3]) + rel[:, 1] * np.cos(st[:, 3])
+        axle = np.minimum(np.abs(along - tr.length / 3), np.abs(along + tr.length / 3))
+        wheel += int(((axle < 0.4) & (np.abs(np.abs(across) - tr.width / 2) < 0.4)).sum())
+    return near / len(det), other / len(det), wheel / len(det)
+
+
+def test_scattering_centre_mix() -> None:
+    exact = dict(sigma_range=0.02, sigma_azimuth_deg=0.02, sigma_elevation_deg=0.02)
+    base = _corner_shares(SimConfig(radar=RadarSimConfig(**exact)))
+    visible = _corner_shares(SimConfig(radar=RadarSimConfig(corners="visible", **exact)))
+    wheels = _corner_shares(SimConfig(radar=RadarSimConfig(corner_fraction=0.1,
+                                                           wheel_fraction=0.5, **exact)))
+    # default: corner detections pile up at the nearest corner only
+    assert base[0] > 2.0 * base[1]
+    # "visible": the far visible corners get a large share too
+    assert visible[1] > 1.8 * base[1] and visible[0] < base[0]
+    # wheels: far more detections at the axles of the long side
+    assert wheels[2] > 2.0 * base[2] and wheels[2] > 0.25
+    with pytest.raises(Exception, match="corners"):
+        from_dict(SimConfig, {"radar": {"corners": "all"}}, None)
+
+
+def _front_passes(tracks, x0: float = 0.0) -> list[tuple[int, float, float]]:
+    """(direction sign, time (s) the front passes the cross-section through the origin normal
+    to the road, length) of every track of a straight road along the x' axis."""
+    out = []
+    for tr in tracks:
+        st = tr.states
+        h = np.array([np.cos(st[0, 3]), np.sin(st[0, 3])])
+        front = st[:, 1:3] + 0.5 * tr.length * h
+        s = front @ h - x0
+        if s[0] < 0 < s[-1]:
+            out.append((h, float(np.interp(0.0, s, st[:, 0])), tr.length))
+    return out
+
+
+def _headways(tracks) -> np.ndarray:
+    passes = _front_passes(tracks)
+    ref = passes[0][0]
+    out = []
+    for sign in (1, -1):
+        t = np.sort([tp for h, tp, _ in passes if np.dot(h, ref) * sign > 0])
+        out.append(np.diff(t))
+    return np.concatenate(out)
+
+
+def test_platoon_headway() -> None:
+    cfg = TrafficSimConfig(platoon_size=(3, 3), platoon_headway=(0.8, 1.2), headway=0.3,
+                           arrival_interval=4.0)
+    hw = _headways(_traffic(cfg, 240.0, 5).tracks)
+    base = _headways(_traffic(TrafficSimConfig(arrival_interval=4.0), 240.0, 5).tracks)
+    in_band = np.mean((hw > 0.75) & (hw < 1.25))
+    # two of three successive gaps lie inside a platoon
+    assert in_band > 0.5, in_band
+    assert np.mean((base > 0.75) & (base < 1.25)) < 0.2
+    assert hw.min() > 0.3   # never closer than the minimum gap
+    with pytest.raises(Exception, match="platoon_size"):
+        from_dict(SimConfig, {"traffic": {"platoon_size": [0, 2]}}, None)
+
+
+def test_truck_share_and_length() -> None:
+    cfg = TrafficSimConfig(class_mix=(0.85, 0.0, 0.15), truck_length=(9.0, 12.0))
+    tr = _traffic(cfg, 60.0, 2, lanes=2, count=400)
+    truck = tr.kinds == [vc.name for vc in VEHICLE_CLASSES].index("truck")
+    assert 0.10 < truck.mean() < 0.20
+    lengths = np.array([t.length for t in tr.tracks])[truck]
+    assert lengths.min() >= 9.0 and lengths.max() <= 12.0
+    assert lengths.std() > 0.6   # uniform over 3 m (sd 0.87), not the default's 0.6 m normal
+    assert np.all(np.abs(np.array([t.length for t in tr.tracks])[~truck] - 4.5) < 1.5)
+
+
+@pytest.mark.parametrize("case", ["intersection", "tjunction"])
+def test_junction_angle_and_box(case: str) -> None:
+    for seed in range(6):
+        cfg = RoadSimConfig(crossing_angle_deg=(70.0, 80.0))
+        net = build_network(case, np.random.default_rng(seed), cfg, (18.0, 32.0))
+        axes = np.array([p.heading % np.pi for p in net.pieces if p.turn is None])
+        # two road axes (mod pi): the spread within each is numerical only
+        lo, hi = np.sort(axes)[[0, -1]]
+        split = axes < 0.5 * (lo + hi)
+        assert np.ptp(axes[split]) < 1e-6 and np.ptp(axes[~split]) < 1e-6
+        ang = np.degrees(hi - lo)
+        assert 70.0 <= min(ang, 180.0 - ang) <= 80.0
+    small, large = (build_network(case, np.random.default_rng(3),
+                                  RoadSimConfig(junction_margin=m, lanes_per_direction=[1]),
+                                  (18.0, 32.0)) for m in (8.0, 16.0))
+    r_small = np.linalg.norm(small.junction, axis=1)
+    r_large = np.linalg.norm(large.junction, axis=1)
+    # the box corners move 8 m further out along the arms (the diagonal grows by >= 8 m)
+    assert np.all(r_large - r_small > 7.5)
+
+
+def test_traffic_density() -> None:
+    for per_min in (10.0, 24.0):
+        cfg = TrafficSimConfig(arrival_interval=60.0 / per_min)
+        tracks = _traffic(cfg, 600.0, 7, lanes=2).tracks
+        entered = sum(t.states[0, 0] > 0.0 for t in tracks)
+        rate = entered / 10.0
+        assert rate == pytest.approx(per_min, rel=0.2)
+
+
+def test_defaults_are_todays_simulator() -> None:
+    """The new settings' defaults reproduce the scenario bit for bit (explicit = implicit)."""
+    explicit = SimConfig(radar=dataclasses.replace(RadarSimConfig(), corners="nearest",
+                                                   wheel_fraction=0.0, return_height=None))
+    a = simulate_detailed("tjunction", 2, 4.0).scenario
+    b = simulate_detailed("tjunction", 2, 4.0, config=explicit).scenario
+    np.testing.assert_array_equal(a.radar.xyz, b.radar.xyz)

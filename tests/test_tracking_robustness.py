@@ -1,0 +1,91 @@
+"""The tracker on traffic the default simulator does not make (issue 20), against the
+simulator's truth: a platoon of three cars 1 s apart, a 12 m truck seen along one side, a car
+far out with 3-5 returns per frame."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bench.robustness import tracks_covering_two
+from fgloc.config import Config, from_dict
+from fgloc.evaluate_tracking import contour_polygons, evaluate_tracks
+from fgloc.pipeline import track
+from fgloc.sim import SimConfig, simulate_detailed
+from fgloc.tracks import YAW
+
+
+def _run(table: dict, seed: int, duration: float, vehicles: int):
+    cfg = from_dict(SimConfig, table, None)
+    res = simulate_detailed("straight", seed, duration, vehicles=vehicles, config=cfg)
+    scn = res.scenario
+    tracks = track(scn, Config(), oracle_pose=True).tracks
+    m = evaluate_tracks(tracks, scn.truth, sensor_pose=scn.truth.sensor_pose,
+                        hfov_deg=scn.sensor.hfov_deg, max_range=scn.sensor.max_range)
+    return res, tracks, m
+
+
+CARS = [1.0, 0.0, 0.0]
+
+
+# seeds whose platoon drives towards / away from the sensor inside its view (checked below:
+# three eligible vehicles); on the other seeds 1-8 the platoon is out of view
+@pytest.mark.parametrize("seed", [1, 2, 6])
+def test_platoon_of_three_cars_gives_three_tracks(seed: int) -> None:
+    table = {"traffic": {"class_mix": CARS, "platoon_size": [3, 3],
+                         "platoon_headway": [1.0, 1.0], "headway": 0.3},
+             "road": {"lanes_per_direction": [1]}}
+    res, tracks, m = _run(table, seed, 25.0, 3)
+    assert len(res.scenario.truth.tracks) == 3
+    assert m.n_matched == m.n_true == 3
+    assert m.false_tracks == 0 and m.fragments == 0
+    assert tracks_covering_two(tracks, res.scenario) == 0
+
+
+def _side_lengths(tracks, sensor: np.ndarray) -> np.ndarray:
+    """Contour extent along the heading of every track state 20-120 m from the sensor whose
+    vehicle shows the sensor one long side (the sensor beyond the side by more than the
+    vehicle's half width)."""
+    out = []
+    for tr in tracks.in_local().tracks:
+        poly = contour_polygons(tr.states)
+        h = np.column_stack([np.cos(tr.states[:, YAW]), np.sin(tr.states[:, YAW])])
+        length = np.ptp(np.einsum("kmd,kd->km", poly, h), axis=1)
+        rel = sensor - tr.states[:, :2]
+        dist = np.linalg.norm(rel, axis=1)
+        lateral = np.abs(rel[:, 0] * h[:, 1] - rel[:, 1] * h[:, 0])
+        out.append(length[(lateral > 1.5) & (dist > 20.0) & (dist < 120.0)])
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+#: known failures (issue 20, not met): seed 2 comes out just short of 10.5 m, seed 5 reports a
+#: duplicate track on the truck's far end, seed 6's contour grows to 14.2 m
+TRUCK_SEEDS = [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason="known failure"))
+               if s in (2, 5, 6) else s for s in range(1, 9)]
+
+
+@pytest.mark.parametrize("seed", TRUCK_SEEDS)
+def test_truck_seen_along_one_side_gets_its_length(seed: int) -> None:
+    table = {"traffic": {"class_mix": [0.0, 0.0, 1.0], "truck_length": [12.0, 12.0]},
+             "road": {"lanes_per_direction": [1]}}
+    res, tracks, m = _run(table, seed, 25.0, 1)
+    assert m.n_matched == 1 and m.false_tracks == 0
+    lengths = _side_lengths(tracks, res.scenario.truth.sensor_pose[:2, 3])
+    assert len(lengths) > 20
+    assert 10.5 <= np.median(lengths) <= 13.5, np.median(lengths)
+
+
+@pytest.mark.parametrize("seed", [1, 3, 5, 7, 8])
+def test_far_car_with_few_returns_keeps_one_track(seed: int) -> None:
+    """4 returns per frame at every range (Poisson: mostly 2-6), the road reaching 220 m
+    (seeds whose car drives beyond 180 m: checked below)."""
+    table = {"radar": {"returns_at_reference": 4.0, "returns_exponent": 0.0,
+                       "max_range": 230.0, "range_half_detection": 1.2},
+             "road": {"arm_length": 220.0, "lanes_per_direction": [1]},
+             "traffic": {"class_mix": CARS}}
+    res, tracks, m = _run(table, seed, 30.0, 1)
+    tr = res.scenario.truth.tracks[0]
+    far = np.linalg.norm(tr.states[:, 1:3] - res.scenario.truth.sensor_pose[:2, 3], axis=1)
+    assert far.max() > 180.0
+    assert m.n_matched == 1 and m.fragments == 0 and m.false_tracks == 0
+    assert len(tracks) == 1
