@@ -14,10 +14,7 @@ method, and with ``--write`` the table goes into the
 from __future__ import annotations
 
 import argparse
-import datetime
-import os
 import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -26,7 +23,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bench.report_section import replace_section  # noqa: E402
+from bench.report_section import provenance, replace_section  # noqa: E402
 from fgloc.config import Config  # noqa: E402
 from fgloc.evaluate import pose_error  # noqa: E402
 from fgloc.pipeline import localize_many  # noqa: E402
@@ -98,8 +95,6 @@ def main() -> None:
     body = table(sites, args.seeds, args.labels, errors)
     print(body)
     if args.write:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT,
-                                capture_output=True, text=True).stdout.strip()
         cmd = ("OMP_NUM_THREADS=1 python bench/real_map.py --seeds "
                + " ".join(map(str, args.seeds)) + f" --junctions {args.junctions} --duration "
                f"{args.duration:g} --labels {' '.join(args.labels)} --write")
@@ -109,11 +104,7 @@ def main() -> None:
                 f"graph, {args.duration:g} s each, seeds {args.seeds}; errors against the "
                 "simulated truth (mean and worst seed); each scenario localized with the "
                 "routing-graph labels (default) and with Menger curvature labels only.\n\n"
-                f"Command: `{cmd}`  \nCommit: {commit}, date: "
-                f"{datetime.datetime.now(datetime.timezone.utc):%Y-%m-%d %H:%M} UTC, machine: "
-                f"{platform.machine()} {os.cpu_count()} cores, Python "
-                f"{platform.python_version()}, OMP_NUM_THREADS="
-                f"{os.environ.get('OMP_NUM_THREADS', 'unset')}\n")
+                f"Command: `{cmd}`  \n{provenance()}, Python {platform.python_version()}\n")
         replace_section(ROOT / "docs" / "benchmarks.md", "real-map", head + "\n" + body)
 
 

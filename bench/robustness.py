@@ -29,9 +29,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import platform
-import subprocess
 import sys
 import time
 from collections.abc import Callable
@@ -40,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.report_section import replace_section
+from bench.report_section import provenance, replace_section
 from fgloc import localize_many, track
 from fgloc.config import Config, from_dict, load_config
 from fgloc.evaluate import pose_error
@@ -243,13 +240,6 @@ def table(results: list[RunResult], settings: list[str]) -> list[str]:
     return lines
 
 
-def _commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                              text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
@@ -287,10 +277,9 @@ def main() -> int:
         command += " " + " ".join(extra)
     head = [f"### Robustness matrix (`bench/robustness.py{' --quick' if args.quick else ''}`)",
             "", f"Command: `{command}`", "",
-            f"Commit {_commit()}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
-            f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-            f"{args.duration:g} s scenarios, seeds {args.seeds} (odd: intersection, even: "
-            f"T-junction), {elapsed:.0f} s in total. Cells: mean over the seeds / worst seed. "
+            f"{provenance()}, {args.duration:g} s scenarios, seeds {args.seeds} (odd: "
+            f"intersection, even: T-junction), {elapsed:.0f} s in total. Cells: mean over the "
+            "seeds / worst seed. "
             "Tracking with the true pose; truck figures over the tracks following a truck "
             "(> 8 m); cover 2 = tracks covering two vehicles at once."]
     text = "\n".join(head + [""] + table(results, args.settings))

@@ -28,16 +28,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import os
-import platform
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-from bench.report_section import replace_section
+from bench.report_section import provenance, replace_section
 from fgloc.coarse import coarse_localize
 from fgloc.config import Config, load_config
 from fgloc.evaluate import pose_error, pose_error_vector
@@ -274,13 +271,6 @@ def totals(runs: list[Run]) -> list[str]:
     return out
 
 
-def _commit() -> str:
-    try:
-        return subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True,
-                              text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
@@ -336,9 +326,8 @@ def main() -> int:
         + " ".join(sys.argv[1:])
     head = [f"### Sparse traffic (`bench/sparse.py{' --quick' if args.quick else ''}`)", "",
             f"Command: `{command}`", "",
-            f"Commit {_commit()}, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, "
-            f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
-            f"{args.duration:g} s scenarios, seeds {args.seeds}, {elapsed:.0f} s in total. "
+            f"{provenance()}, {args.duration:g} s scenarios, seeds {args.seeds}, "
+            f"{elapsed:.0f} s in total. "
             "Cells over the seeds: mean / worst seed. NEES of (x, y, yaw) against the "
             "reported covariance (3 degrees of freedom). An ambiguous run holds the truth when "
             f"one of its tied modes lies within {args.mode_tolerance:g} m of it.", ""]

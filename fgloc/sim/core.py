@@ -13,13 +13,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgloc.geo import LocalFrame
-from fgloc.scenario import GroundTruth, Scenario, SensorConfig
+from fgloc.scenario import AlsCloud, GroundTruth, LaneletMap, Scenario, SensorConfig
 from fgloc.sim.als import synthesize_als
 from fgloc.sim.config import SimConfig
-from fgloc.sim.mounting import place_sensor
+from fgloc.sim.mounting import Mounting, place_sensor
 from fgloc.sim.radar import simulate_radar
-from fgloc.sim.roads import RoadArea, build_network, to_lanelets
-from fgloc.sim.scenery import place_scenery
+from fgloc.sim.roads import RoadArea, RoadNetwork, build_network, to_lanelets
+from fgloc.sim.scenery import Scenery, place_scenery
 from fgloc.sim.terrain import Terrain
 from fgloc.sim.traffic import VEHICLE_CLASSES, simulate_traffic
 
@@ -82,30 +82,39 @@ def simulate_detailed(case: str, seed: int, duration: float = 60.0, vehicles: in
 
     scenery = place_scenery(rng["scenery"], cfg.als, net, area, mount.xy)
     als = synthesize_als(rng["als"], cfg.als, terrain, area, scenery, mount.xy)
+    return drive_and_observe(rng["traffic"], rng["radar"], site, cfg, net, mount, terrain,
+                             scenery, frame, approx_en, als, to_lanelets(net, terrain.road),
+                             duration, vehicles)
+
+
+def drive_and_observe(traffic_rng: np.random.Generator, radar_rng: np.random.Generator,
+                      site_rng: np.random.Generator, cfg: SimConfig, net: RoadNetwork,
+                      mount: Mounting, terrain: Terrain, scenery: Scenery, frame: LocalFrame,
+                      approx_en: np.ndarray, als: AlsCloud, lanelets: LaneletMap,
+                      duration: float,
+                      vehicles: int | None) -> SimResult:
+    """The shared tail of every simulator: traffic on ``net`` for ``duration`` s, the radar's
+    detections from the mast ``mount`` over ``terrain`` and ``scenery`` (all in the local
+    frame L of ``frame``), the user's sensor prior (``approx_en``: approximate mast easting /
+    northing in ``frame.crs``; a yaw guess drawn from ``site_rng``) and the ground truth;
+    ``als`` and ``lanelets`` pass through to the scenario."""
     n_frames = max(1, int(round(duration * cfg.radar.rate_hz)))
     times = np.arange(n_frames) / cfg.radar.rate_hz
-    traffic = simulate_traffic(rng["traffic"], cfg.traffic, net, times, vehicles)
+    traffic = simulate_traffic(traffic_rng, cfg.traffic, net, times, vehicles)
     pose = mount.pose(terrain)
-    radar, source = simulate_radar(rng["radar"], cfg.radar, pose, traffic.tracks, traffic.kinds,
+    radar, source = simulate_radar(radar_rng, cfg.radar, pose, traffic.tracks, traffic.kinds,
                                    net, scenery, terrain, n_frames)
-
-    yaw_guess = np.rad2deg(mount.yaw) + site.normal(0.0, cfg.sensor.yaw_guess_sigma_deg)
+    yaw_guess = np.rad2deg(mount.yaw) + site_rng.normal(0.0, cfg.sensor.yaw_guess_sigma_deg)
     sensor = SensorConfig(
         approx_position=(float(approx_en[0]), float(approx_en[1])),
-        crs=cfg.site.crs,
+        crs=frame.crs,
         approx_height=round(mount.height * 2.0) / 2.0,
         yaw_guess_deg=float((yaw_guess + 180.0) % 360.0 - 180.0),
         hfov_deg=cfg.radar.hfov_deg,
         vfov_deg=cfg.radar.vfov_deg,
         max_range=cfg.radar.max_range,
     )
-    scenario = Scenario(
-        frame=frame,
-        sensor=sensor,
-        radar=radar,
-        als=als,
-        lanelets=to_lanelets(net, terrain.road),
-        truth=GroundTruth(cfg.site.crs, pose, traffic.tracks),
-        path=None,
-    )
+    scenario = Scenario(frame=frame, sensor=sensor, radar=radar, als=als,
+                        lanelets=lanelets, truth=GroundTruth(frame.crs, pose, traffic.tracks),
+                        path=None)
     return SimResult(scenario, source, [VEHICLE_CLASSES[k].name for k in traffic.kinds])

@@ -26,12 +26,11 @@ import numpy as np
 from fgloc.geo import LocalFrame, natural_utm_zone, transformer, utm_zone, wrap_angle
 from fgloc.io.lanelet_map import WGS84, crop_lanelet_osm, read_lanelet_map
 from fgloc.map import points_in_polygon
-from fgloc.scenario import GroundTruth, Lanelet, LaneletMap, Scenario, SensorConfig
+from fgloc.scenario import Lanelet, LaneletMap, Scenario
 from fgloc.sim.als import BUILDING, GROUND, synthesize_als
 from fgloc.sim.config import SensorSimConfig, SimConfig
-from fgloc.sim.core import SimResult
+from fgloc.sim.core import SimResult, drive_and_observe
 from fgloc.sim.mounting import Mounting
-from fgloc.sim.radar import simulate_radar
 from fgloc.sim.real_roads import (
     DrivableArea,
     Junction,
@@ -44,7 +43,6 @@ from fgloc.sim.real_roads import (
 from fgloc.sim.roads import RoadArea, RoadNetwork
 from fgloc.sim.scenery import place_scenery
 from fgloc.sim.terrain import Terrain
-from fgloc.sim.traffic import VEHICLE_CLASSES, simulate_traffic
 
 _STAGES = ("junction", "sensor", "site", "scenery", "als", "traffic", "radar")
 #: a --site farther than this (m) from every junction is an error
@@ -248,27 +246,8 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
                                    building_height=np.zeros(0))
     als = synthesize_als(rng["als"], cfg.als, terrain, road, no_boxes, mount.xy)
     _sidewalks_and_roofs(als.xyz, als.classification, lmap, roofs, terrain)
-    n_frames = max(1, int(round(duration * cfg.radar.rate_hz)))
-    times = np.arange(n_frames) / cfg.radar.rate_hz
-    traffic = simulate_traffic(rng["traffic"], cfg.traffic, net, times, vehicles)
-    pose = mount.pose(terrain)
-    radar, source = simulate_radar(rng["radar"], cfg.radar, pose, traffic.tracks, traffic.kinds,
-                                   net, scenery, terrain, n_frames)
-
-    yaw_guess = np.rad2deg(mount.yaw) + site_rng.normal(0.0, cfg.sensor.yaw_guess_sigma_deg)
-    sensor = SensorConfig(
-        approx_position=(float(approx_en[0]), float(approx_en[1])),
-        crs=crs,
-        approx_height=round(mount.height * 2.0) / 2.0,
-        yaw_guess_deg=float((yaw_guess + 180.0) % 360.0 - 180.0),
-        hfov_deg=cfg.radar.hfov_deg,
-        vfov_deg=cfg.radar.vfov_deg,
-        max_range=cfg.radar.max_range,
-    )
-    scenario = Scenario(frame=frame, sensor=sensor, radar=radar, als=als, lanelets=lmap,
-                        truth=GroundTruth(crs, pose, traffic.tracks), path=None)
+    result = drive_and_observe(rng["traffic"], rng["radar"], site_rng, cfg, net, mount, terrain,
+                               scenery, frame, approx_en, als, lmap, duration, vehicles)
     notices = {p.name: p.read_text(encoding="utf-8")
                for p in sorted(map_path.parent.glob("LICENSE*")) if p.is_file()}
-    return MapSimulation(SimResult(scenario, source, [VEHICLE_CLASSES[k].name
-                                                      for k in traffic.kinds]),
-                         text, centre, notices)
+    return MapSimulation(result, text, centre, notices)
