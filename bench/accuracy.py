@@ -33,6 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.results import Produced
 from fgloc.config import Config, load_config
 from fgloc.evaluate import pose_error, pose_error_vector
 from fgloc.io import load_scenario, write_scenario
@@ -43,8 +44,12 @@ from fgloc.sim import simulate
 
 PAPER = {  # the paper's figures (their data: real recordings + CARLA), for reference only
     "Table I (filter-sicp, S1-S4)": "2D 0.38-0.94 m, |dyaw| 0.16-0.35 deg",
-    "Table II (icp baseline)": "2D 0.80-0.93 m, |dyaw| 0.03-1.25 deg",
+    "Table II (the earlier method [localizationiv], S3 / S4)": "|dx| 0.93 / 0.80 m, "
+                                                               "|dy| 0.82 / 0.70 m, "
+                                                               "|dyaw| 1.25 / 0.03 deg",
 }
+#: docs/, where the report's markdown lives (links to figures are relative to it)
+DOCS = Path(__file__).resolve().parent.parent / "docs"
 
 
 @dataclass
@@ -246,6 +251,120 @@ def tracking_table(seeds: list[int], duration: float, vehicles: int, cfg: Config
     return out
 
 
+# ------------------------------------------------------------------------------ producers
+def run_row(r: Run) -> dict:
+    """A Run as a JSON-serializable dict (the stored row)."""
+    return dict(dataclasses.asdict(r), signed=r.signed.tolist(),
+                cov=None if r.cov is None else r.cov.tolist())
+
+
+def method_summary(runs: list[Run]) -> dict[str, dict[str, float | None]]:
+    """Per method over all runs: runs, mean / worst 2D (m), mean |dyaw| (deg), mean |dz| (m),
+    mean NEES of (x, y, yaw) (None without covariance) and mean time (s)."""
+    out: dict[str, dict[str, float | None]] = {}
+    for m in sorted({r.method for r in runs}):
+        sel = [r for r in runs if r.method == m]
+        nees = np.array([r.nees for r in sel])
+        out[m] = {"runs": len(sel),
+                  "d2d_mean": float(np.mean([r.err["d2d"] for r in sel])),
+                  "d2d_worst": float(np.max([r.err["d2d"] for r in sel])),
+                  "dyaw_mean": float(np.mean([r.err["dyaw_deg"] for r in sel])),
+                  "dz_mean": float(np.mean([r.err["dz"] for r in sel])),
+                  "nees_mean": float(np.nanmean(nees)) if np.isfinite(nees).any() else None,
+                  "time_mean": float(np.mean([r.time_s for r in sel]))}
+    return out
+
+
+def produce_scenarios(cases: list[str], seeds: list[int], duration: float, methods: list[str],
+                      cfg: Config | None = None, without_guess: bool = False) -> Produced:
+    """Table I and II analogues: every method on cases x seeds (file route)."""
+    cfg = cfg or Config()
+    runs: list[Run] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for case in cases:
+            for seed in seeds:
+                runs += localization_runs(case, seed, duration, methods, Path(tmp), cfg,
+                                          (True, False) if without_guess else (True,), {})
+    body = ["#### Per scenario (Table I analogue)", "", *table_one(runs), "",
+            "#### Per method (Table II analogue)", "", *table_two(runs, methods)]
+    return Produced([run_row(r) for r in runs], body,
+                    f"cases {', '.join(cases)}, seeds {seeds}, {duration:g} s scenarios, "
+                    "sensor.toml yaw guess" + (" and without it" if without_guess else ""),
+                    {"methods": method_summary(runs)})
+
+
+def produce_straight(seeds: list[int], duration: float, methods: list[str],
+                     cfg: Config | None = None) -> Produced:
+    """The straight road: errors, along-road error and standard deviation, weak flag."""
+    cfg = cfg or Config()
+    runs: list[Run] = []
+    road_dirs: dict[int, np.ndarray] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in seeds:
+            runs += localization_runs("straight", seed, duration, methods, Path(tmp), cfg,
+                                      (True,), {})
+            road_dirs[seed] = road_direction(load_scenario(Path(tmp) / f"straight-{seed}"))
+    return Produced([run_row(r) for r in runs], table_straight(runs, road_dirs),
+                    f"straight road, seeds {seeds}, {duration:g} s scenarios")
+
+
+def produce_efficiency(seeds: list[int], counts: list[int], duration: float,
+                       methods: list[str], plot: Path | None = None,
+                       cfg: Config | None = None) -> Produced:
+    """2D and yaw error against the number of trajectories used (intersection + T-junction);
+    ``plot`` also writes the PNG."""
+    cfg = cfg or Config()
+    runs: list[Run] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in seeds:
+            for case in ("intersection", "tjunction"):
+                stages = SharedStages(load_scenario(
+                    scenario_file_route(case, seed, duration, Path(tmp))), cfg)
+                for n in counts:
+                    for r in localize_scored(stages.scenario, methods, cfg, True, case, seed, n,
+                                             stages):
+                        print(f"  {case:<13}{seed:>3} {n:>3} trajectories {r.method:<14}"
+                              f"2D {r.err['d2d']:6.3f} m  |dyaw| {r.err['dyaw_deg']:6.3f} deg",
+                              flush=True)
+                        runs.append(r)
+    body = table_efficiency(runs, counts, methods)
+    if plot is not None:
+        plot_efficiency(runs, counts, methods, plot)
+        link = os.path.relpath(plot.resolve(), DOCS)
+        body += ["", f"![data efficiency]({link})"]
+    return Produced([run_row(r) for r in runs], body,
+                    f"intersection and T-junction, seeds {seeds}, {duration:g} s scenarios, "
+                    f"{counts} trajectories")
+
+
+def produce_tracking(seeds: list[int], duration: float, vehicles: int,
+                     cfg: Config | None = None) -> Produced:
+    """Filter, fixed-lag and batch smoother on the same scenarios, oracle pose."""
+    from fgloc.smoothing.run import compare_trackers
+
+    cfg = cfg or Config()
+    rows: list[dict] = []
+    body: list[str] = []
+    for seed in seeds:
+        scn = simulate("intersection", seed, duration=duration, vehicles=vehicles)
+        cmp = compare_trackers(scn, cfg, oracle_pose=True)
+        rate = len(scn.radar) / scn.radar.duration
+        for name, m, cpu in zip(cmp.names, cmp.metrics, cmp.cpu_seconds):
+            rows.append({"seed": seed, "tracker": name, "detections_per_s": rate,
+                         "cpu_s": cpu, "rtf": cmp.recording_s / cpu if cpu > 0 else None,
+                         **{k: v for k, v in dataclasses.asdict(m).items()
+                            if k not in ("rows", "missed_ids")}})
+        body += ["", f"intersection seed {seed} ({rate:.0f} detections/s, {vehicles} "
+                 f"vehicles, {duration:g} s):", "", "```", cmp.table(), "```"]
+    summary = {}
+    for name in ("filter", "fixed-lag", "batch"):
+        sel = [r for r in rows if r["tracker"] == name]
+        summary[name] = {k: float(np.mean([r[k] for r in sel]))
+                         for k in ("centre_rms_track_mean", "yaw_error_deg", "iou", "rtf")}
+    return Produced(rows, body[1:], f"intersection, seeds {seeds}, {duration:g} s, "
+                    f"{vehicles} vehicles, oracle pose", summary)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--quick", action="store_true",
@@ -275,67 +394,34 @@ def main() -> int:
     t_start = time.perf_counter()
     md = [f"fgloc accuracy, {time.strftime('%Y-%m-%d', time.gmtime())}, {os.cpu_count()} CPUs, "
           f"{args.duration:g} s scenarios, seeds {args.seeds}"]
-
-    runs: list[Run] = []
-    straight: list[Run] = []
-    eff: list[Run] = []
-    road_dirs: dict[int, np.ndarray] = {}
-    # the scenarios of the data-efficiency sweep keep their shared stages for it
-    shared: dict[tuple[str, int], SharedStages | None] = {
-        (c, s): None for c in ("intersection", "tjunction") for s in args.efficiency_seeds}
-    guesses = (True, False) if args.without_guess else (True,)
-    with tempfile.TemporaryDirectory() as tmp:
-        work = Path(tmp)
-        print("localization runs:")
-        for case in args.cases:
-            for seed in args.seeds:
-                runs += localization_runs(case, seed, args.duration, args.methods, work, cfg,
-                                          guesses, shared)
-        for seed in args.straight_seeds:
-            straight += localization_runs("straight", seed, args.duration, args.methods, work,
-                                          cfg, (True,), shared)
-            road_dirs[seed] = road_direction(load_scenario(work / f"straight-{seed}"))
-        if eff_methods and args.efficiency_counts:
-            print("data efficiency runs:")
-        for seed in args.efficiency_seeds if eff_methods else []:
-            for case in ("intersection", "tjunction"):
-                stages = shared[(case, seed)] or SharedStages(load_scenario(
-                    scenario_file_route(case, seed, args.duration, work)), cfg)
-                scn = stages.scenario
-                for n in args.efficiency_counts:
-                    for r in localize_scored(scn, eff_methods, cfg, True, case, seed, n, stages):
-                        print(f"  {case:<13}{seed:>3} {n:>3} trajectories {r.method:<14}"
-                              f"2D {r.err['d2d']:6.3f} m  |dyaw| {r.err['dyaw_deg']:6.3f} deg",
-                              flush=True)
-                        eff.append(r)
-
-    md += ["\n### Table I analogue: per scenario\n", *table_one(runs),
-           "\n### Table II analogue: per method\n", *table_two(runs, args.methods),
-           "\nThe paper's figures (their data, not ours): "
-           + "; ".join(f"{k}: {v}" for k, v in PAPER.items())]
-    if straight:
-        md += ["\n### Straight road without junction (weakly observed along the road)\n",
-               *table_straight(straight, road_dirs)]
-    if eff:
-        md += ["\n### Data efficiency (intersection + T-junction)\n",
-               *table_efficiency(eff, args.efficiency_counts, eff_methods)]
-        if args.plot:
-            plot_efficiency(eff, args.efficiency_counts, eff_methods, Path(args.plot))
-            md.append(f"\nPlot: {args.plot}")
+    print("localization runs:")
+    parts = [("Table I and II analogues", produce_scenarios(
+        args.cases, args.seeds, args.duration, args.methods, cfg, args.without_guess))]
+    if args.straight_seeds:
+        parts.append(("Straight road without junction (weakly observed along the road)",
+                      produce_straight(args.straight_seeds, args.duration, args.methods, cfg)))
+    if eff_methods and args.efficiency_counts and args.efficiency_seeds:
+        print("data efficiency runs:")
+        parts.append(("Data efficiency (intersection + T-junction)", produce_efficiency(
+            args.efficiency_seeds, args.efficiency_counts, args.duration, eff_methods,
+            Path(args.plot) if args.plot else None, cfg)))
     if args.tracking_seeds:
         print("tracking runs ...", flush=True)
-        md += ["\n### Tracking: filter, fixed-lag and batch smoother (oracle pose)"]
-        md += tracking_table(args.tracking_seeds, args.duration, 30 if args.quick else 50, cfg)
+        parts.append(("Tracking: filter, fixed-lag and batch smoother (oracle pose)",
+                      produce_tracking(args.tracking_seeds, args.duration,
+                                       30 if args.quick else 50, cfg)))
+    for title, p in parts:
+        md += [f"\n### {title}\n", *p.body]
+    md.append("\nThe paper's figures (their data, not ours): "
+              + "; ".join(f"{k}: {v}" for k, v in PAPER.items()))
     md.append(f"\nTotal time {time.perf_counter() - t_start:.0f} s.")
     text = "\n".join(md)
     print("\n" + text)
     if args.markdown:
         Path(args.markdown).write_text(text + "\n")
     if args.json:
-        Path(args.json).write_text(json.dumps(
-            [dict(dataclasses.asdict(r), signed=r.signed.tolist(),
-                  cov=None if r.cov is None else r.cov.tolist())
-             for r in [*runs, *straight, *eff]], indent=1))
+        Path(args.json).write_text(json.dumps([r for _, p in parts[:3] for r in p.rows],
+                                              indent=1))
     return 0
 
 

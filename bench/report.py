@@ -1,0 +1,437 @@
+"""The benchmark report: run the benchmark tables and write docs/benchmarks.md whole.
+
+Each table (``TABLES``) is produced by a function of a bench script; its rows, rendered
+markdown and provenance (commit, date, machine, command, duration) are stored as JSON under
+``bench/results/<table>.json`` (``bench/results/quick/`` with ``--quick``, which never touches
+the full results). After running the requested tables, the markdown is rendered from ALL
+stored results of that set and written atomically: docs/benchmarks.md for the full set,
+bench/results/quick/benchmarks.md for ``--quick`` (``--out`` overrides). Nothing in the
+written file is edited by hand; the paragraph above each table lives in ``TABLES`` below.
+
+    OMP_NUM_THREADS=1 python -m bench.report                     # every table, the full set
+    OMP_NUM_THREADS=1 python -m bench.report --only sparse speed # rerun two, render all
+    OMP_NUM_THREADS=1 python -m bench.report --quick             # smoke set, < 10 min
+    python -m bench.report --render-only                         # render the stored results
+    OMP_NUM_THREADS=1 python -m bench.report --only robustness --set robustness.seeds=[1,2,3]
+
+``--set TABLE.PARAM=VALUE`` (VALUE as JSON) changes a table's parameter; a result whose
+parameters differ from the table's full set is marked REDUCED in the report, with both.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import sys
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from bench import results
+from bench.results import Produced
+
+DOCS = results.ROOT / "docs"
+
+
+# ------------------------------------------------------------------- producers (wrappers)
+def produce_robustness(settings: list[str], seeds: list[int], duration: float) -> Produced:
+    """bench/robustness.py's matrix: per setting and seed :func:`bench.robustness.run_one`."""
+    from bench import robustness as rb
+    from fgloc.config import Config
+
+    runs = []
+    for setting in settings:
+        for seed in seeds:
+            r = rb.run_one(setting, seed, duration, Config(), True)
+            print(f"robustness {setting:<11} {seed:>2} {r.case:<12} " + " ".join(
+                f"{k}={v:.3f}" for k, v in r.figures.items()), flush=True)
+            runs.append(r)
+    rows = [{"setting": r.setting, "seed": r.seed, "case": r.case, "vehicles": r.vehicles,
+             **r.figures} for r in runs]
+    return Produced(rows, rb.table(runs, settings),
+                    f"settings {', '.join(settings)}; seeds {seeds} (odd: intersection, even: "
+                    f"T-junction), {duration:g} s scenarios")
+
+
+def produce_sparse(cases: list[str], rates: list[float], seeds: list[int], duration: float,
+                   height: bool, timing: bool, mode_tolerance: float = 0.5) -> Produced:
+    """bench/sparse.py: per case, traffic rate and seed :func:`bench.sparse.run_one`; the
+    sensor-height and the modes' time parts when asked."""
+    from bench import sparse as sp
+    from fgloc.config import Config
+
+    cfg = Config()
+    runs = []
+    for case in cases:
+        for rate in rates:
+            for seed in seeds:
+                runs += sp.run_one(case, seed, rate, duration, cfg, mode_tolerance)
+                print(f"sparse {case} {rate:g}/min seed {seed} done", flush=True)
+    body = [*sp.table(runs), "", *sp.totals(runs)]
+    if height:
+        body += ["", "Sensor height (coarse stage; 60 s, default traffic, the cases and seeds "
+                 "above):", "", *sp.height_rows(cases, seeds, 60.0, cfg)]
+    if timing:
+        body += ["", "Time of the modes (`--method joint`, one process):", "",
+                 *sp.timing_rows(cfg, 2)]
+    return Produced([dataclasses.asdict(r) for r in runs], body,
+                    f"cases {', '.join(cases)}, {rates} vehicles per minute, seeds {seeds}, "
+                    f"{duration:g} s scenarios; an ambiguous run holds the truth when a tied "
+                    f"mode lies within {mode_tolerance:g} m")
+
+
+def produce_real_map(junctions: int, seeds: list[int], duration: float,
+                     labels: list[str]) -> Produced:
+    """bench/real_map.py: every method at the largest junctions of the Lanelet2 example map."""
+    from bench import real_map as rm
+
+    sites, errors = rm.run(rm.DEFAULT_MAP, junctions, seeds, duration, labels)
+    rows = [{"labels": mode, "junction": k + 1, "method": m, "seed": s, "d2d": e[0],
+             "dyaw_deg": e[1]} for (mode, k, m), errs in errors.items()
+            for s, e in zip(seeds, errs)]
+    return Produced(rows, rm.table(sites, seeds, labels, errors).splitlines(),
+                    f"`{rm.DEFAULT_MAP.name}`, its {junctions} largest junctions, seeds {seeds}, "
+                    f"{duration:g} s, labels {', '.join(labels)}")
+
+
+def produce_scenarios(**kw) -> Produced:
+    from bench.accuracy import produce_scenarios as f
+    return f(**kw)
+
+
+def produce_straight(**kw) -> Produced:
+    from bench.accuracy import produce_straight as f
+    return f(**kw)
+
+
+def produce_efficiency(quick: bool = False, **kw) -> Produced:
+    from bench.accuracy import produce_efficiency as f
+    name = "data_efficiency_quick.png" if quick else "data_efficiency.png"
+    return f(plot=DOCS / "figures" / name, **kw)
+
+
+def produce_tracking(**kw) -> Produced:
+    from bench.accuracy import produce_tracking as f
+    return f(**kw)
+
+
+def produce_speed(**kw) -> Produced:
+    from bench.speed import produce
+    return produce(**kw)
+
+
+def produce_sicp_open3d(**kw) -> Produced:
+    from bench.sicp_vs_open3d import produce
+    return produce(**kw)
+
+
+def produce_tracking_speed(**kw) -> Produced:
+    from bench.tracking_speed import produce
+    return produce(**kw)
+
+
+def produce_pyrecest(**kw) -> Produced:
+    from bench.pyrecest_compare import produce_in_venv
+    return produce_in_venv(**kw)
+
+
+# ------------------------------------------------------------------------------ the tables
+@dataclass(frozen=True)
+class Table:
+    """One table of the report: ``full`` / ``quick`` are the producer's parameters of the two
+    sets; ``about`` is the paragraph printed above it (what it shows, no figures)."""
+
+    name: str
+    title: str
+    script: str
+    about: str
+    produce: Callable[..., Produced]
+    full: dict
+    quick: dict
+
+
+_ALL_METHODS = ["filter-sicp", "icp", "joint", "smoother-sicp"]
+TABLES: list[Table] = [
+    Table("scenarios", "Localization per scenario and per method", "bench/accuracy.py",
+          "Every method localizes simulated scenarios through the file route a user takes "
+          "(scenario written and loaded back), with the sensor.toml yaw guess; errors against "
+          "the simulated truth. The first table lists every run, the second the mean and worst "
+          "run per method and case and, for methods that report a covariance, the mean NEES "
+          "of (x, y, yaw) (3 degrees of freedom: 3 is consistent). A method's time is the sum "
+          "of its stage times, what a separate run spends.",
+          produce_scenarios,
+          {"cases": ["intersection", "tjunction", "curve"], "seeds": [1, 2, 3, 4, 5],
+           "duration": 60.0, "methods": _ALL_METHODS},
+          {"cases": ["intersection", "tjunction", "curve"], "seeds": [1], "duration": 30.0,
+           "methods": _ALL_METHODS}),
+    Table("robustness", "Robustness matrix", "bench/robustness.py",
+          "Tracking (true pose; filter and batch smoother) and localization (filter-sicp, "
+          "joint) under simulator settings the defaults do not make: platoons, trucks, low "
+          "returns, far and sparse returns, an oblique junction, light traffic and all at "
+          "once. Cells: mean over the seeds / worst seed. cover 2 = tracks covering two "
+          "vehicles at once; truck figures over the tracks following a truck (> 8 m).",
+          produce_robustness,
+          {"settings": ["default", "platoons", "trucks", "low-returns", "far-sparse", "oblique",
+                        "10-per-min", "combined"], "seeds": [1, 2, 3, 4, 5], "duration": 60.0},
+          {"settings": ["default", "combined"], "seeds": [1], "duration": 30.0}),
+    Table("sparse", "Sparse traffic", "bench/sparse.py",
+          "Few vehicles per minute: a run must be resolved within 0.3 m or report itself "
+          "ambiguous with the truth among its tied modes, never confidently wrong. Per case, "
+          "traffic rate and method: share resolved, 2D error of the resolved runs, NEES "
+          "against the reported covariance, |dz|; then the sensor height of the coarse stage "
+          "under three vehicle return-height models, and the time the mode search costs.",
+          produce_sparse,
+          {"cases": ["intersection", "tjunction"], "rates": [5.0, 10.0, 20.0],
+           "seeds": [1, 2, 3, 4, 5], "duration": 60.0, "height": True, "timing": True},
+          {"cases": ["intersection", "tjunction"], "rates": [5.0], "seeds": [1],
+           "duration": 60.0, "height": False, "timing": False}),
+    Table("real_map", "Real Lanelet2 map", "bench/real_map.py",
+          "Scenarios simulated on the Lanelet2 example map (Karlsruhe, BSD-3-Clause, FZI) at "
+          "its largest junctions of the routing graph; every method, mean and worst seed per "
+          "junction; each scenario localized with the routing-graph labels (the default) and "
+          "with Menger-curvature labels only.",
+          produce_real_map,
+          {"junctions": 3, "seeds": [1, 2, 3], "duration": 60.0,
+           "labels": ["routing", "curvature"]},
+          {"junctions": 1, "seeds": [1], "duration": 30.0, "labels": ["routing"]}),
+    Table("straight", "Straight road without a junction", "bench/accuracy.py",
+          "On a straight road nothing observes the position along the road: every method "
+          "is off along it. The table shows how far, and whether a method that reports a "
+          "covariance says so (its along-road standard deviation and weak-direction flag).",
+          produce_straight,
+          {"seeds": [1, 2, 3], "duration": 60.0, "methods": _ALL_METHODS},
+          {"seeds": [1], "duration": 30.0, "methods": _ALL_METHODS}),
+    Table("efficiency", "Data efficiency", "bench/accuracy.py",
+          "2D and yaw error against the number of trajectories the fine stage uses "
+          "(`[fine] n_trajectories`), on the intersection and the T-junction: how many "
+          "vehicles a site needs.",
+          produce_efficiency,
+          {"seeds": [1, 2, 3], "counts": [5, 10, 20, 50], "duration": 60.0,
+           "methods": ["filter-sicp", "joint"]},
+          {"seeds": [1], "counts": [5, 20], "duration": 30.0,
+           "methods": ["filter-sicp", "joint"], "quick": True}),
+    Table("tracking", "Tracking: filter, fixed-lag and batch smoother", "bench/accuracy.py",
+          "GP-EOT tracking with the true sensor pose: the filter, the fixed-lag smoother and "
+          "the batch smoother on the same tracks. trkRMS is the paper's average RMS (mean of "
+          "the per-track centre RMS); RTF = recording s / CPU s on one core.",
+          produce_tracking,
+          {"seeds": [1, 2, 3, 4, 5], "duration": 60.0, "vehicles": 50},
+          {"seeds": [1], "duration": 30.0, "vehicles": 30}),
+    Table("pyrecest", "GP-EOT against pyrecest's FullSCGPTracker", "bench/pyrecest_compare.py",
+          "fgloc's GP-EOT tracker against pyrecest's FullSCGPTracker (numpy backend, its own "
+          "venv bench/.venv-pyrecest from bench/pyrecest_env.sh; pyrecest is not a dependency "
+          "of fgloc) on the same single-vehicle frames with the true pose.",
+          produce_pyrecest,
+          {"duration": 40.0}, {"duration": 20.0}),
+    Table("speed", "Speed per stage, peak memory and scaling", "bench/speed.py",
+          "Every localization runs as its own `fgloc localize` child process, the way a user "
+          "runs it: stage times from its result.json, peak resident memory (VmHWM) its own. "
+          "Then how the stages grow with the recording length (vehicle arrivals "
+          "proportional) and with the vehicle count. Times depend on the machine's load, "
+          "given in the provenance line.",
+          produce_speed,
+          {"duration": 120.0, "vehicles": 60, "durations": [30.0, 60.0, 120.0, 300.0],
+           "vehicle_counts": [20, 50, 100], "methods": _ALL_METHODS},
+          {"duration": 60.0, "vehicles": 30, "durations": [30.0], "vehicle_counts": [20],
+           "methods": _ALL_METHODS}),
+    Table("sicp_open3d", "SICP against Open3D ICP", "bench/sicp_vs_open3d.py",
+          "fgloc's SE(2) SICP and plain ICP against Open3D's point-to-point "
+          "`registration_icp` on the same clouds (road points of the target cloud; dynamic "
+          "radar points placed with the true pose, oracle labels, moved by a known offset); "
+          "median wall time over the repeats, iterations, and the errors against the offset.",
+          produce_sicp_open3d,
+          {"repeats": 7}, {"repeats": 3}),
+    Table("tracking_speed", "Tracker real-time factor and measurement models",
+          "bench/tracking_speed.py",
+          "The filter's real-time factor on one core (recording s / CPU s; target >= 5 at "
+          "~10,000 detections/s) and its metrics with the sensor-aware and the plain "
+          "measurement model, true pose.",
+          produce_tracking_speed,
+          {"seeds": [1, 2, 3], "duration": 60.0, "vehicles": 50},
+          {"seeds": [1], "duration": 30.0, "vehicles": 30}),
+]
+BY_NAME = {t.name: t for t in TABLES}
+
+
+def reduced(table: Table, params: dict) -> dict:
+    """{param: [full value, used value]} where ``params`` differ from the full set."""
+    return {k: [v, params.get(k)] for k, v in table.full.items() if params.get(k) != v}
+
+
+def run_table(table: Table, quick: bool, overrides: dict, command: str,
+              root: Path = results.RESULTS) -> Path:
+    """Produce one table and store it; returns the JSON path."""
+    params = {**(table.quick if quick else table.full), **overrides}
+    print(f"== {table.name}: {params}", flush=True)
+    started, t0 = results.utc_now(), time.perf_counter()
+    produced = table.produce(**params)
+    dt = time.perf_counter() - t0
+    path = results.save(table.name, produced, command, started, dt, quick, params,
+                        reduced(table, params), root)
+    print(f"== {table.name}: {dt:.0f} s -> {path}", flush=True)
+    return path
+
+
+# ------------------------------------------------------------------------------ rendering
+def provenance_line(doc: dict, table: Table) -> str:
+    m = doc["machine"]
+    dirty = " (with uncommitted changes)" if doc["dirty"] else ""
+    line = (f"Measured at commit `{doc['commit']}`{dirty}, {doc['started']} - {doc['finished']}, "
+            f"{doc['duration_s']:.0f} s; {m['processor']}, "
+            f"{m['cpus']} CPUs, load {m['load']}, Python {m['python']}, OMP_NUM_THREADS="
+            f"{m['omp_num_threads']}. Command: `{doc['command']}` (producer: {table.script}). "
+            f"Setting: {doc['setting']}.")
+    if doc.get("imported_from"):
+        line += f" Imported: {doc['imported_from']}."
+    if doc["reduced"]:
+        line += " **REDUCED against the full set:** " + "; ".join(
+            f"{k} {json.dumps(used)} instead of {json.dumps(full)}"
+            for k, (full, used) in doc["reduced"].items()) + "."
+    return line
+
+
+def _f(v, fmt: str = "{:.3f}") -> str:
+    return "-" if v is None else fmt.format(v)
+
+
+def first_screen(docs: dict[str, dict]) -> list[str]:
+    """The current figures per method next to the paper's and the peers'."""
+    from bench.accuracy import PAPER
+
+    out = ["## At a glance", ""]
+    sc = docs.get("scenarios")
+    if sc is None:
+        out += ["No stored per-scenario result yet: run `python -m bench.report --only "
+                "scenarios`.", ""]
+    else:
+        mem = {}
+        sp = docs.get("speed")
+        if sp is not None:
+            mem = sp["summary"].get("peak_rss_mib", {})
+        out += [f"Localization, simulated scenarios ({sc['setting']}; commit `{sc['commit']}`, "
+                f"{sc['started']}); mean over the runs, worst run in brackets; peak memory "
+                + (f"from the speed table ({sp['setting']}, commit `{sp['commit']}`)."
+                   if sp else "not measured yet."), "",
+                "| method | runs | 2D m | \\|dyaw\\| deg | \\|dz\\| m | NEES (x, y, yaw) | "
+                "time s | peak memory MiB |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
+        for m, s in sc["summary"]["methods"].items():
+            out.append(f"| {m} | {s['runs']} | {s['d2d_mean']:.3f} ({s['d2d_worst']:.3f}) | "
+                       f"{s['dyaw_mean']:.3f} | {s['dz_mean']:.3f} | "
+                       f"{_f(s['nees_mean'], '{:.2f}')} | {s['time_mean']:.1f} | "
+                       f"{_f(mem.get(m), '{:.0f}')} |")
+        out += ["", "The paper's figures (section V; their data: CARLA Town 10 for S1, S2 and "
+                "real ARS548 recordings in Ingolstadt for S3, S4; not the same runs, quoted for "
+                "orientation): "
+                + "; ".join(f"{k}: {v}" for k, v in PAPER.items())
+                + ". Table I per sensor (|dx|, |dy| m, |dyaw| deg): S1 0.60, 0.28, 0.20; "
+                "S2 0.16, 0.93, 0.22; S3 0.32, 0.21, 0.35; S4 0.52, 0.19, 0.16; mean 2D "
+                "0.66, 0.94, 0.38, 0.55 m. The paper reports no height, NEES, time or "
+                "memory.", ""]
+    peers = []
+    so = docs.get("sicp_open3d")
+    if so is not None:
+        s = so["summary"]
+        peers.append(f"- Registration on the same clouds (commit `{so['commit']}`, "
+                     f"{so['started']}): fgloc SICP {s['sicp_ms']:.1f} ms, 2D "
+                     f"{s['sicp_2d']:.3f} m, yaw {s['sicp_yaw']:.3f} deg; Open3D "
+                     f"point-to-point ICP {s['open3d_ms']:.1f} ms, 2D {s['open3d_2d']:.3f} m, "
+                     f"yaw {s['open3d_yaw']:.3f} deg (both from a "
+                     f"{s['offset']} offset; table below).")
+    tr = docs.get("tracking")
+    if tr is not None:
+        t = tr["summary"]
+        peers.append(f"- Tracking with the true pose (commit `{tr['commit']}`, "
+                     f"{tr['setting']}): trkRMS / yaw / IoU filter "
+                     f"{t['filter']['centre_rms_track_mean']:.3f} m / "
+                     f"{t['filter']['yaw_error_deg']:.2f} deg / {t['filter']['iou']:.3f}, batch "
+                     f"smoother {t['batch']['centre_rms_track_mean']:.3f} m / "
+                     f"{t['batch']['yaw_error_deg']:.2f} deg / {t['batch']['iou']:.3f}. The "
+                     "paper (CARLA S1, 60 trajectories): 0.49 m / 3.8 deg / 0.59.")
+    py = docs.get("pyrecest")
+    if py is not None:
+        peers.append(f"- pyrecest FullSCGPTracker on the same frames ({py['setting']}; "
+                     f"commit `{py['commit']}`, {py['started']}): "
+                     + py["summary"].get("line", "see its table") + ".")
+    if peers:
+        out += ["Peers:", "", *peers, ""]
+    return out
+
+
+def render(docs: dict[str, dict], quick: bool) -> str:
+    """The whole markdown report from the stored results ``docs`` (table name -> JSON)."""
+    out = ["# fgloc benchmarks" + (" (quick smoke set)" if quick else ""), "",
+           "Generated by `OMP_NUM_THREADS=1 python -m bench.report"
+           + (" --quick" if quick else "") + "` from the stored results in "
+           + ("`bench/results/quick/`" if quick else "`bench/results/`")
+           + "; do not edit by hand. Each table says the commit, date, machine and command it "
+           "ran with; rerun one with `--only TABLE`. Accuracy figures are deterministic for a "
+           "commit (same seeds, same numbers); times vary with the machine's load. The history "
+           "of experiments and decisions is in [experiments.md](experiments.md).", "",
+           *first_screen(docs)]
+    out += ["## Tables", ""] + [f"- [{t.title}](#{t.name})" for t in TABLES] + [""]
+    for t in TABLES:
+        out += [f'<a id="{t.name}"></a>', "", f"## {t.title}", "", t.about, ""]
+        doc = docs.get(t.name)
+        if doc is None:
+            out += [f"Not measured yet: `python -m bench.report --only {t.name}"
+                    + (" --quick" if quick else "") + "`.", ""]
+            continue
+        out += [provenance_line(doc, t), "", *doc["body"], ""]
+    return "\n".join(out).rstrip("\n") + "\n"
+
+
+def write_report(quick: bool, out: Path | None, root: Path = results.RESULTS) -> Path:
+    from fgloc.io.atomic import write_text_atomic
+
+    docs = {t.name: d for t in TABLES if (d := results.load(t.name, quick, root)) is not None}
+    path = out or (root / "quick" / "benchmarks.md" if quick else DOCS / "benchmarks.md")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(path, render(docs, quick))
+    return path
+
+
+def parse_sets(items: list[str]) -> dict[str, dict]:
+    """``TABLE.PARAM=JSON`` items -> {table: {param: value}}."""
+    out: dict[str, dict] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        table, dot, param = key.partition(".")
+        if not sep or not dot or table not in BY_NAME:
+            raise SystemExit(f"--set {item!r}: expected TABLE.PARAM=JSON with TABLE one of "
+                             f"{', '.join(BY_NAME)}")
+        if param not in BY_NAME[table].full:
+            raise SystemExit(f"--set {item!r}: {table} has the parameters "
+                             f"{', '.join(BY_NAME[table].full)}")
+        try:
+            out.setdefault(table, {})[param] = json.loads(value)
+        except json.JSONDecodeError as e:
+            raise SystemExit(f"--set {item!r}: the value is not JSON ({e})") from e
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--quick", action="store_true", help="the smoke set (< 10 minutes)")
+    ap.add_argument("--only", nargs="+", choices=list(BY_NAME), default=None,
+                    help="run these tables only (the others are rendered from storage)")
+    ap.add_argument("--render-only", action="store_true", help="run nothing, render only")
+    ap.add_argument("--set", nargs="+", default=[], metavar="TABLE.PARAM=JSON",
+                    help="change a table's parameter (marked REDUCED in the report)")
+    ap.add_argument("--out", type=Path, default=None, help="write the markdown here instead")
+    args = ap.parse_args(argv)
+    sets = parse_sets(args.set)
+    argv = sys.argv[1:] if argv is None else argv
+    command = "OMP_NUM_THREADS=1 python -m bench.report" + "".join(f" {a}" for a in argv)
+    if not args.render_only:
+        for t in TABLES:
+            if args.only is None or t.name in args.only:
+                run_table(t, args.quick, sets.get(t.name, {}), command)
+    print(f"wrote {write_report(args.quick, args.out)}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
