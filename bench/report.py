@@ -265,11 +265,11 @@ def run_table(table: Table, quick: bool, overrides: dict, command: str,
     """Produce one table and store it; returns the JSON path."""
     params = {**(table.quick if quick else table.full), **overrides}
     print(f"== {table.name}: {params}", flush=True)
-    started, t0 = results.utc_now(), time.perf_counter()
+    commit, started, t0 = results.git_commit(), results.utc_now(), time.perf_counter()
     produced = table.produce(**params)
     dt = time.perf_counter() - t0
     path = results.save(table.name, produced, command, started, dt, quick, params,
-                        reduced(table, params), root)
+                        reduced(table, params), commit, root)
     print(f"== {table.name}: {dt:.0f} s -> {path}", flush=True)
     return path
 

@@ -77,9 +77,11 @@ def result_path(table: str, quick: bool, root: Path = RESULTS) -> Path:
 
 
 def save(table: str, produced: Produced, command: str, started: str, duration_s: float,
-         quick: bool, params: dict, reduced: dict, root: Path = RESULTS) -> Path:
-    """Write one table's result (atomically) and return its path."""
-    commit, dirty = git_commit()
+         quick: bool, params: dict, reduced: dict, commit: tuple[str, bool],
+         root: Path = RESULTS) -> Path:
+    """Write one table's result (atomically) and return its path; ``commit``: the
+    :func:`git_commit` taken when the run started."""
+    commit, dirty = commit
     doc = {"table": table, "command": command, "commit": commit, "dirty": dirty,
            "started": started, "finished": utc_now(), "duration_s": round(duration_s, 1),
            "machine": machine(), "quick": quick, "params": params, "reduced": reduced,
