@@ -43,10 +43,12 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import math
 import os
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -308,6 +310,32 @@ VARIANTS = (
 )
 
 
+#: the separate venv made by bench/pyrecest_env.sh
+VENV_PYTHON = Path(__file__).resolve().parent / ".venv-pyrecest" / "bin" / "python"
+
+
+def produce_in_venv(duration: float = 40.0):
+    """Run this script in the pyrecest venv (``--json``) and return its rows, table and
+    pooled figures as a :class:`bench.results.Produced`; :class:`bench.results.Unavailable`
+    without the venv (the report then keeps the stored result)."""
+    import subprocess
+    import sys
+    import tempfile
+
+    from bench.results import ROOT, Produced, Unavailable
+
+    if not VENV_PYTHON.exists():
+        raise Unavailable(f"{VENV_PYTHON} not found: run `bash bench/pyrecest_env.sh`")
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "pyrecest.json"
+        env = {**os.environ, "PYRECEST_BACKEND": "numpy", "PYTHONPATH": str(ROOT)}
+        subprocess.run([str(VENV_PYTHON), "-m", "bench.pyrecest_compare", "--duration",
+                        f"{duration:g}", "--json", str(out)], check=True, env=env, cwd=ROOT,
+                       stdout=sys.stdout, stderr=sys.stderr)
+        doc = json.loads(out.read_text())
+    return Produced(doc["rows"], doc["body"], doc["setting"], doc["summary"])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=40.0)
@@ -324,7 +352,17 @@ def main() -> None:
                          "scores a poor track instead of calling it false")
     ap.add_argument("--variants", action="store_true",
                     help="also run the pyrecest setting variants (VARIANTS)")
+    ap.add_argument("--json", default=None,
+                    help="also write the rows, the printed table and the pooled figures here "
+                         "(read by bench.report)")
     args = ap.parse_args()
+    lines: list[str] = []
+    rows: list[dict] = []
+
+    def emit(line: str = "") -> None:
+        lines.append(line)
+        print(line, flush=True)
+
     global _GATE
     _GATE = args.gate
 
@@ -335,13 +373,14 @@ def main() -> None:
     base = TrackingConfig()
     plain = dataclasses.replace(base, measurement_model="plain", use_doppler=False)
     ps = PyrecestSettings(args.sigma_accel, args.cap or base.max_detections_per_update)
-    print(f"pyrecest {getattr(pyrecest, '__version__', '?')} backend "
-          f"{os.environ.get('PYRECEST_BACKEND')}; duration {args.duration:.0f} s; "
-          f"evaluate gate {args.gate} m; pyrecest {ps}\n")
+    setting = (f"pyrecest {getattr(pyrecest, '__version__', '?')} backend "
+               f"{os.environ.get('PYRECEST_BACKEND')}; duration {args.duration:.0f} s; "
+               f"evaluate gate {args.gate} m; pyrecest {ps}")
+    print(setting + "\n")
     head = (f"{'sequence':<30} {'tracker':<32} {'trk':>3} {'false':>5} {'states':>6} "
             f"{'RMS m':>6} {'yaw deg':>7} {'IoU':>5} {'ms/frame':>8}")
-    print(head)
-    print("-" * len(head))
+    emit(head)
+    emit("-" * len(head))
     by_tracker: dict[str, list[Result]] = {}
     for case, seed, what in seqs:
         scn, cls, length = vehicle_scenario(case, seed, args.duration)
@@ -361,26 +400,40 @@ def main() -> None:
                                             dataclasses.replace(ps, **change),
                                             f"pyrecest {suffix}"))
         else:
-            print(f"{label}: fgloc started no track, pyrecest has no shared initialization")
+            emit(f"{label}: fgloc started no track, pyrecest has no shared initialization")
         for r in res:
             m = r.metrics
-            print(f"{label:<30} {r.name:<32} {m.n_tracks:3d} {m.false_tracks:5d} "
-                  f"{m.n_states:6d} {m.centre_rms:6.3f} {m.yaw_error_deg:7.2f} {m.iou:5.3f} "
-                  f"{r.ms_per_frame:8.2f}")
+            emit(f"{label:<30} {r.name:<32} {m.n_tracks:3d} {m.false_tracks:5d} "
+                 f"{m.n_states:6d} {m.centre_rms:6.3f} {m.yaw_error_deg:7.2f} {m.iou:5.3f} "
+                 f"{r.ms_per_frame:8.2f}")
+            rows.append({"sequence": label, "tracker": r.name, "tracks": m.n_tracks,
+                         "false": m.false_tracks, "states": m.n_states, "rms": m.centre_rms,
+                         "yaw_deg": m.yaw_error_deg, "iou": m.iou, "ms_per_frame":
+                         r.ms_per_frame})
             by_tracker.setdefault(r.name, []).append(r)
-        print(flush=True)
-    print("pooled over sequences (state-weighted; ms/frame = total time / total frames):")
+        emit()
+    emit("pooled over sequences (state-weighted; ms/frame = total time / total frames):")
     for name, rs in by_tracker.items():
         rms, yaw, iou, n, ms = pooled(rs)
-        print(f"{'ALL':<30} {name:<32} {'':>3} {sum(r.metrics.false_tracks for r in rs):5d} "
-              f"{n:6d} {rms:6.3f} {yaw:7.2f} {iou:5.3f} {ms:8.2f}")
+        emit(f"{'ALL':<30} {name:<32} {'':>3} {sum(r.metrics.false_tracks for r in rs):5d} "
+             f"{n:6d} {rms:6.3f} {yaw:7.2f} {iou:5.3f} {ms:8.2f}")
     ref = by_tracker.get("fgloc sensor-aware+Doppler")
     pl = by_tracker.get("fgloc plain, no Doppler")
     pr = by_tracker.get("pyrecest FullSCGP")
+    summary = {}
     if ref and pl and pr:
-        print(f"\nspeed ratio (ms per frame) pyrecest / fgloc sensor-aware: "
-              f"{pooled(pr)[4] / pooled(ref)[4]:.1f}, pyrecest / fgloc plain: "
-              f"{pooled(pr)[4] / pooled(pl)[4]:.1f}")
+        emit()
+        emit(f"speed ratio (ms per frame) pyrecest / fgloc sensor-aware: "
+             f"{pooled(pr)[4] / pooled(ref)[4]:.1f}, pyrecest / fgloc plain: "
+             f"{pooled(pr)[4] / pooled(pl)[4]:.1f}")
+        (r0, y0, i0, _, m0), (r1, y1, i1, _, m1) = pooled(ref), pooled(pr)
+        summary["line"] = (f"pooled centre RMS / yaw / IoU / ms per frame: fgloc "
+                           f"{r0:.3f} m / {y0:.2f} deg / {i0:.3f} / {m0:.2f}, pyrecest "
+                           f"{r1:.3f} m / {y1:.2f} deg / {i1:.3f} / {m1:.2f}")
+    if args.json:
+        Path(args.json).write_text(json.dumps({
+            "rows": rows, "body": ["```", *lines, "```"], "setting": setting,
+            "summary": summary}, indent=1, default=float))
 
 
 if __name__ == "__main__":

@@ -261,12 +261,17 @@ def reduced(table: Table, params: dict) -> dict:
 
 
 def run_table(table: Table, quick: bool, overrides: dict, command: str,
-              root: Path = results.RESULTS) -> Path:
-    """Produce one table and store it; returns the JSON path."""
+              root: Path = results.RESULTS) -> Path | None:
+    """Produce one table and store it; returns the JSON path (None when the table is
+    :class:`bench.results.Unavailable` here)."""
     params = {**(table.quick if quick else table.full), **overrides}
     print(f"== {table.name}: {params}", flush=True)
     commit, started, t0 = results.git_commit(), results.utc_now(), time.perf_counter()
-    produced = table.produce(**params)
+    try:
+        produced = table.produce(**params)
+    except results.Unavailable as e:
+        print(f"== {table.name}: not measured ({e}); the stored result stays", flush=True)
+        return None
     dt = time.perf_counter() - t0
     path = results.save(table.name, produced, command, started, dt, quick, params,
                         reduced(table, params), commit, root)

@@ -21,6 +21,11 @@ ROOT = Path(__file__).resolve().parent.parent
 RESULTS = ROOT / "bench" / "results"
 
 
+class Unavailable(RuntimeError):
+    """A table cannot be measured on this machine (e.g. a peer's separate venv is missing):
+    the report keeps its stored result."""
+
+
 @dataclass
 class Produced:
     """What a table producer returns: ``rows`` (JSON-serializable dicts, one per run or table

@@ -35,6 +35,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
+from bench.results import Produced
 from fgloc._open3d import open3d
 from fgloc.coarse import dynamic_points
 from fgloc.config import CoarseConfig, MapConfig
@@ -127,6 +128,66 @@ def timed(fn: Callable[[], object], repeats: int) -> tuple[float, object]:
     return statistics.median(times), out
 
 
+def compare(c: Clouds, repeats: int, small_range: float) -> list[dict]:
+    """Every method of the module docstring on the clouds ``c``: one row each (name, time s,
+    iterations, 2D error m, yaw error deg, ratio of the time to Open3D's at 50 m)."""
+    base = SicpConfig()
+    fixed = dataclasses.replace(base, range_decay=1.0)
+    small = dataclasses.replace(fixed, max_correspondence=small_range,
+                                min_correspondence=small_range)
+    fg: dict[str, SicpConfig] = {
+        "fgloc SICP hard, 50->1.5 m": base,
+        "fgloc SICP soft, 50->1.5 m": dataclasses.replace(base, mode="soft"),
+        "fgloc plain ICP, 50->1.5 m": dataclasses.replace(base, mode="none"),
+        "fgloc plain ICP, 50 m fixed": dataclasses.replace(fixed, mode="none"),
+        f"fgloc plain ICP, {small_range:g} m fixed": dataclasses.replace(small, mode="none"),
+    }
+    rows = []
+    for name, cfg in fg.items():
+        t, (T, it) = timed(lambda cfg=cfg: run_fgloc(c, cfg), repeats)
+        rows.append({"method": name, "time_s": t, "iterations": it,
+                     **dict(zip(("d2d", "dyaw_deg"), errors(T, c)))})
+    for dist in (base.max_correspondence, small_range):
+        t, T = timed(lambda dist=dist: open3d_icp(c, dist, base.max_iterations), repeats)
+        rows.append({"method": f"Open3D p2p ICP, {dist:g} m", "time_s": t,
+                     "iterations": open3d_iterations(c, dist, base.max_iterations),
+                     **dict(zip(("d2d", "dyaw_deg"), errors(T, c)))})
+    t_ref = next(r["time_s"] for r in rows
+                 if r["method"] == f"Open3D p2p ICP, {base.max_correspondence:g} m")
+    for r in rows:
+        r["ratio"] = r["time_s"] / t_ref
+    return rows
+
+
+def table(rows: list[dict]) -> list[str]:
+    out = ["| method | time (ms) | vs Open3D 50 m | iterations | ms / iteration | 2D error (m) "
+           "| yaw error (deg) |", "|---|---:|---:|---:|---:|---:|---:|"]
+    for r in rows:
+        out.append(f"| {r['method']} | {1e3 * r['time_s']:.1f} | {r['ratio']:.2f} | "
+                   f"{r['iterations']} | {1e3 * r['time_s'] / max(r['iterations'], 1):.2f} | "
+                   f"{r['d2d']:.3f} | {r['dyaw_deg']:.3f} |")
+    return out
+
+
+def produce(repeats: int = 7, case: str = "intersection", seed: int = 1,
+            duration: float = 60.0, voxel: float = 1.0, offset: float = 1.5,
+            direction: float = 30.0, yaw: float = 1.5, small_range: float = 3.0) -> Produced:
+    """The report's table; summary: SICP (hard) and Open3D at 50 m, time (ms) and errors."""
+    c = make_clouds(case, seed, duration, voxel, offset, direction, yaw)
+    rows = compare(c, repeats, small_range)
+    sicp_row, o3d_row = rows[0], next(r for r in rows if r["method"].startswith("Open3D"))
+    summary = {"sicp_ms": 1e3 * sicp_row["time_s"], "sicp_2d": sicp_row["d2d"],
+               "sicp_yaw": sicp_row["dyaw_deg"], "open3d_ms": 1e3 * o3d_row["time_s"],
+               "open3d_2d": o3d_row["d2d"], "open3d_yaw": o3d_row["dyaw_deg"],
+               "offset": f"{offset:g} m / {yaw:g} deg"}
+    counts = np.bincount(c.source_label, minlength=3)
+    return Produced(rows, table(rows),
+                    f"{case} seed {seed}, {duration:g} s: target {len(c.target_xy)} points, "
+                    f"source {len(c.source_xy)} points (straight/left/right {counts.tolist()}), "
+                    f"offset {offset:g} m at {direction:g} deg and {yaw:g} deg, median of "
+                    f"{repeats}", summary)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--case", default="intersection")
@@ -139,42 +200,10 @@ def main() -> int:
     ap.add_argument("--small-range", type=float, default=3.0, help="small fixed range (m)")
     ap.add_argument("--repeats", type=int, default=7)
     args = ap.parse_args()
-
-    c = make_clouds(args.case, args.seed, args.duration, args.voxel, args.offset,
-                    args.direction, args.yaw)
-    counts = np.bincount(c.source_label, minlength=3)
-    print(f"case {args.case} seed {args.seed}: target {len(c.target_xy)} points, source "
-          f"{len(c.source_xy)} points (straight/left/right {counts.tolist()}), offset "
-          f"{args.offset} m @ {args.direction} deg, {args.yaw} deg; {os.cpu_count()} CPUs")
-    base = SicpConfig()
-    fixed = dataclasses.replace(base, range_decay=1.0)
-    small = dataclasses.replace(fixed, max_correspondence=args.small_range,
-                                min_correspondence=args.small_range)
-    fg: dict[str, SicpConfig] = {
-        "fgloc SICP hard, 50->1.5 m": base,
-        "fgloc SICP soft, 50->1.5 m": dataclasses.replace(base, mode="soft"),
-        "fgloc plain ICP, 50->1.5 m": dataclasses.replace(base, mode="none"),
-        "fgloc plain ICP, 50 m fixed": dataclasses.replace(fixed, mode="none"),
-        f"fgloc plain ICP, {args.small_range:g} m fixed": dataclasses.replace(small, mode="none"),
-    }
-    rows = []
-    for name, cfg in fg.items():
-        t, (T, it) = timed(lambda cfg=cfg: run_fgloc(c, cfg), args.repeats)
-        rows.append((name, t, it, *errors(T, c)))
-    ref: dict[float, float] = {}
-    for dist in (base.max_correspondence, args.small_range):
-        t, T = timed(lambda dist=dist: open3d_icp(c, dist, base.max_iterations), args.repeats)
-        ref[dist] = t
-        rows.append((f"Open3D p2p ICP, {dist:g} m", t,
-                     open3d_iterations(c, dist, base.max_iterations), *errors(T, c)))
-
-    t_ref = ref[base.max_correspondence]
-    print("| method | time (ms) | vs Open3D 50 m | iterations | ms / iteration | 2D error (m) "
-          "| yaw error (deg) |")
-    print("|---|---:|---:|---:|---:|---:|---:|")
-    for name, t, it, e2d, eyaw in rows:
-        print(f"| {name} | {1e3 * t:.1f} | {t / t_ref:.2f} | {it} | {1e3 * t / max(it, 1):.2f} "
-              f"| {e2d:.3f} | {eyaw:.3f} |")
+    p = produce(args.repeats, args.case, args.seed, args.duration, args.voxel, args.offset,
+                args.direction, args.yaw, args.small_range)
+    print(f"{p.setting}; {os.cpu_count()} CPUs")
+    print("\n".join(p.body))
     return 0
 
 

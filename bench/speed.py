@@ -29,6 +29,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from bench.results import Produced
 from fgloc.io import write_scenario
 from fgloc.pipeline import METHODS
 from fgloc.scenario import Scenario
@@ -88,70 +89,98 @@ def describe(scn: Scenario) -> str:
     return f"{rec:.0f} s, {n} detections ({n / rec:.0f}/s), {nv} vehicles, {len(scn.als)} ALS pts"
 
 
-def stage_table(reports: dict[str, dict]) -> None:
+def stage_table(reports: dict[str, dict]) -> list[str]:
+    """Markdown: per method the stage times (s), total wall time and peak RSS."""
     stages: list[str] = []
     for r in reports.values():
         stages += [s for s in r.get("timings_s", {}) if s not in stages]
-    print("| method | " + " | ".join(stages) + " | total wall s | peak RSS MiB |")
-    print("|---|" + "---:|" * (len(stages) + 2))
+    out = ["| method | " + " | ".join(stages) + " | total wall s | peak RSS MiB |",
+           "|---|" + "---:|" * (len(stages) + 2)]
     for m, r in reports.items():
         if r["rc"] != 0:
-            print(f"| {m} | failed: {r.get('error')} |")
+            out.append(f"| {m} | failed: {r.get('error')} |")
             continue
         cells = [f"{r['timings_s'][s]:.2f}" if s in r["timings_s"] else "" for s in stages]
-        print(f"| {m} | " + " | ".join(cells) + f" | {r['wall_s']:.1f} | "
-              f"{r['peak_rss_mib']:.0f} |")
+        out.append(f"| {m} | " + " | ".join(cells) + f" | {r['wall_s']:.1f} | "
+                   f"{r['peak_rss_mib']:.0f} |")
+    return out
 
 
-def section_stages(work: Path, methods: list[str], duration: float, vehicles: int) -> None:
-    d, scn = make_scenario(work, "intersection", 1, duration, vehicles)
-    print(f"\n## (1) stages and peak memory: intersection seed 1, {describe(scn)}\n")
-    stage_table({m: run_child(m, d, work) for m in methods})
+def measured(work: Path, label: str, methods: list[str], case: str, seed: int, duration: float,
+             vehicles: int | None, rows: list[dict]) -> list[str]:
+    """Every method on one scenario in its own process: a heading, the stage table; one row
+    per method appended to ``rows``."""
+    d, scn = make_scenario(work, case, seed, duration, vehicles)
+    reports = {m: run_child(m, d, work) for m in methods}
+    rows += [{"part": label, "case": case, "seed": seed, "duration": duration,
+              "vehicles": vehicles, "method": m, **r} for m, r in reports.items()]
+    return ["", f"{label}: {case} seed {seed}, {describe(scn)}", "", *stage_table(reports)]
 
 
-def section_sicp(repeats: int) -> None:
+def section_stages(work: Path, methods: list[str], duration: float, vehicles: int,
+                   rows: list[dict]) -> list[str]:
+    return measured(work, "stages and peak memory", methods, "intersection", 1, duration,
+                    vehicles, rows)
+
+
+def section_sicp(repeats: int) -> list[str]:
     from bench import sicp_vs_open3d as so
     from fgloc.registration.config import SicpConfig
 
     c = so.make_clouds("intersection", 1, 60.0, 1.0, 1.5, 30.0, 1.5)
     cfg = SicpConfig()
-    print(f"\n## (2) SICP vs Open3D registration_icp: {len(c.source_xy)} source, "
-          f"{len(c.target_xy)} target points, offset 1.5 m / 1.5 deg, median of {repeats}\n")
+    out = ["", f"## (2) SICP vs Open3D registration_icp: {len(c.source_xy)} source, "
+           f"{len(c.target_xy)} target points, offset 1.5 m / 1.5 deg, median of {repeats}", "",
+           "| method | time ms | ratio to Open3D | 2D error m | yaw error deg |",
+           "|---|---:|---:|---:|---:|"]
     t_s, (T_s, it_s) = so.timed(lambda: so.run_fgloc(c, cfg), repeats)
     t_o, T_o = so.timed(lambda: so.open3d_icp(c, cfg.max_correspondence, cfg.max_iterations),
                         repeats)
-    print("| method | time ms | ratio to Open3D | 2D error m | yaw error deg |")
-    print("|---|---:|---:|---:|---:|")
     for name, t, T in (("fgloc SICP (hard, 50 -> 1.5 m)", t_s, T_s),
                        (f"Open3D p2p ICP ({cfg.max_correspondence:g} m)", t_o, T_o)):
         e2d, eyaw = so.errors(T, c)
-        print(f"| {name} | {1e3 * t:.1f} | {t / t_o:.2f} | {e2d:.3f} | {eyaw:.3f} |")
-    print(f"(SICP iterations: {it_s})")
+        out.append(f"| {name} | {1e3 * t:.1f} | {t / t_o:.2f} | {e2d:.3f} | {eyaw:.3f} |")
+    return [*out, f"(SICP iterations: {it_s})"]
 
 
-def section_realtime(scn: Scenario) -> None:
+def section_realtime(scn: Scenario) -> list[str]:
     from fgloc.smoothing.run import compare_trackers
 
-    print(f"\n## (3) tracker real-time factors, oracle pose, one core: {describe(scn)}\n")
     cmp = compare_trackers(scn, oracle_pose=True)
-    print("```\n" + cmp.table() + "\n```")
     i = cmp.names.index("batch")
-    print(f"batch smoother: {cmp.cpu_seconds[i] / max(cmp.track_minutes, 1e-9):.2f} CPU s per "
-          f"track-minute ({cmp.track_minutes:.1f} track-minutes)")
+    return ["", f"## (3) tracker real-time factors, oracle pose, one core: {describe(scn)}", "",
+            "```", cmp.table(), "```",
+            f"batch smoother: {cmp.cpu_seconds[i] / max(cmp.track_minutes, 1e-9):.2f} CPU s per "
+            f"track-minute ({cmp.track_minutes:.1f} track-minutes)"]
 
 
 def section_scaling(work: Path, methods: list[str], durations: list[float],
-                    vehicle_counts: list[int]) -> None:
-    print("\n## (4) scaling with recording length (vehicle arrivals proportional)\n")
+                    vehicle_counts: list[int], rows: list[dict]) -> list[str]:
+    out = ["", "#### Scaling with recording length (vehicle arrivals proportional)"]
     for dur in durations:
-        d, scn = make_scenario(work, "intersection", 2, dur, None)
-        print(f"\n### {dur:g} s: {describe(scn)}\n")
-        stage_table({m: run_child(m, d, work) for m in methods})
-    print("\n## (4b) scaling with vehicle count (60 s)\n")
+        out += measured(work, f"{dur:g} s", methods, "intersection", 2, dur, None, rows)
+    out += ["", "#### Scaling with vehicle count (60 s)"]
     for nv in vehicle_counts:
-        d, scn = make_scenario(work, "intersection", 3, 60.0, nv)
-        print(f"\n### {nv} vehicles: {describe(scn)}\n")
-        stage_table({m: run_child(m, d, work) for m in methods})
+        out += measured(work, f"{nv} vehicles", methods, "intersection", 3, 60.0, nv, rows)
+    return out
+
+
+def produce(duration: float, vehicles: int, durations: list[float], vehicle_counts: list[int],
+            methods: list[str]) -> Produced:
+    """The report's speed table: stages and peak memory on one intersection of ``duration``
+    s with ``vehicles`` vehicles, then the scaling runs; summary: peak RSS (MiB) and wall
+    time (s) per method of the first part."""
+    rows: list[dict] = []
+    with tempfile.TemporaryDirectory() as tmp:
+        body = ["#### Stages and peak memory", *section_stages(Path(tmp), methods, duration,
+                                                              vehicles, rows)]
+        body += section_scaling(Path(tmp), methods, durations, vehicle_counts, rows)
+    first = [r for r in rows if r["part"] == "stages and peak memory" and r["rc"] == 0]
+    summary = {"peak_rss_mib": {r["method"]: r["peak_rss_mib"] for r in first},
+               "wall_s": {r["method"]: r["wall_s"] for r in first}}
+    return Produced(rows, body, f"intersection seed 1, {duration:g} s, {vehicles} vehicles; "
+                    f"scaling: {durations} s (seed 2), {vehicle_counts} vehicles in 60 s "
+                    "(seed 3)", summary)
 
 
 def main() -> int:
@@ -170,16 +199,18 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         dur, nveh = (60.0, 30) if quick else (120.0, 60)
+        rows: list[dict] = []
         if "stages" in args.sections:
-            section_stages(work, args.methods, dur, nveh)
+            print("\n".join(section_stages(work, args.methods, dur, nveh, rows)), flush=True)
         if "sicp" in args.sections:
-            section_sicp(3 if quick else 7)
+            print("\n".join(section_sicp(3 if quick else 7)), flush=True)
         if "realtime" in args.sections:
-            section_realtime(simulate("intersection", 1, duration=dur, vehicles=nveh))
+            print("\n".join(section_realtime(simulate("intersection", 1, duration=dur,
+                                                       vehicles=nveh))), flush=True)
         if "scaling" in args.sections:
-            section_scaling(work, args.methods,
-                            [30.0, 60.0] if quick else [30.0, 60.0, 120.0, 300.0],
-                            [20, 50] if quick else [20, 50, 100])
+            print("\n".join(section_scaling(work, args.methods,
+                                             [30.0, 60.0] if quick else [30.0, 60.0, 120.0, 300.0],
+                                             [20, 50] if quick else [20, 50, 100], rows)))
     return 0
 
 
