@@ -255,9 +255,11 @@ TABLES: list[Table] = [
 BY_NAME = {t.name: t for t in TABLES}
 
 
-def reduced(table: Table, params: dict) -> dict:
-    """{param: [full value, used value]} where ``params`` differ from the full set."""
-    return {k: [v, params.get(k)] for k, v in table.full.items() if params.get(k) != v}
+def reduced(table: Table, params: dict, quick: bool = False) -> dict:
+    """{param: [set value, used value]} where ``params`` differ from the table's full set
+    (its quick set with ``quick``)."""
+    ref = table.quick if quick else table.full
+    return {k: [v, params.get(k)] for k, v in ref.items() if params.get(k) != v}
 
 
 def run_table(table: Table, quick: bool, overrides: dict, command: str,
@@ -274,7 +276,7 @@ def run_table(table: Table, quick: bool, overrides: dict, command: str,
         return None
     dt = time.perf_counter() - t0
     path = results.save(table.name, produced, command, started, dt, quick, params,
-                        reduced(table, params), commit, root)
+                        reduced(table, params, quick), commit, root)
     print(f"== {table.name}: {dt:.0f} s -> {path}", flush=True)
     return path
 
@@ -291,7 +293,8 @@ def provenance_line(doc: dict, table: Table) -> str:
     if doc.get("imported_from"):
         line += f" Imported: {doc['imported_from']}."
     if doc["reduced"]:
-        line += " **REDUCED against the full set:** " + "; ".join(
+        which = "quick" if doc["quick"] else "full"
+        line += f" **REDUCED against the {which} set:** " + "; ".join(
             f"{k} {json.dumps(used)} instead of {json.dumps(full)}"
             for k, (full, used) in doc["reduced"].items()) + "."
     return line

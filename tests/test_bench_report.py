@@ -1,0 +1,110 @@
+"""bench.report: stored results, provenance, reduced sets and the rendered markdown."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import pytest
+
+from bench import report, results
+from bench.results import Produced, Unavailable
+
+
+def square_rows(n: int, scale: float) -> Produced:
+    """A small real producer: squares of 0..n-1 times ``scale``, one row each."""
+    rows = [{"i": i, "value": scale * i * i} for i in range(n)]
+    body = ["| i | value |", "|---|---|"] + [f"| {r['i']} | {r['value']:g} |" for r in rows]
+    return Produced(rows, body, f"{n} squares x {scale:g}",
+                    {"total": sum(r["value"] for r in rows), "nan": math.nan})
+
+
+TOY = report.Table("toy", "Toy table", "tests/test_bench_report.py", "What the toy shows.",
+                   square_rows, {"n": 4, "scale": 1.0}, {"n": 2, "scale": 1.0})
+
+
+def test_run_table_stores_rows_provenance_and_reduction(tmp_path):
+    path = report.run_table(TOY, False, {"n": 3}, "python -m bench.report --only toy", tmp_path)
+    doc = json.loads(path.read_text())
+    assert path == tmp_path / "toy.json"
+    assert [r["value"] for r in doc["rows"]] == [0.0, 1.0, 4.0]
+    assert doc["summary"] == {"total": 5.0, "nan": None}  # NaN stored as null
+    assert doc["reduced"] == {"n": [4, 3]}
+    assert doc["params"] == {"n": 3, "scale": 1.0}
+    assert doc["command"] == "python -m bench.report --only toy"
+    assert len(doc["commit"]) >= 7 and doc["machine"]["cpus"] >= 1
+    assert doc["duration_s"] >= 0 and not doc["quick"]
+    # the full set itself is not reduced; quick results go to their own directory
+    full = json.loads(report.run_table(TOY, False, {}, "c", tmp_path).read_text())
+    assert full["reduced"] == {}
+    quick = report.run_table(TOY, True, {}, "c", tmp_path)
+    assert quick == tmp_path / "quick" / "toy.json"
+    assert json.loads(quick.read_text())["reduced"] == {}
+    assert json.loads((tmp_path / "toy.json").read_text())["params"]["n"] == 4
+
+
+def test_unavailable_table_keeps_the_stored_result(tmp_path):
+    report.run_table(TOY, False, {}, "first", tmp_path)
+
+    def missing(**_):
+        raise Unavailable("peer venv absent")
+
+    gone = report.Table("toy", "Toy", "x", "y", missing, {}, {})
+    assert report.run_table(gone, False, {}, "second", tmp_path) is None
+    assert results.load("toy", False, tmp_path)["command"] == "first"
+
+
+def test_render_marks_reduced_and_missing_tables(tmp_path, monkeypatch):
+    monkeypatch.setattr(report, "TABLES", [TOY, report.Table(
+        "other", "Other table", "x", "Never run.", square_rows, {"n": 1, "scale": 1.0}, {})])
+    report.run_table(TOY, False, {"n": 2, "scale": 2.0}, "cmd --set toy.n=2", tmp_path)
+    docs = {"toy": results.load("toy", False, tmp_path)}
+    text = report.render(docs, quick=False)
+    assert text.startswith("# fgloc benchmarks\n")
+    assert "## Toy table" in text and "What the toy shows." in text
+    assert "| 1 | 2 |" in text  # the producer's body, verbatim
+    assert "**REDUCED against the full set:** n 2 instead of 4; scale 2.0 instead of 1.0." \
+        in text
+    assert "`cmd --set toy.n=2`" in text
+    assert "Not measured yet: `python -m bench.report --only other`" in text
+    # rendering is a pure function of the stored results
+    assert report.render(docs, quick=False) == text
+
+
+def test_first_screen_quotes_stored_summaries():
+    summary = {"methods": {"joint": {"runs": 2, "d2d_mean": 0.1234, "d2d_worst": 0.2,
+                                     "dyaw_mean": 0.03, "dz_mean": 0.1, "nees_mean": 2.5,
+                                     "time_mean": 10.0},
+                           "icp": {"runs": 2, "d2d_mean": 0.3, "d2d_worst": 0.4,
+                                   "dyaw_mean": 0.05, "dz_mean": 0.1, "nees_mean": None,
+                                   "time_mean": 5.0}}}
+    doc = {"setting": "s", "commit": "abc1234", "started": "d", "summary": summary}
+    speed = {"setting": "t", "commit": "def5678", "summary": {"peak_rss_mib": {"joint": 900.4}}}
+    lines = report.first_screen({"scenarios": doc, "speed": speed})
+    assert "| joint | 2 | 0.123 (0.200) | 0.030 | 0.100 | 2.50 | 10.0 | 900 |" in lines
+    assert "| icp | 2 | 0.300 (0.400) | 0.050 | 0.100 | - | 5.0 | - |" in lines
+    assert any("S3 0.32, 0.21, 0.35" in ln for ln in lines)
+
+
+@pytest.mark.parametrize("item, message", [
+    ("nosuch.seeds=[1]", "TABLE one of"),
+    ("robustness.nosuch=[1]", "has the parameters"),
+    ("robustness.seeds=[1,", "not JSON"),
+    ("robustness.seeds", "TABLE.PARAM=JSON"),
+])
+def test_parse_sets_rejects_bad_items(item, message):
+    with pytest.raises(SystemExit, match=message.replace("[", r"\[")):
+        report.parse_sets([item])
+
+
+def test_parse_sets_reads_json_values():
+    assert report.parse_sets(["robustness.seeds=[1,2,3]", "sparse.height=false"]) == {
+        "robustness": {"seeds": [1, 2, 3]}, "sparse": {"height": False}}
+
+
+def test_every_table_has_a_paragraph_and_matching_sets():
+    names = [t.name for t in report.TABLES]
+    assert len(set(names)) == len(names)
+    for t in report.TABLES:
+        assert t.about and t.title
+        assert set(t.quick) - {"quick"} <= set(t.full), t.name
