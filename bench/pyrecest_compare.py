@@ -314,10 +314,11 @@ VARIANTS = (
 VENV_PYTHON = Path(__file__).resolve().parent / ".venv-pyrecest" / "bin" / "python"
 
 
-def produce_in_venv(duration: float = 40.0):
+def produce_in_venv(duration: float = 40.0, sequences: list[str] | None = None):
     """Run this script in the pyrecest venv (``--json``) and return its rows, table and
-    pooled figures as a :class:`bench.results.Produced`; :class:`bench.results.Unavailable`
-    without the venv (the report then keeps the stored result)."""
+    pooled figures as a :class:`bench.results.Produced`; ``sequences``: "case:seed" items
+    (default: ``SEQUENCES``); :class:`bench.results.Unavailable` without the venv (the report
+    then keeps the stored result)."""
     import subprocess
     import sys
     import tempfile
@@ -329,9 +330,9 @@ def produce_in_venv(duration: float = 40.0):
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "pyrecest.json"
         env = {**os.environ, "PYRECEST_BACKEND": "numpy", "PYTHONPATH": str(ROOT)}
-        subprocess.run([str(VENV_PYTHON), "-m", "bench.pyrecest_compare", "--duration",
-                        f"{duration:g}", "--json", str(out)], check=True, env=env, cwd=ROOT,
-                       stdout=sys.stdout, stderr=sys.stderr)
+        cmd = [str(VENV_PYTHON), "-m", "bench.pyrecest_compare", "--duration", f"{duration:g}",
+               "--json", str(out)] + (["--sequences", *sequences] if sequences else [])
+        subprocess.run(cmd, check=True, env=env, cwd=ROOT, stdout=sys.stdout, stderr=sys.stderr)
         doc = json.loads(out.read_text())
     return Produced(doc["rows"], doc["body"], doc["setting"], doc["summary"])
 

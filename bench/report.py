@@ -224,7 +224,8 @@ TABLES: list[Table] = [
           "venv bench/.venv-pyrecest from bench/pyrecest_env.sh; pyrecest is not a dependency "
           "of fgloc) on the same single-vehicle frames with the true pose.",
           produce_pyrecest,
-          {"duration": 40.0}, {"duration": 20.0}),
+          {"duration": 40.0, "sequences": None},
+          {"duration": 20.0, "sequences": ["intersection:1", "intersection:6"]}),
     Table("speed", "Speed per stage, peak memory and scaling", "bench/speed.py",
           "Every localization runs as its own `fgloc localize` child process, the way a user "
           "runs it: stage times from its result.json, peak resident memory (VmHWM) its own. "
@@ -234,7 +235,7 @@ TABLES: list[Table] = [
           produce_speed,
           {"duration": 120.0, "vehicles": 60, "durations": [30.0, 60.0, 120.0, 300.0],
            "vehicle_counts": [20, 50, 100], "methods": _ALL_METHODS},
-          {"duration": 60.0, "vehicles": 30, "durations": [30.0], "vehicle_counts": [20],
+          {"duration": 30.0, "vehicles": 20, "durations": [60.0], "vehicle_counts": [],
            "methods": _ALL_METHODS}),
     Table("sicp_open3d", "SICP against Open3D ICP", "bench/sicp_vs_open3d.py",
           "fgloc's SE(2) SICP and plain ICP against Open3D's point-to-point "
