@@ -159,7 +159,8 @@ def section_scaling(work: Path, methods: list[str], durations: list[float],
     out = ["", "#### Scaling with recording length (vehicle arrivals proportional)"]
     for dur in durations:
         out += measured(work, f"{dur:g} s", methods, "intersection", 2, dur, None, rows)
-    out += ["", "#### Scaling with vehicle count (60 s)"]
+    if vehicle_counts:
+        out += ["", "#### Scaling with vehicle count (60 s)"]
     for nv in vehicle_counts:
         out += measured(work, f"{nv} vehicles", methods, "intersection", 3, 60.0, nv, rows)
     return out
