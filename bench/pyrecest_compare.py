@@ -427,10 +427,11 @@ def main() -> None:
         emit(f"speed ratio (ms per frame) pyrecest / fgloc sensor-aware: "
              f"{pooled(pr)[4] / pooled(ref)[4]:.1f}, pyrecest / fgloc plain: "
              f"{pooled(pr)[4] / pooled(pl)[4]:.1f}")
-        (r0, y0, i0, _, m0), (r1, y1, i1, _, m1) = pooled(ref), pooled(pr)
-        summary["line"] = (f"pooled centre RMS / yaw / IoU / ms per frame: fgloc "
-                           f"{r0:.3f} m / {y0:.2f} deg / {i0:.3f} / {m0:.2f}, pyrecest "
-                           f"{r1:.3f} m / {y1:.2f} deg / {i1:.3f} / {m1:.2f}")
+        for name, rs in (("fgloc", ref), ("pyrecest", pr)):
+            rms, yaw, iou, n, ms = pooled(rs)
+            summary[name] = {"rms": rms, "yaw_deg": yaw, "iou": iou, "states": n,
+                             "ms_per_frame": ms}
+        summary["sequences"] = len(seqs)
     if args.json:
         Path(args.json).write_text(json.dumps({
             "rows": rows, "body": ["```", *lines, "```"], "setting": setting,

@@ -305,24 +305,23 @@ def _f(v, fmt: str = "{:.3f}") -> str:
     return "-" if v is None else fmt.format(v)
 
 
+def _when(doc: dict) -> str:
+    return f"commit `{doc['commit']}`, {doc['started']}"
+
+
 def first_screen(docs: dict[str, dict]) -> list[str]:
     """The current figures per method next to the paper's and the peers'."""
-    from bench.accuracy import PAPER
-
-    out = ["## At a glance", ""]
-    sc = docs.get("scenarios")
+    out = ["## At a glance", "", "### Localization", ""]
+    sc, sp = docs.get("scenarios"), docs.get("speed")
     if sc is None:
         out += ["No stored per-scenario result yet: run `python -m bench.report --only "
                 "scenarios`.", ""]
     else:
-        mem = {}
-        sp = docs.get("speed")
-        if sp is not None:
-            mem = sp["summary"].get("peak_rss_mib", {})
-        out += [f"Localization, simulated scenarios ({sc['setting']}; commit `{sc['commit']}`, "
-                f"{sc['started']}); mean over the runs, worst run in brackets; peak memory "
-                + (f"from the speed table ({sp['setting']}, commit `{sp['commit']}`)."
-                   if sp else "not measured yet."), "",
+        mem = sp["summary"].get("peak_rss_mib", {}) if sp else {}
+        out += [f"fgloc on simulated scenarios ({sc['setting']}; {_when(sc)}): mean over the "
+                "runs, worst run in brackets; time = the method's stage times; peak memory "
+                + (f"of a separate `fgloc localize` process in the speed table ({sp['setting']}; "
+                   f"{_when(sp)})." if sp else "not measured yet."), "",
                 "| method | runs | 2D m | \\|dyaw\\| deg | \\|dz\\| m | NEES (x, y, yaw) | "
                 "time s | peak memory MiB |", "|---|---:|---:|---:|---:|---:|---:|---:|"]
         for m, s in sc["summary"]["methods"].items():
@@ -330,41 +329,42 @@ def first_screen(docs: dict[str, dict]) -> list[str]:
                        f"{s['dyaw_mean']:.3f} | {s['dz_mean']:.3f} | "
                        f"{_f(s['nees_mean'], '{:.2f}')} | {s['time_mean']:.1f} | "
                        f"{_f(mem.get(m), '{:.0f}')} |")
-        out += ["", "The paper's figures (section V; their data: CARLA Town 10 for S1, S2 and "
-                "real ARS548 recordings in Ingolstadt for S3, S4; not the same runs, quoted for "
-                "orientation): "
-                + "; ".join(f"{k}: {v}" for k, v in PAPER.items())
-                + ". Table I per sensor (|dx|, |dy| m, |dyaw| deg): S1 0.60, 0.28, 0.20; "
-                "S2 0.16, 0.93, 0.22; S3 0.32, 0.21, 0.35; S4 0.52, 0.19, 0.16; mean 2D "
-                "0.66, 0.94, 0.38, 0.55 m. The paper reports no height, NEES, time or "
-                "memory.", ""]
-    peers = []
+    out += ["| paper, SICP (Table I: S1, S2 CARLA; S3, S4 real) | 4 sensors | 0.66, 0.94, 0.38, "
+            "0.55 | 0.20, 0.22, 0.35, 0.16 | - | - | - | - |",
+            "| paper, earlier method [localizationiv] (Table II: S3, S4) | 2 sensors | \\|dx\\| "
+            "0.93, 0.80; \\|dy\\| 0.82, 0.70 | 1.25, 0.03 | - | - | - | - |", "",
+            "The paper's rows are its own figures (section V, Tables I and II; mean 2D per "
+            "sensor as its text gives them) on its own data: quoted for orientation, not the "
+            "same runs. It reports no height, NEES, time or memory.", ""]
     so = docs.get("sicp_open3d")
     if so is not None:
         s = so["summary"]
-        peers.append(f"- Registration on the same clouds (commit `{so['commit']}`, "
-                     f"{so['started']}): fgloc SICP {s['sicp_ms']:.1f} ms, 2D "
-                     f"{s['sicp_2d']:.3f} m, yaw {s['sicp_yaw']:.3f} deg; Open3D "
-                     f"point-to-point ICP {s['open3d_ms']:.1f} ms, 2D {s['open3d_2d']:.3f} m, "
-                     f"yaw {s['open3d_yaw']:.3f} deg (both from a "
-                     f"{s['offset']} offset; table below).")
-    tr = docs.get("tracking")
-    if tr is not None:
-        t = tr["summary"]
-        peers.append(f"- Tracking with the true pose (commit `{tr['commit']}`, "
-                     f"{tr['setting']}): trkRMS / yaw / IoU filter "
-                     f"{t['filter']['centre_rms_track_mean']:.3f} m / "
-                     f"{t['filter']['yaw_error_deg']:.2f} deg / {t['filter']['iou']:.3f}, batch "
-                     f"smoother {t['batch']['centre_rms_track_mean']:.3f} m / "
-                     f"{t['batch']['yaw_error_deg']:.2f} deg / {t['batch']['iou']:.3f}. The "
-                     "paper (CARLA S1, 60 trajectories): 0.49 m / 3.8 deg / 0.59.")
-    py = docs.get("pyrecest")
-    if py is not None:
-        peers.append(f"- pyrecest FullSCGPTracker on the same frames ({py['setting']}; "
-                     f"commit `{py['commit']}`, {py['started']}): "
-                     + py["summary"].get("line", "see its table") + ".")
-    if peers:
-        out += ["Peers:", "", *peers, ""]
+        out += ["### Registration against Open3D ICP", "",
+                f"The same clouds, from a {s['offset']} offset ({_when(so)}; table below):", "",
+                "| registration | time ms | 2D m | \\|dyaw\\| deg |", "|---|---:|---:|---:|",
+                f"| fgloc SICP (hard, 50 -> 1.5 m) | {s['sicp_ms']:.1f} | {s['sicp_2d']:.3f} | "
+                f"{s['sicp_yaw']:.3f} |",
+                f"| Open3D point-to-point ICP (50 m) | {s['open3d_ms']:.1f} | "
+                f"{s['open3d_2d']:.3f} | {s['open3d_yaw']:.3f} |", ""]
+    tr, py = docs.get("tracking"), docs.get("pyrecest")
+    if tr is not None or py is not None:
+        out += ["### Tracking (true pose)", "",
+                "| tracker | data | centre RMS m | yaw deg | IoU |", "|---|---|---:|---:|---:|"]
+        if tr is not None:
+            for name in ("filter", "batch"):
+                t = tr["summary"][name]
+                out.append(f"| fgloc {name} (per-track mean RMS) | {tr['setting']} ({_when(tr)})"
+                           f" | {t['centre_rms_track_mean']:.3f} | {t['yaw_error_deg']:.2f} | "
+                           f"{t['iou']:.3f} |")
+        if py is not None and "pyrecest" in py["summary"]:
+            for name in ("fgloc", "pyrecest"):
+                t = py["summary"][name]
+                label = "fgloc filter" if name == "fgloc" else "pyrecest FullSCGPTracker"
+                out.append(f"| {label} (pooled RMS, {t['ms_per_frame']:.1f} ms per frame) | "
+                           f"{py['summary']['sequences']} single-vehicle sequences ({_when(py)})"
+                           f" | {t['rms']:.3f} | {t['yaw_deg']:.2f} | {t['iou']:.3f} |")
+        out += ["| paper, GP-EOT (section V-A) | CARLA S1, 60 trajectories | 0.49 | 3.8 | "
+                "0.59 |", ""]
     return out
 
 

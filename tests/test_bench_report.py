@@ -80,10 +80,22 @@ def test_first_screen_quotes_stored_summaries():
                                    "time_mean": 5.0}}}
     doc = {"setting": "s", "commit": "abc1234", "started": "d", "summary": summary}
     speed = {"setting": "t", "commit": "def5678", "summary": {"peak_rss_mib": {"joint": 900.4}}}
-    lines = report.first_screen({"scenarios": doc, "speed": speed})
+    py = {"commit": "0123abc", "started": "e", "summary": {
+        "sequences": 7, "fgloc": {"rms": 0.64, "yaw_deg": 1.01, "iou": 0.781, "states": 10,
+                                  "ms_per_frame": 3.05},
+        "pyrecest": {"rms": 1.462, "yaw_deg": 2.01, "iou": 0.574, "states": 10,
+                     "ms_per_frame": 10.2}}}
+    lines = report.first_screen({"scenarios": doc, "speed": speed, "pyrecest": py})
     assert "| joint | 2 | 0.123 (0.200) | 0.030 | 0.100 | 2.50 | 10.0 | 900 |" in lines
     assert "| icp | 2 | 0.300 (0.400) | 0.050 | 0.100 | - | 5.0 | - |" in lines
-    assert any("S3 0.32, 0.21, 0.35" in ln for ln in lines)
+    assert any(ln.startswith("| paper, SICP") and "0.66, 0.94, 0.38, 0.55" in ln
+               for ln in lines)
+    assert ("| pyrecest FullSCGPTracker (pooled RMS, 10.2 ms per frame) | 7 single-vehicle "
+            "sequences (commit `0123abc`, e) | 1.462 | 2.01 | 0.574 |") in lines
+    # no stored result: no invented numbers, a pointer to the command instead
+    empty = report.first_screen({})
+    assert any("--only scenarios" in ln for ln in empty)
+    assert not any("pyrecest" in ln for ln in empty)
 
 
 @pytest.mark.parametrize("item, message", [
