@@ -79,7 +79,8 @@ def test_first_screen_quotes_stored_summaries():
                                    "dyaw_mean": 0.05, "dz_mean": 0.1, "nees_mean": None,
                                    "time_mean": 5.0}}}
     doc = {"setting": "s", "commit": "abc1234", "started": "d", "summary": summary}
-    speed = {"setting": "t", "commit": "def5678", "summary": {"peak_rss_mib": {"joint": 900.4}}}
+    speed = {"setting": "t", "commit": "def5678", "started": "f",
+             "summary": {"peak_rss_mib": {"joint": 900.4}}}
     py = {"commit": "0123abc", "started": "e", "summary": {
         "sequences": 7, "fgloc": {"rms": 0.64, "yaw_deg": 1.01, "iou": 0.781, "states": 10,
                                   "ms_per_frame": 3.05},
