@@ -16,8 +16,8 @@ these tables:
 * data efficiency (``--efficiency-counts``): 2D and yaw error against the number of
   trajectories used, for ``--efficiency-methods``; ``--plot`` writes it as a PNG.
 
-    OMP_NUM_THREADS=1 python bench/accuracy.py                       # the full set
-    OMP_NUM_THREADS=1 python bench/accuracy.py --quick               # under 5 minutes
+    OMP_NUM_THREADS=1 python -m bench.accuracy                       # the full set
+    OMP_NUM_THREADS=1 python -m bench.accuracy --quick               # under 5 minutes
 """
 
 from __future__ import annotations

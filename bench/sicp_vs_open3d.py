@@ -20,7 +20,7 @@ Errors: the 2D position error (m) the estimate gives for the sensor and the yaw 
 both against D. Open3D reports no iteration count; it is found afterwards as the smallest
 ``max_iteration`` that reproduces the converged transform.
 
-    python bench/sicp_vs_open3d.py --case intersection --seed 1
+    python -m bench.sicp_vs_open3d --case intersection --seed 1
 """
 
 from __future__ import annotations
