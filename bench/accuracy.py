@@ -310,9 +310,9 @@ def produce_straight(seeds: list[int], duration: float, methods: list[str],
 
 def produce_efficiency(seeds: list[int], counts: list[int], duration: float,
                        methods: list[str], plot: Path | None = None,
-                       cfg: Config | None = None) -> Produced:
+                       cfg: Config | None = None, link_base: Path = DOCS) -> Produced:
     """2D and yaw error against the number of trajectories used (intersection + T-junction);
-    ``plot`` also writes the PNG."""
+    ``plot`` also writes the PNG, linked relative to ``link_base`` (the markdown's folder)."""
     cfg = cfg or Config()
     runs: list[Run] = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -330,7 +330,7 @@ def produce_efficiency(seeds: list[int], counts: list[int], duration: float,
     body = table_efficiency(runs, counts, methods)
     if plot is not None:
         plot_efficiency(runs, counts, methods, plot)
-        link = os.path.relpath(plot.resolve(), DOCS)
+        link = os.path.relpath(plot.resolve(), link_base.resolve())
         body += ["", f"![data efficiency]({link})"]
     return Produced([run_row(r) for r in runs], body,
                     f"intersection and T-junction, seeds {seeds}, {duration:g} s scenarios, "
@@ -404,7 +404,8 @@ def main() -> int:
         print("data efficiency runs:")
         parts.append(("Data efficiency (intersection + T-junction)", produce_efficiency(
             args.efficiency_seeds, args.efficiency_counts, args.duration, eff_methods,
-            Path(args.plot) if args.plot else None, cfg)))
+            Path(args.plot) if args.plot else None, cfg,
+            Path(args.markdown).parent if args.markdown else Path.cwd())))
     if args.tracking_seeds:
         print("tracking runs ...", flush=True)
         parts.append(("Tracking: filter, fixed-lag and batch smoother (oracle pose)",

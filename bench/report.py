@@ -107,9 +107,13 @@ def produce_straight(**kw) -> Produced:
 
 
 def produce_efficiency(quick: bool = False, **kw) -> Produced:
+    """bench/accuracy.py's data efficiency; the plot beside the markdown (docs/figures/, or
+    the quick results' folder)."""
     from bench.accuracy import produce_efficiency as f
-    name = "data_efficiency_quick.png" if quick else "data_efficiency.png"
-    return f(plot=DOCS / "figures" / name, **kw)
+    if quick:
+        base = results.RESULTS / "quick"
+        return f(plot=base / "data_efficiency.png", link_base=base, **kw)
+    return f(plot=DOCS / "figures" / "data_efficiency.png", link_base=DOCS, **kw)
 
 
 def produce_tracking(**kw) -> Produced:
