@@ -323,7 +323,9 @@ def first_screen(docs: dict[str, dict]) -> list[str]:
     else:
         mem = sp["summary"].get("peak_rss_mib", {}) if sp else {}
         out += [f"fgloc on simulated scenarios ({sc['setting']}; {_when(sc)}): mean over the "
-                "runs, worst run in brackets; time = the method's stage times; peak memory "
+                "runs, worst run in brackets; time = the method's stage times (load average "
+                f"{sc['machine']['load']} on {sc['machine']['cpus']} CPUs at the end of the "
+                "run: times scale with it); peak memory "
                 + (f"of a separate `fgloc localize` process in the speed table ({sp['setting']}; "
                    f"{_when(sp)})." if sp else "not measured yet."), "",
                 "| method | runs | 2D m | \\|dyaw\\| deg | \\|dz\\| m | NEES (x, y, yaw) | "

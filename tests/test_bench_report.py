@@ -78,7 +78,8 @@ def test_first_screen_quotes_stored_summaries():
                            "icp": {"runs": 2, "d2d_mean": 0.3, "d2d_worst": 0.4,
                                    "dyaw_mean": 0.05, "dz_mean": 0.1, "nees_mean": None,
                                    "time_mean": 5.0}}}
-    doc = {"setting": "s", "commit": "abc1234", "started": "d", "summary": summary}
+    doc = {"setting": "s", "commit": "abc1234", "started": "d", "summary": summary,
+           "machine": {"load": 1.5, "cpus": 2}}
     speed = {"setting": "t", "commit": "def5678", "started": "f",
              "summary": {"peak_rss_mib": {"joint": 900.4}}}
     py = {"commit": "0123abc", "started": "e", "summary": {
