@@ -78,8 +78,11 @@ def test_first_screen_quotes_stored_summaries():
                            "icp": {"runs": 2, "d2d_mean": 0.3, "d2d_worst": 0.4,
                                    "dyaw_mean": 0.05, "dz_mean": 0.1, "nees_mean": None,
                                    "time_mean": 5.0}}}
+    rows = [{"method": "joint", "cov": [[1.0]]}, {"method": "joint", "cov": [[1.0]]},
+            {"method": "icp", "cov": None}, {"method": "icp", "cov": [[1.0]]}]
+    summary["methods"]["icp"]["nees_mean"] = 0.25
     doc = {"setting": "s", "commit": "abc1234", "started": "d", "summary": summary,
-           "machine": {"load": 1.5, "cpus": 2}}
+           "machine": {"load": 1.5, "cpus": 2}, "rows": rows}
     speed = {"setting": "t", "commit": "def5678", "started": "f",
              "summary": {"peak_rss_mib": {"joint": 900.4}}}
     py = {"commit": "0123abc", "started": "e", "summary": {
@@ -89,7 +92,7 @@ def test_first_screen_quotes_stored_summaries():
                      "ms_per_frame": 10.2}}}
     lines = report.first_screen({"scenarios": doc, "speed": speed, "pyrecest": py})
     assert "| joint | 2 | 0.123 (0.200) | 0.030 | 0.100 | 2.50 | 10.0 | 900 |" in lines
-    assert "| icp | 2 | 0.300 (0.400) | 0.050 | 0.100 | - | 5.0 | - |" in lines
+    assert "| icp | 2 | 0.300 (0.400) | 0.050 | 0.100 | 0.25 (1 of 2 runs) | 5.0 | - |" in lines
     assert any(ln.startswith("| paper, SICP") and "0.66, 0.94, 0.38, 0.55" in ln
                for ln in lines)
     assert ("| pyrecest FullSCGPTracker (pooled RMS, 10.2 ms per frame) | 7 single-vehicle "
