@@ -38,15 +38,20 @@ class Produced:
     summary: dict[str, Any] = field(default_factory=dict)
 
 
+#: what the report itself writes: not counted as uncommitted changes of the measured code
+GENERATED = ("docs/benchmarks.md", "docs/figures", "bench/results")
+
+
 def git_commit() -> tuple[str, bool]:
-    """Short hash of HEAD and whether the tracked files differ from it ("unknown", False
-    outside a git checkout)."""
+    """Short hash of HEAD and whether the tracked files other than the report's own outputs
+    (``GENERATED``) differ from it ("unknown", False outside a git checkout)."""
     def git(*args: str) -> str:
         return subprocess.run(["git", *args], capture_output=True, text=True, check=True,
                               cwd=ROOT).stdout.strip()
     try:
-        return git("rev-parse", "--short", "HEAD"), bool(git("status", "--porcelain",
-                                                              "--untracked-files=no"))
+        return git("rev-parse", "--short", "HEAD"), bool(git(
+            "status", "--porcelain", "--untracked-files=no", "--", ".",
+            *(f":(exclude){g}" for g in GENERATED)))
     except (OSError, subprocess.CalledProcessError):
         return "unknown", False
 
