@@ -156,7 +156,8 @@ def section_realtime(scn: Scenario) -> list[str]:
 
 def section_scaling(work: Path, methods: list[str], durations: list[float],
                     vehicle_counts: list[int], rows: list[dict]) -> list[str]:
-    out = ["", "#### Scaling with recording length (vehicle arrivals proportional)"]
+    out = ["", "#### Scaling with recording length (vehicle arrivals proportional)"] \
+        if durations else []
     for dur in durations:
         out += measured(work, f"{dur:g} s", methods, "intersection", 2, dur, None, rows)
     if vehicle_counts:
