@@ -238,19 +238,6 @@ def plot_efficiency(runs: list[Run], counts: list[int], methods: list[str], path
     fig.savefig(path, dpi=120)
 
 
-def tracking_table(seeds: list[int], duration: float, vehicles: int, cfg: Config) -> list[str]:
-    """Filter, fixed-lag and batch smoother on the same scenarios, oracle pose."""
-    from fgloc.smoothing.run import compare_trackers
-
-    out: list[str] = []
-    for seed in seeds:
-        scn = simulate("intersection", seed, duration=duration, vehicles=vehicles)
-        out += [f"\nintersection seed {seed} ({len(scn.radar) / scn.radar.duration:.0f} "
-                f"detections/s, {vehicles} vehicles, {duration:g} s):\n",
-                "```", compare_trackers(scn, cfg, oracle_pose=True).table(), "```"]
-    return out
-
-
 # ------------------------------------------------------------------------------ producers
 def run_row(r: Run) -> dict:
     """A Run as a JSON-serializable dict (the stored row)."""
