@@ -42,7 +42,7 @@ from fgloc.map import build_target_cloud
 from fgloc.pipeline import localize_many
 from fgloc.sim import SimConfig, simulate
 
-METHODS = ("icp", "filter-sicp", "joint")
+METHODS = ("icp", "filter-sicp", "smoother-sicp", "joint")
 CASES = ("intersection", "tjunction")
 RATES = (5.0, 10.0, 20.0)
 #: the goal of a resolved run's 2D error (m)
