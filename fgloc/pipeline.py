@@ -13,10 +13,10 @@ import numpy as np
 
 from fgloc.config import Config
 from fgloc.errors import FglocError
-from fgloc.fine import run_filter_sicp
 from fgloc.geo import transform_points
 from fgloc.labels import STRAIGHT
 from fgloc.progress import Timer
+from fgloc.registration.fine import run_filter_sicp
 from fgloc.result import LocalizationResult, json_ready
 from fgloc.scenario import Scenario
 from fgloc.smoothing.run import run_smoother_sicp, smooth_tracks
@@ -88,7 +88,7 @@ def _icp_result(scn: Scenario, cfg: Config, target: TargetCloud, coarse: CoarseR
                 ) -> LocalizationResult:
     """The icp method's result from the shared target cloud and coarse stage: the best coarse
     mode, ``ambiguous`` when the coarse stage kept several (the covariance then spans them)."""
-    from fgloc.modes import RESOLVED, coarse_choice
+    from fgloc.registration.modes import RESOLVED, coarse_choice
 
     src = transform_points(coarse.T_coarse, coarse.source_xyz)
     diag = {k: v for k, v in asdict(coarse).items() if k not in ("T_coarse", "source_xyz")}
@@ -207,7 +207,7 @@ def localize_many(scenario: Scenario, methods: list[str], config: Config | None 
     ``stages`` reuses shared stages across calls (e.g. a sweep over ``[fine]`` or ``[joint]``
     settings: they must have been built with the same [map], [coarse], [tracking] and
     [smoothing]; only ``config``'s other sections are read here)."""
-    from fgloc.fine import register_tracks
+    from fgloc.registration.fine import register_tracks
     from fgloc.registration.joint import joint_from_tracks
 
     unknown = [m for m in methods if m not in METHODS]

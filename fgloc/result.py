@@ -16,7 +16,7 @@ from fgloc.io.json_file import read_json
 
 if TYPE_CHECKING:
     from fgloc.map import TargetCloud
-    from fgloc.modes import ModeFit
+    from fgloc.registration.modes import ModeFit
     from fgloc.tracks import TrackSet
 
 

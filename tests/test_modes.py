@@ -10,8 +10,8 @@ import pytest
 
 from fgloc.config import CoarseConfig, Config
 from fgloc.geo import se2, se2_to_se3
-from fgloc.modes import AMBIGUOUS, RESOLVED, ModeFit, choose_mode, separation_z
 from fgloc.pipeline import localize, localize_many
+from fgloc.registration.modes import AMBIGUOUS, RESOLVED, ModeFit, choose_mode, separation_z
 from fgloc.sim import SimConfig, simulate
 
 

@@ -12,7 +12,7 @@ from test_smoothing_graph import DT, make_track
 
 from factors.gtsam_factors import track_key
 from fgloc.config import Config
-from fgloc.evaluate_tracking import evaluate_tracks
+from fgloc.evaluation.tracking import evaluate_tracks
 from fgloc.pipeline import track
 from fgloc.sim import SimConfig, simulate
 from fgloc.smoothing import SmoothingConfig

@@ -786,10 +786,15 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
     registration against lines seen from its sensor position, and the fits are compared as in
     :mod:`fgloc.modes` (``status``, ``modes``, a covering covariance when ambiguous). Raises
     ValueError when ``smoothed`` holds other tracks than ``tracks``."""
-    from fgloc.fine import coarse_tilt_covariance, mode_targets, register_tracks, sensor_covariance
-    from fgloc.modes import ModeFit, choose_mode, track_costs
+    from fgloc.registration.fine import (
+        coarse_tilt_covariance,
+        mode_targets,
+        register_tracks,
+        sensor_covariance,
+    )
+    from fgloc.registration.modes import ModeFit, choose_mode, track_costs
+    from fgloc.registration.source import build_source_cloud, choose_tracks
     from fgloc.smoothing.graph import detection_range_rates, extent_trusted, placed_detections
-    from fgloc.source import build_source_cloud, choose_tracks
 
     check_joint_config(cfg.joint)
     if smoothed is not None and [t.id for t in smoothed.tracks] != [t.id for t in tracks.tracks]:

@@ -33,7 +33,7 @@ import numpy as np
 from fgloc.config import CoarseConfig
 from fgloc.geo import LocalFrame, pose_from_se3, se2_to_se3, transform_points, wrap_angle
 from fgloc.registration.sicp import ALL, SemanticTargets
-from fgloc.source import SourceCloud
+from fgloc.registration.source import SourceCloud
 
 if TYPE_CHECKING:
     from fgloc.coarse import CoarseResult

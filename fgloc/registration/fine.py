@@ -30,13 +30,13 @@ from scipy.spatial import cKDTree
 from fgloc.config import Config
 from fgloc.geo import se2_params, se2_to_se3, transform_points
 from fgloc.labels import NAMES
-from fgloc.modes import RESOLVED, ModeFit, choose_mode, track_costs
 from fgloc.progress import Timer
 from fgloc.registration.config import FineConfig, SicpConfig
+from fgloc.registration.modes import RESOLVED, ModeFit, choose_mode, track_costs
 from fgloc.registration.sicp import SemanticTargets, SicpResult, sicp
+from fgloc.registration.source import SourceCloud, build_source_cloud, check_fine_config
 from fgloc.result import LocalizationResult, json_ready
 from fgloc.scenario import Scenario
-from fgloc.source import SourceCloud, build_source_cloud, check_fine_config
 
 if TYPE_CHECKING:
     from fgloc.coarse import CoarseResult
