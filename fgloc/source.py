@@ -1,0 +1,7 @@
+"""Deprecated alias of :mod:`fgloc.registration.source` (moved there in issue 23);
+removed in the next release."""
+
+from fgloc._deprecated import moved
+from fgloc.registration import source as _new
+
+__getattr__ = moved(__name__, _new)
