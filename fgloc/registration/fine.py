@@ -169,20 +169,6 @@ def _source_xyz_local(src: SourceCloud, T_fine: np.ndarray, target: TargetCloud)
     return np.column_stack([xy, target.xyz[j, 2]])
 
 
-def run_filter_sicp(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
-    """Localize with the paper's pipeline (module docstring); stage times go to ``timer``.
-
-    Raises :class:`fgloc.errors.LocalizationError` when the coarse stage cannot find a pose.
-    """
-    from fgloc.coarse import target_and_coarse
-    from fgloc.tracking import track_scenario
-
-    target, coarse = target_and_coarse(scn, cfg, timer)
-    with timer.stage("tracking"):
-        tracks = track_scenario(scn, coarse.T_coarse, cfg.tracking)
-    return register_tracks(scn, cfg, target, coarse, tracks, timer, method="filter-sicp")
-
-
 def register_tracks(
     scn: Scenario, cfg: Config, target: TargetCloud, coarse: CoarseResult, tracks: TrackSet,
     timer: Timer, method: str,

@@ -753,26 +753,6 @@ def _sensor_std(cov: np.ndarray | None) -> dict[str, float] | None:
 
 
 # ---- the method ----------------------------------------------------------------------------
-def run_joint(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
-    """``--method joint`` (module docstring); stage times go to ``timer``.
-
-    Raises :class:`fgloc.errors.LocalizationError` when the coarse stage cannot find a pose.
-    """
-    from fgloc.coarse import target_and_coarse
-    from fgloc.smoothing.run import smooth_tracks
-    from fgloc.tracking import track_scenario
-
-    check_joint_config(cfg.joint)
-    target, coarse = target_and_coarse(scn, cfg, timer)
-    with timer.stage("tracking"):
-        tracks = track_scenario(scn, coarse.T_coarse, cfg.tracking)
-    smoothed = None
-    if cfg.joint.smoother != "none":
-        with timer.stage(f"smoothing ({cfg.joint.smoother})"):
-            smoothed = smooth_tracks(scn, tracks, coarse.T_coarse, cfg.joint.smoother, cfg)
-    return joint_from_tracks(scn, cfg, target, coarse, tracks, timer, smoothed=smoothed)
-
-
 def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: CoarseResult,
                       tracks: TrackSet, timer: Timer,
                       start: LocalizationResult | None = None,

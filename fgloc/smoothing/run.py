@@ -1,4 +1,4 @@
-"""Smoothers as pipeline stages: smooth a filter run's tracks and the ``smoother-sicp`` method
+"""The smoothing stage: a filter run's tracks smoothed by the fixed-lag or the batch smoother
 (the filter / fixed-lag / batch comparison is :mod:`fgloc.evaluation.trackers`)."""
 
 from __future__ import annotations
@@ -14,8 +14,6 @@ from fgloc.tracks import TrackSet
 
 if TYPE_CHECKING:
     from fgloc.config import Config
-    from fgloc.progress import Timer
-    from fgloc.result import LocalizationResult
 
 
 def smooth_tracks(scn: Scenario, tracks: TrackSet, T_placement: np.ndarray, smoother: str,
@@ -36,18 +34,3 @@ def smooth_tracks(scn: Scenario, tracks: TrackSet, T_placement: np.ndarray, smoo
     fn = smooth_batch if smoother == "batch" else smooth_fixed_lag
     return fn(tracks, det_xy, sensor_xy, config.smoothing, config.tracking, trusted,
               detection_range_rates(scn))
-
-
-def run_smoother_sicp(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
-    """Localize like filter-sicp, with the filter's tracks replaced by the smoother's
-    (``cfg.smoothing.smoother``, batch by default) before the source cloud and SICP."""
-    from fgloc.coarse import target_and_coarse
-    from fgloc.registration.fine import register_tracks
-    from fgloc.tracking import track_scenario
-
-    target, coarse = target_and_coarse(scn, cfg, timer)
-    with timer.stage("tracking"):
-        tracks = track_scenario(scn, coarse.T_coarse, cfg.tracking)
-    with timer.stage(f"smoothing ({cfg.smoothing.smoother})"):
-        tracks = smooth_tracks(scn, tracks, coarse.T_coarse, cfg.smoothing.smoother, cfg)
-    return register_tracks(scn, cfg, target, coarse, tracks, timer, method="smoother-sicp")
