@@ -1,5 +1,6 @@
-"""The coarse stage's modes carried to the end (fgloc.modes): the comparison statistic, the
-merge, the covering covariance, and on sparse simulated traffic no confidently wrong pose."""
+"""The coarse stage's modes carried to the end (fgloc.registration.modes): the comparison
+statistic, the merge, the covering covariance, and on sparse simulated traffic no confidently
+wrong pose."""
 
 from __future__ import annotations
 

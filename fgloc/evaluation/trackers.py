@@ -20,7 +20,7 @@ class TrackerComparison:
     """Tracking metrics of the filter and the smoothers on one scenario.
 
     names: ("filter", "fixed-lag", "batch"); metrics: one
-    :class:`fgloc.evaluate_tracking.TrackingMetrics` each; cpu_seconds: CPU time of each
+    :class:`fgloc.evaluation.tracking.TrackingMetrics` each; cpu_seconds: CPU time of each
     (the smoothers' own time, without the filter they start from); recording_s: duration of
     the recording (s); detections: radar rows; track_minutes: summed duration of the
     filter's tracks (min), the batch smoother's unit of work.
@@ -49,7 +49,7 @@ class TrackerComparison:
 def compare_trackers(scenario: Scenario, config: Config | None = None,
                      oracle_pose: bool = True) -> TrackerComparison:
     """Run the filter, then the fixed-lag and the batch smoother on its tracks, and score all
-    three against ``scenario.truth`` with :func:`fgloc.evaluate_tracking.evaluate_tracks`
+    three against ``scenario.truth`` with :func:`fgloc.evaluation.tracking.evaluate_tracks`
     (visibility from the true pose and the sensor's FOV). ``oracle_pose`` places the
     detections with the true pose (tracking alone); otherwise with T_coarse, and the tracks
     are scored in frame C as if it were L (the coarse error adds to every metric)."""

@@ -1,8 +1,8 @@
 """``--method filter-sicp``: the paper's full pipeline (sections III, IV-B).
 
 target cloud -> coarse ICP (T_coarse, S -> L, SE(3)) -> GP-EOT tracking in the coarse frame C
--> labelled source cloud (:mod:`fgloc.source`) -> semantic ICP in SE(2) from the identity
-(C is within about a metre of L) -> ``T_fine`` (C -> L) -> ``T_utm = T~_fine · T_coarse``.
+-> labelled source cloud (:mod:`fgloc.registration.source`) -> semantic ICP in SE(2) from the
+identity (C is within about a metre of L) -> ``T_fine`` (C -> L) -> ``T_utm = T~_fine · T_coarse``.
 
 What the source and the target are is configured in ``[fine]`` (:class:`FineConfig`). The
 paper registers the tracks' detections to the labelled ALS road points from a 50 m first
@@ -188,9 +188,9 @@ def register_tracks(
 
     Every coarse mode (``coarse.modes``) is registered, from its start (the tracks placed by
     the best mode moved rigidly onto it), against the targets seen from its sensor position;
-    the fits are compared on the same source cloud (:mod:`fgloc.modes`) and the best one is
-    reported; when they cannot be told apart the result is ``ambiguous`` and its covariance
-    covers the modes (their spread plus the mode set's resolution per mode: SICP's own
+    the fits are compared on the same source cloud (:mod:`fgloc.registration.modes`) and the
+    best one is reported; when they cannot be told apart the result is ``ambiguous`` and its
+    covariance covers the modes (their spread plus the mode set's resolution per mode: SICP's own
     covariance is not calibrated).
     """
 

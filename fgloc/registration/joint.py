@@ -2,8 +2,8 @@
 factors, optimized jointly with every track state, with a calibrated covariance.
 
 Pipeline: target cloud -> coarse pose -> GP-EOT tracks in C -> filter-sicp's registration
-(the start, :func:`fgloc.fine.register_tracks`) -> the joint graph below -> ``T_fine`` (C -> L)
-with its marginal covariance -> ``T_utm = T~_fine · T_coarse``.
+(the start, :func:`fgloc.registration.fine.register_tracks`) -> the joint graph below ->
+``T_fine`` (C -> L) with its marginal covariance -> ``T_utm = T~_fine · T_coarse``.
 
 The problem (frame C unless stated; the factor graph of docs/method.md section 7)
 -------------------------------------------------------------------------------
@@ -764,8 +764,8 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
     sensor's (x, y, yaw) in L and the degeneracy report. Every mode of the start
     (``start.mode_fits``: filter-sicp's registrations of the coarse modes) is refined from its
     registration against lines seen from its sensor position, and the fits are compared as in
-    :mod:`fgloc.modes` (``status``, ``modes``, a covering covariance when ambiguous). Raises
-    ValueError when ``smoothed`` holds other tracks than ``tracks``."""
+    :mod:`fgloc.registration.modes` (``status``, ``modes``, a covering covariance when
+    ambiguous). Raises ValueError when ``smoothed`` holds other tracks than ``tracks``."""
     from fgloc.registration.fine import (
         coarse_tilt_covariance,
         mode_targets,

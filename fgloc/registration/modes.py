@@ -2,8 +2,8 @@
 the best one chosen, and an honest ``ambiguous`` status when the data cannot tell them apart.
 
 The coarse stage keeps every distinct pose that fits the lane centres almost as well as the
-best one (:func:`fgloc.coarse.coarse_modes`; typically shifts of a lane width along or across
-the roads under sparse traffic). Each later method registers every mode (reusing the tracks
+best one (:func:`fgloc.coarse.localize.coarse_modes`; typically shifts of a lane width along or
+across the roads under sparse traffic). Each later method registers every mode (reusing the tracks
 placed by the best mode, moved rigidly by the mode's start) and hands its final poses here:
 
 * **Same data, same cost**: each pose ``T_k`` (C -> L) is scored on the same tracked
