@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from fgloc.coarse import CoarseResult, coarse_localize
-from fgloc.coarse.localize import _kabsch_2d, _rodrigues
+from fgloc.coarse.icp import _kabsch_2d
+from fgloc.coarse.vertical import rodrigues
 from fgloc.config import Config, dump_config, load_config
 from fgloc.evaluation.pose import pose_error
 from fgloc.geo import rot_from_ypr, rot_z, se2, se3, transform_points
@@ -158,7 +159,7 @@ def test_coarse_tilt_covariance_is_the_shift_a_real_tilt_error_causes():
     p_s = (x - T_true[:3, 3]) @ T_true[:3, :3]
 
     def sensor_shift(w: np.ndarray) -> np.ndarray:
-        T_c = se3(_rodrigues(w).T @ T_true[:3, :3], T_true[:3, 3])
+        T_c = se3(rodrigues(w).T @ T_true[:3, :3], T_true[:3, 3])
         q = p_s @ T_c[:3, :3].T + T_c[:3, 3]
         # the best 2D rigid transform from the placed to the true positions
         ang, t = _kabsch_2d(q[:, :2], x[:, :2])

@@ -153,3 +153,4 @@ def test_stage_packages_keep_the_old_module_paths():
 
     assert fgloc.map.build_target_cloud.__module__ == "fgloc.map.target_cloud"
     assert fgloc.coarse.target_and_coarse.__module__ == "fgloc.coarse.localize"
+    assert fgloc.coarse.fit_vertical.__module__ == "fgloc.coarse.vertical"
