@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from fgloc.config import Config, load_config
-from fgloc.evaluate import pose_error, pose_error_vector
+from fgloc.evaluation.pose import pose_error, pose_error_vector
 from fgloc.io import load_scenario, write_scenario
 from fgloc.pipeline import METHODS, SharedStages, localize_many
 from fgloc.result import LocalizationResult
@@ -235,7 +235,7 @@ def plot_efficiency(runs: list[Run], counts: list[int], methods: list[str], path
 
 def tracking_table(seeds: list[int], duration: float, vehicles: int, cfg: Config) -> list[str]:
     """Filter, fixed-lag and batch smoother on the same scenarios, oracle pose."""
-    from fgloc.smoothing.run import compare_trackers
+    from fgloc.evaluation.trackers import compare_trackers
 
     out: list[str] = []
     for seed in seeds:

@@ -130,7 +130,7 @@ def section_sicp(repeats: int) -> None:
 
 
 def section_realtime(scn: Scenario) -> None:
-    from fgloc.smoothing.run import compare_trackers
+    from fgloc.evaluation.trackers import compare_trackers
 
     print(f"\n## (3) tracker real-time factors, oracle pose, one core: {describe(scn)}\n")
     cmp = compare_trackers(scn, oracle_pose=True)

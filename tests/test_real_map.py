@@ -18,12 +18,12 @@ from lanelet2.projection import UtmProjector
 
 from fgloc.config import MapConfig
 from fgloc.errors import InputError
-from fgloc.fine import lane_centre_points
 from fgloc.geo import LocalFrame, transformer, wrap_angle
 from fgloc.io.lanelet_map import als_ground, passable_by_tags, read_lanelet_map
 from fgloc.io.sensor_file import read_sensor_toml, write_sensor_toml
 from fgloc.labels import LEFT, RIGHT, STRAIGHT, junction_movements, routing_labels
 from fgloc.map import build_target_cloud, map_labels, points_in_polygon
+from fgloc.registration.fine import lane_centre_points
 from fgloc.scenario import (
     AlsCloud,
     Lanelet,
@@ -525,7 +525,7 @@ def test_cli_simulate_map_and_info(tmp_path: Path, capsys: pytest.CaptureFixture
 
 def test_every_method_on_the_crop_junction(crop_sim) -> None:
     """Every method localizes the simulated crop junction (60 s of traffic)."""
-    from fgloc.evaluate import pose_error
+    from fgloc.evaluation.pose import pose_error
     from fgloc.pipeline import localize_many
     from fgloc.sim.real_map import simulate_on_map
 
