@@ -319,39 +319,3 @@ def test_simulated_intersection_regression_guard() -> None:
     assert m.false_tracks <= 1
     assert m.iou > metrics["plain"].iou + 0.1
     assert m.centre_rms_track_mean < metrics["plain"].centre_rms_track_mean
-
-
-def _box_edge_points(centre: tuple[float, float], length: float, width: float,
-                     step: float) -> np.ndarray:
-    """Points every ``step`` m on the outline of an axis-aligned length x width box (m)."""
-    cx, cy = centre
-    xs = np.arange(-length / 2, length / 2 + 1e-9, step)
-    ys = np.arange(-width / 2, width / 2 + 1e-9, step)
-    return np.concatenate([np.column_stack([cx + xs, np.full(len(xs), cy + s * width / 2)])
-                           for s in (-1, 1)]
-                          + [np.column_stack([np.full(len(ys), cx + s * length / 2), cy + ys])
-                             for s in (-1, 1)])
-
-
-@pytest.mark.parametrize("gap", [1.2, 6.0])
-def test_birth_splits_a_cluster_of_two_vehicles_side_by_side(gap: float) -> None:
-    """Two cars (4.6 x 1.9 m) side by side 60 m out, ``gap`` m apart: at 1.2 m their returns
-    chain into one single-linkage cluster (radius 1.5 m) 5 m wide -- wider than any vehicle
-    -- which the birth splits at half the radius: two tentative tracks of car size, each
-    centred on its car (within 0.5 m: without a lane map the birth heading is the line of
-    sight, up to 7 deg off here), as for two cars far apart."""
-    cfg = TrackingConfig()
-    fov = FieldOfView.of(np.eye(4), 120.0, 200.0)
-    none = BirthZones(np.zeros((0, 2)), np.zeros(0), np.zeros(0))
-    tracker = Tracker(cfg, fov, none, LaneHeadings.of([]))
-    centres = [(60.0, 0.0), (60.0, 1.9 + gap)]
-    z = np.concatenate([_box_edge_points(c, 4.6, 1.9, 0.5) for c in centres])
-    rng = np.hypot(z[:, 0], z[:, 1])
-    dop = 8.0 * z[:, 0] / rng                                      # receding along +x
-    tracker.step(0.0, _Frame(z, rng, dop, np.arange(len(z))))
-    assert len(tracker.recs) == 2
-    got = sorted(tracker.x[:, :2].tolist(), key=lambda c: c[1])
-    np.testing.assert_allclose(got, centres, atol=0.5)
-    q = tracker.gp.n // 4
-    width = tracker.x[:, 6 + q] + tracker.x[:, 6 + 3 * q]
-    assert np.all(width < 2.5)

@@ -22,17 +22,6 @@ class TrackingConfig:
     """Single-linkage radius (m) for clustering unassociated detections into birth candidates."""
     cluster_min_points: int = 3
     """A birth candidate cluster needs at least this many detections."""
-    vehicle_max_length: float = 13.0
-    """Largest road vehicle: a birth cluster longer than this (m, along its heading, less
-    twice the detections' position noise; 12 m trucks and buses plus a margin) ..."""
-    vehicle_max_width: float = 3.0
-    """... or wider than this (m, across it; trucks are 2.5 m wide) holds several vehicles (a
-    platoon, lanes side by side, chained by their returns near the sensor) and is split by
-    clustering it again with half the radius (down to ``birth_min_eps``); and an extent row's
-    growth (``grow_margin``) inflates a contour's length / width covariance only up to these
-    sizes."""
-    birth_min_eps: float = 0.35
-    """... down to this radius (m); a piece still too large starts no track."""
 
     # ---- measurement model -------------------------------------------------------------------
     measurement_model: str = "sensor-aware"

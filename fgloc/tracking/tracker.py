@@ -417,12 +417,8 @@ class Tracker:
             th[:, K:] = np.arange(4) * (np.pi / 2)
             jidx[:, K:] = np.where(use, j, -1)
             beyond = np.where(use, np.sum(axes * (zj - ends), axis=2) - cfg.grow_margin, 0.0)
-            # ... but never beyond the largest road vehicle (detections that far out belong
-            # to a neighbour: a platoon member, the next lane)
-            room = np.maximum(np.array([cfg.vehicle_max_length, cfg.vehicle_max_width])
-                              - (rax[:, :2] + rax[:, 2:]), 0.0)
             for mode in (0, 1):
-                ex = np.minimum(np.maximum(beyond[:, mode::2].max(axis=1), 0.0), room[:, mode])
+                ex = np.maximum(beyond[:, mode::2].max(axis=1), 0.0)
                 if (ex > 0).any():
                     g = self.g_size[mode]
                     ax = axes[:, mode]
@@ -638,58 +634,35 @@ class Tracker:
         if len(idx) < cfg.cluster_min_points:
             return
         lab = cluster_labels(det.z[idx], cfg.cluster_eps, cfg.cluster_min_points)
-        for c in range(int(lab.max(initial=-1)) + 1):
-            self._birth_cluster(det, idx[lab == c], cfg.cluster_eps)
-
-    def _birth_cluster(self, det: _Frame, k: np.ndarray, eps: float) -> None:
-        """Start a tentative track from the cluster k (indices into the frame) found with
-        single-linkage radius eps (m): its heading from the birth zone, the lane or the line
-        of sight. A cluster larger than any vehicle along or across that heading (extent less
-        twice the position noise above ``vehicle_max_length`` / ``vehicle_max_width``: several
-        vehicles of a platoon or of lanes side by side, chained by their returns near the
-        sensor) is split by clustering it again with half the radius, down to
-        ``birth_min_eps``; a piece still too large then starts no track."""
-        cfg = self.cfg
         sensor = self.fov.sensor
-        z, dop, rng = det.z[k], det.doppler[k], det.rng[k]
-        centroid = z.mean(axis=0)
-        if np.linalg.norm(centroid - sensor) < self.fov.min_range + cfg.birth_blind_margin:
-            return
-        zone = self.zones.locate(centroid)
-        if zone is None and not cfg.birth_anywhere:
-            return
-        los = (centroid - sensor) / max(float(np.linalg.norm(centroid - sensor)), 1e-6)
-        md = float(np.mean(dop))
-        yaw_sigma = np.deg2rad(cfg.init_sigma_yaw_deg)
-        yaw = (float(self.zones.yaw[zone]) if zone is not None
-               else self.lanes.heading_near(centroid, cfg.lane_search_radius, los, md))
-        if yaw is None:
-            yaw = float(np.arctan2(los[1], los[0]) + (0.0 if md > 0 else np.pi))
-            yaw_sigma = LOS_YAW_SIGMA
-        h = unit(np.asarray(yaw))
-        extent = np.ptp(z @ np.stack([h, [-h[1], h[0]]]).T, axis=0) - 2.0 * self._noise(rng)
-        if extent[0] > cfg.vehicle_max_length or extent[1] > cfg.vehicle_max_width:
-            if eps / 2.0 < cfg.birth_min_eps:
-                return
-            lab = cluster_labels(z, eps / 2.0, cfg.cluster_min_points)
-            for c in range(int(lab.max(initial=-1)) + 1):
-                self._birth_cluster(det, k[lab == c], eps / 2.0)
-            return
-        self._birth(det, k, z, dop, rng, yaw, yaw_sigma, zone)
-
-    def _noise(self, rng: np.ndarray) -> float:
-        """Position std. dev. (m) of detections at 3D ranges rng (m): range noise or the
-        azimuth noise at their mean range, whichever is larger."""
-        return max(self.cfg.sigma_range, np.deg2rad(self.cfg.sigma_azimuth_deg)
-                   * float(rng.mean()))
+        for c in range(int(lab.max(initial=-1)) + 1):
+            k = idx[lab == c]
+            z, dop, rng = det.z[k], det.doppler[k], det.rng[k]
+            centroid = z.mean(axis=0)
+            if (np.linalg.norm(centroid - sensor)
+                    < self.fov.min_range + cfg.birth_blind_margin):
+                continue
+            zone = self.zones.locate(centroid)
+            if zone is None and not cfg.birth_anywhere:
+                continue
+            los = (centroid - sensor) / max(float(np.linalg.norm(centroid - sensor)), 1e-6)
+            md = float(np.mean(dop))
+            yaw_sigma = np.deg2rad(cfg.init_sigma_yaw_deg)
+            yaw = (float(self.zones.yaw[zone]) if zone is not None
+                   else self.lanes.heading_near(centroid, cfg.lane_search_radius, los, md))
+            if yaw is None:
+                yaw = float(np.arctan2(los[1], los[0]) + (0.0 if md > 0 else np.pi))
+                yaw_sigma = LOS_YAW_SIGMA
+            self._birth(det, k, z, dop, rng, yaw, yaw_sigma, zone)
 
     def _birth(self, det: _Frame, k: np.ndarray, z: np.ndarray, dop: np.ndarray,
                rng: np.ndarray, yaw: float, yaw_sigma: float, zone: int | None) -> None:
         """A tentative track from the detections k (indices into the frame) z, dop, rng."""
         cfg = self.cfg
-        centre, yaw, v, size = initial_kinematics(z, dop, rng, yaw, self.fov.sensor,
-                                                  cfg.mean_length, cfg.mean_width,
-                                                  cfg.default_speed, self._noise(rng))
+        sensor = self.fov.sensor
+        noise = max(cfg.sigma_range, np.deg2rad(cfg.sigma_azimuth_deg) * float(rng.mean()))
+        centre, yaw, v, size = initial_kinematics(z, dop, rng, yaw, sensor, cfg.mean_length,
+                                                  cfg.mean_width, cfg.default_speed, noise)
         x0 = np.zeros(N_STATE)
         x0[[X, Y]] = centre
         x0[V], x0[YAW] = v, yaw
