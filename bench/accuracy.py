@@ -35,7 +35,7 @@ import numpy as np
 
 from bench.results import Produced
 from fgloc.config import Config, load_config
-from fgloc.evaluate import pose_error, pose_error_vector
+from fgloc.evaluation.pose import pose_error, pose_error_vector
 from fgloc.io import load_scenario, write_scenario
 from fgloc.pipeline import METHODS, SharedStages, localize_many
 from fgloc.result import LocalizationResult
@@ -327,7 +327,7 @@ def produce_efficiency(seeds: list[int], counts: list[int], duration: float,
 def produce_tracking(seeds: list[int], duration: float, vehicles: int,
                      cfg: Config | None = None) -> Produced:
     """Filter, fixed-lag and batch smoother on the same scenarios, oracle pose."""
-    from fgloc.smoothing.run import compare_trackers
+    from fgloc.evaluation.trackers import compare_trackers
 
     cfg = cfg or Config()
     rows: list[dict] = []

@@ -18,10 +18,10 @@ import numpy as np
 
 from fgloc.coarse import coarse_localize
 from fgloc.config import Config
-from fgloc.evaluate import pose_error
-from fgloc.fine import register_tracks
+from fgloc.evaluation.pose import pose_error
 from fgloc.map import build_target_cloud
 from fgloc.progress import Timer
+from fgloc.registration.fine import register_tracks
 from fgloc.sim import simulate
 from fgloc.tracking import track_scenario
 

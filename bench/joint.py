@@ -44,10 +44,10 @@ import numpy as np
 
 from fgloc.coarse import target_and_coarse
 from fgloc.config import Config, from_dict, load_config, to_dict, tomllib  # tomllib / tomli
-from fgloc.evaluate import pose_error_vector
-from fgloc.fine import register_tracks
+from fgloc.evaluation.pose import pose_error_vector
 from fgloc.geo import wrap_angle
 from fgloc.progress import Timer
+from fgloc.registration.fine import register_tracks
 from fgloc.registration.joint import joint_from_tracks
 from fgloc.result import LocalizationResult
 from fgloc.scenario import TrackTruth

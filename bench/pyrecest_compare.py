@@ -55,7 +55,7 @@ import numpy as np
 os.environ.setdefault("PYRECEST_BACKEND", "numpy")
 
 from factors.gp import ContourGP  # noqa: E402
-from fgloc.evaluate_tracking import TrackingMetrics, evaluate_tracks  # noqa: E402
+from fgloc.evaluation.tracking import TrackingMetrics, evaluate_tracks  # noqa: E402
 from fgloc.scenario import RadarData, Scenario  # noqa: E402
 from fgloc.sim import simulate_detailed  # noqa: E402
 from fgloc.tracking import TrackingConfig, kappa_labels, track_scenario  # noqa: E402

@@ -25,7 +25,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from bench.report_section import provenance, replace_section  # noqa: E402
 from fgloc.config import Config  # noqa: E402
-from fgloc.evaluate import pose_error  # noqa: E402
+from fgloc.evaluation.pose import pose_error  # noqa: E402
 from fgloc.pipeline import localize_many  # noqa: E402
 from fgloc.sim.real_map import map_junctions, simulate_on_map  # noqa: E402
 

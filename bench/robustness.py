@@ -40,8 +40,8 @@ import numpy as np
 from bench.report_section import provenance, replace_section
 from fgloc import localize_many, track
 from fgloc.config import Config, from_dict, load_config
-from fgloc.evaluate import pose_error
-from fgloc.evaluate_tracking import (
+from fgloc.evaluation.pose import pose_error
+from fgloc.evaluation.tracking import (
     TrackingMetrics,
     box_intersection_area,
     contour_polygons,

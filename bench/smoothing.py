@@ -21,10 +21,10 @@ import time
 import numpy as np
 
 from fgloc.config import load_config
-from fgloc.evaluate import pose_error
+from fgloc.evaluation.pose import pose_error
+from fgloc.evaluation.trackers import compare_trackers
 from fgloc.pipeline import localize
 from fgloc.sim import CASES, simulate
-from fgloc.smoothing.run import compare_trackers
 
 METRICS = ("centre_rms", "centre_rms_track_mean", "yaw_error_deg", "iou", "label_accuracy")
 

@@ -37,12 +37,12 @@ import numpy as np
 from bench.report_section import provenance, replace_section
 from fgloc.coarse import coarse_localize
 from fgloc.config import Config, load_config
-from fgloc.evaluate import pose_error, pose_error_vector
+from fgloc.evaluation.pose import pose_error, pose_error_vector
 from fgloc.map import build_target_cloud
 from fgloc.pipeline import localize_many
 from fgloc.sim import SimConfig, simulate
 
-METHODS = ("icp", "filter-sicp", "joint")
+METHODS = ("icp", "filter-sicp", "smoother-sicp", "joint")
 CASES = ("intersection", "tjunction")
 RATES = (5.0, 10.0, 20.0)
 #: the goal of a resolved run's 2D error (m)
@@ -179,10 +179,10 @@ def retrack_rows(cases: list[str], seeds: list[int], rates: list[float], duratio
     placement (its births and field of view then come from the map as seen from it) and the
     joint (from its own filter-sicp) refined on those tracks; the 2D errors of both and the
     distance between the two poses."""
-    from fgloc.fine import register_tracks
     from fgloc.geo import se2_to_se3
     from fgloc.pipeline import SharedStages
     from fgloc.progress import Timer
+    from fgloc.registration.fine import register_tracks
     from fgloc.registration.joint import joint_from_tracks
     from fgloc.tracking import track_scenario
 

@@ -144,7 +144,7 @@ def section_sicp(repeats: int) -> list[str]:
 
 
 def section_realtime(scn: Scenario) -> list[str]:
-    from fgloc.smoothing.run import compare_trackers
+    from fgloc.evaluation.trackers import compare_trackers
 
     cmp = compare_trackers(scn, oracle_pose=True)
     i = cmp.names.index("batch")

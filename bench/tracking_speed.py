@@ -25,7 +25,7 @@ import time
 import numpy as np
 
 from bench.results import Produced
-from fgloc.evaluate_tracking import evaluate_tracks
+from fgloc.evaluation.tracking import evaluate_tracks
 from fgloc.sim import CASES, SimConfig, simulate
 from fgloc.tracking import TrackingConfig, track_scenario
 

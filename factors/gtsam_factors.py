@@ -471,12 +471,16 @@ class ExtentSettings:
     """When and how the visible-extent rows of :class:`ExtentRows` apply (the tracker's
     ``extent_*`` settings): std. dev. ``sigma`` (m) of a row, at least ``min_points``
     detections, detections spanning at least ``min_cover`` of the contour's extent along the
-    face, ``sin(incidence) >= min_incidence`` of the line of sight on the face."""
+    face, ``sin(incidence) >= min_incidence`` of the line of sight on the face; ``gap_max``
+    (m): cap of the lengthwise sampling-gap correction (the tracker's
+    ``extent_gap_correction``: with n detections spanning s along the heading, each end lies
+    s / (n - 1) beyond its extreme detection; 0 = no correction)."""
 
     sigma: float = 0.35
     min_points: int = 4
     min_cover: float = 0.5
     min_incidence: float = 0.25
+    gap_max: float = 0.0
 
 
 class ExtentRows(_FrameRows):
@@ -489,7 +493,11 @@ class ExtentRows(_FrameRows):
     ends: rows ``a . (z_j - c) - f_a`` (m) for the axis directions ``a`` = heading and
     -heading, ``f_a`` the contour radius on that axis (a basis radius: the basis holds the
     four axis angles), ``z_j`` the extreme detection along ``a``. Likewise the width from a
-    seen front or rear face. Always 4 rows (front, left, rear, right); a row that does not
+    seen front or rear face. With ``settings.gap_max`` > 0 the lengthwise ends are measured one
+    sampling gap beyond the extreme detections (``s / (n - 1)`` for n detections spanning s
+    along the heading, at most ``gap_max``; held constant in the Jacobian, like the
+    selection): sparse returns rarely reach a vehicle's ends, and without it the contour
+    shrinks to the detections. Always 4 rows (front, left, rear, right); a row that does not
     apply is zero with a zero Jacobian, so the factor's dimension stays fixed while the
     selection (like the contour association) is re-done at every evaluation. Rows enter
     scaled by ``sigma_factor / settings.sigma`` (the factor's noise model is isotropic).
@@ -564,7 +572,12 @@ class ExtentRows(_FrameRows):
         ax, dax = self.axes(x[:, YAW])
         d = np.take_along_axis(self.z, j[..., None], axis=1) - x[:, None, [X, Y]]   # (F, 4, 2)
         w = use * self.scale
-        e = w * (np.sum(ax * d, axis=-1) - x[:, self.axis_idx])
+        reach = np.sum(ax * d, axis=-1)                                              # (F, 4)
+        if self.cfg.gap_max > 0.0:
+            n = np.maximum(self.valid.sum(axis=1) - 1, 1)
+            gap = np.clip((reach[:, 0] + reach[:, 2]) / n, 0.0, self.cfg.gap_max)
+            reach = reach + gap[:, None] * np.array([1.0, 0.0, 1.0, 0.0])
+        e = w * (reach - x[:, self.axis_idx])
         J = None
         if jacobian:
             J = np.zeros((len(x), 4, N_STATE))

@@ -243,8 +243,8 @@ def cmd_track(args: argparse.Namespace) -> int:
 
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
-    from fgloc.evaluate import pose_error
-    from fgloc.evaluate_tracking import evaluate_tracks
+    from fgloc.evaluation.pose import pose_error
+    from fgloc.evaluation.tracking import evaluate_tracks
     from fgloc.geo import same_crs
     from fgloc.io import read_ground_truth, read_sensor_toml, read_tracks_csv
     from fgloc.result import read_result_json
@@ -283,7 +283,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    from fgloc.evaluate import pose_error
+    from fgloc.evaluation.pose import pose_error
     from fgloc.io import load_scenario, write_scenario
     from fgloc.outputs import write_localization
     from fgloc.pipeline import localize

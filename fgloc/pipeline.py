@@ -1,32 +1,35 @@
-"""The localization pipeline: one function per method, chosen by name from one registry.
+"""The localization pipeline: which stages each method needs (:data:`METHODS`, the one place
+that knows), the stages several methods share, computed once per scenario
+(:class:`SharedStages`), and the entry points.
 
-``localize(scenario, method, config)`` is the library entry point; the CLI calls it too.
+``localize(scenario, method, config)`` is the library entry point (the CLI calls it too); it is
+``localize_many(scenario, [method], config)[method]``, so one code path runs every method.
+Data flows map -> coarse -> tracking -> smoothing -> registration (the subpackages of
+:mod:`fgloc`); the stages are imported on use, so ``fgloc config`` needs neither Open3D nor gtsam.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
+from functools import partial
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from fgloc.config import Config
 from fgloc.errors import FglocError
-from fgloc.fine import run_filter_sicp
 from fgloc.geo import transform_points
 from fgloc.labels import STRAIGHT
 from fgloc.progress import Timer
 from fgloc.result import LocalizationResult, json_ready
 from fgloc.scenario import Scenario
-from fgloc.smoothing.run import run_smoother_sicp, smooth_tracks
 from fgloc.tracks import TrackSet
 
 if TYPE_CHECKING:
     from fgloc.coarse import CoarseResult
     from fgloc.map import TargetCloud
-
-MethodFn = Callable[[Scenario, Config, Timer], LocalizationResult]
 
 
 @dataclass
@@ -44,6 +47,102 @@ class TrackingRun:
     timings: dict[str, float] = field(default_factory=dict)
 
 
+class SharedStages:
+    """The stages several methods share on one scenario, each computed on first use and kept:
+    the target cloud and coarse pose, the filter's tracks and their batch / fixed-lag
+    smoothing. ``config`` sets them ([map], [coarse], [tracking], [smoothing]); the tracks are
+    placed by T_coarse, or by ``T_placement`` (4x4 S -> L, e.g. the true pose) when given.
+    Each stage's seconds are kept with the stages it read, so a method's result can report
+    what a run of its own would have spent."""
+
+    def __init__(self, scenario: Scenario, config: Config | None = None,
+                 T_placement: np.ndarray | None = None) -> None:
+        self.scenario = scenario
+        self.config = config or Config()
+        self.T_placement = T_placement
+        self.seconds: dict[str, float] = {}
+        self._cache: dict[str, object] = {}
+        self._stage_seconds: dict[str, dict[str, float]] = {}
+        self._read: dict[str, set[str]] = {}       # stage -> the stages it read, itself included
+        self._readers: list[set[str]] = []         # the stages read by each reading in progress
+
+    def _stage(self, key: str, fn: Callable[[Timer], object]) -> object:
+        if key not in self._cache:
+            timer = Timer()
+            with self.reading() as read:
+                self._cache[key] = fn(timer)
+            self._read[key] = read | {key}
+            self._stage_seconds[key] = dict(timer.seconds)
+            self.seconds.update(timer.seconds)
+        for readers in self._readers:
+            readers.update(self._read[key])
+        return self._cache[key]
+
+    @contextmanager
+    def reading(self) -> Iterator[set[str]]:
+        """Collect the names of the stages read (directly or through another stage) inside the
+        ``with`` block into the yielded set."""
+        read: set[str] = set()
+        self._readers.append(read)
+        try:
+            yield read
+        finally:
+            self._readers.pop()
+
+    def seconds_of(self, stages: set[str]) -> dict[str, float]:
+        """Seconds of the named stages' steps, in the order they ran."""
+        out: dict[str, float] = {}
+        for key, secs in self._stage_seconds.items():
+            if key in stages:
+                out.update(secs)
+        return out
+
+    def coarse(self) -> tuple[TargetCloud, CoarseResult]:
+        from fgloc.coarse import target_and_coarse
+
+        return self._stage("coarse", lambda t: target_and_coarse(self.scenario, self.config, t))
+
+    def placement(self) -> np.ndarray:
+        """4x4 S -> L that places the detections: ``T_placement``, else T_coarse."""
+        return self.coarse()[1].T_coarse if self.T_placement is None else self.T_placement
+
+    def tracks(self) -> TrackSet:
+        from fgloc.tracking import track_scenario
+
+        T = self.placement()
+
+        def run(timer: Timer) -> TrackSet:
+            with timer.stage("tracking"):
+                return track_scenario(self.scenario, T, self.config.tracking)
+        return self._stage("tracks", run)
+
+    def smoothed(self, name: str | None = None) -> TrackSet:
+        """The filter's tracks smoothed by ``name`` (default ``[smoothing] smoother``)."""
+        from fgloc.smoothing.run import smooth_tracks
+
+        name = name or self.config.smoothing.smoother
+        tracks, T = self.tracks(), self.placement()
+
+        def run(timer: Timer) -> TrackSet:
+            with timer.stage(f"smoothing ({name})"):
+                return smooth_tracks(self.scenario, tracks, T, name, self.config)
+        return self._stage(f"smoothed {name}", run)
+
+    def get(self, name: str, config: Config) -> object:
+        """The output of the stage a :class:`Method` names in ``needs``: "coarse" (target cloud,
+        coarse result), "tracks" (the filter's), "smoothed" (those smoothed by ``[smoothing]
+        smoother``), "joint-smoothed" (by ``config``'s ``[joint] smoother``; None for "none")."""
+        if name == "coarse":
+            return self.coarse()
+        if name == "tracks":
+            return self.tracks()
+        if name == "smoothed":
+            return self.smoothed()
+        if name == "joint-smoothed":
+            return None if config.joint.smoother == "none" else self.smoothed(config.joint.smoother)
+        raise ValueError(f"unknown shared stage {name!r}")
+
+
 def track(
     scenario: Scenario, config: Config | None = None, *, oracle_pose: bool = False,
     smoother: str = "none",
@@ -53,43 +152,28 @@ def track(
     The detections are placed with T_coarse from the coarse stage, or, with ``oracle_pose``,
     with the ground-truth sensor pose, to measure tracking alone (paper section V-A).
     ``smoother`` ("none", "fixed-lag" or "batch", :mod:`fgloc.smoothing`) then refines the
-    filter's tracks (same type, same frame).
+    filter's tracks (same type, same frame). The stages are :class:`SharedStages`'.
     """
-    from fgloc.coarse import target_and_coarse
-    from fgloc.tracking import track_scenario
-
     cfg = config or Config()
-    timer = Timer()
-    coarse = None
+    T = None
     if oracle_pose:
         if scenario.truth is None:
             raise FglocError("--oracle-pose needs the scenario's ground_truth.json")
         T = scenario.truth.sensor_pose
-    else:
-        _, coarse = target_and_coarse(scenario, cfg, timer)
-        T = coarse.T_coarse
-    with timer.stage("tracking"):
-        tracks = track_scenario(scenario, T, cfg.tracking)
-    if smoother != "none":
-        with timer.stage(f"smoothing ({smoother})"):
-            tracks = smooth_tracks(scenario, tracks, T, smoother, cfg)
-    return TrackingRun(tracks, T, coarse, dict(timer.seconds))
+    st = SharedStages(scenario, cfg, T)
+    tracks = st.tracks() if smoother == "none" else st.smoothed(smoother)
+    coarse = None if oracle_pose else st.coarse()[1]
+    return TrackingRun(tracks, st.placement(), coarse, dict(st.seconds))
 
 
-def _run_icp(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
-    """Coarse-only localization: accumulated dynamic points + ICP (the paper's Table II
-    baseline)."""
-    from fgloc.coarse import target_and_coarse
+def _icp(scn: Scenario, cfg: Config, timer: Timer, coarse_stage: tuple[TargetCloud, CoarseResult]
+         ) -> LocalizationResult:
+    """``--method icp``, coarse-only localization (the paper's Table II baseline): the best
+    coarse mode, ``ambiguous`` when the coarse stage kept several (the covariance then spans
+    them). No stage of its own (``timer`` unused)."""
+    from fgloc.registration.modes import RESOLVED, coarse_choice
 
-    return _icp_result(scn, cfg, *target_and_coarse(scn, cfg, timer))
-
-
-def _icp_result(scn: Scenario, cfg: Config, target: TargetCloud, coarse: CoarseResult
-                ) -> LocalizationResult:
-    """The icp method's result from the shared target cloud and coarse stage: the best coarse
-    mode, ``ambiguous`` when the coarse stage kept several (the covariance then spans them)."""
-    from fgloc.modes import RESOLVED, coarse_choice
-
+    target, coarse = coarse_stage
     src = transform_points(coarse.T_coarse, coarse.source_xyz)
     diag = {k: v for k, v in asdict(coarse).items() if k not in ("T_coarse", "source_xyz")}
     choice = coarse_choice(coarse)
@@ -112,16 +196,49 @@ def _icp_result(scn: Scenario, cfg: Config, target: TargetCloud, coarse: CoarseR
     )
 
 
-def _run_joint(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
+def _register(scn: Scenario, cfg: Config, timer: Timer,
+              coarse_stage: tuple[TargetCloud, CoarseResult], tracks: TrackSet, *, method: str
+              ) -> LocalizationResult:
+    """``--method filter-sicp`` / ``smoother-sicp``: the fine stage on the given tracks
+    (:func:`fgloc.registration.fine.register_tracks`)."""
+    from fgloc.registration.fine import register_tracks
+
+    return register_tracks(scn, cfg, *coarse_stage, tracks, timer, method=method)
+
+
+def _joint(scn: Scenario, cfg: Config, timer: Timer,
+           coarse_stage: tuple[TargetCloud, CoarseResult], tracks: TrackSet,
+           smoothed: TrackSet | None, *, start: LocalizationResult) -> LocalizationResult:
     """``--method joint`` (:mod:`fgloc.registration.joint`; gtsam is imported on use)."""
-    from fgloc.registration.joint import run_joint
+    from fgloc.registration.joint import joint_from_tracks
 
-    return run_joint(scn, cfg, timer)
+    return joint_from_tracks(scn, cfg, *coarse_stage, tracks, timer, start=start,
+                             smoothed=smoothed)
 
 
-#: method name -> implementation; ``fgloc localize --method`` offers exactly these keys.
-METHODS: dict[str, MethodFn] = {"icp": _run_icp, "filter-sicp": run_filter_sicp,
-                                "smoother-sicp": run_smoother_sicp, "joint": _run_joint}
+@dataclass(frozen=True)
+class Method:
+    """How the pipeline runs one method.
+
+    needs: the shared stages whose outputs ``run`` takes, in order (names of
+    :meth:`SharedStages.get`); start: the method whose result ``run`` refines (passed as
+    ``start=``), or None; run: the method's own stage,
+    ``run(scenario, config, timer, *outputs of needs[, start=result])``.
+    """
+
+    needs: tuple[str, ...]
+    run: Callable[..., LocalizationResult]
+    start: str | None = None
+
+
+#: method name -> what it needs and its own stage: the one place that knows which stages a
+#: method runs; ``fgloc localize --method`` offers exactly these keys.
+METHODS: dict[str, Method] = {
+    "icp": Method(("coarse",), _icp),
+    "filter-sicp": Method(("coarse", "tracks"), partial(_register, method="filter-sicp")),
+    "smoother-sicp": Method(("coarse", "smoothed"), partial(_register, method="smoother-sicp")),
+    "joint": Method(("coarse", "tracks", "joint-smoothed"), _joint, start="filter-sicp"),
+}
 
 
 def localize(
@@ -129,121 +246,50 @@ def localize(
 ) -> LocalizationResult:
     """Localize the sensor of ``scenario`` with ``method``; returns the pose in L and UTM.
 
-    Raises :class:`fgloc.errors.LocalizationError` when the data cannot support a pose.
+    ``localize_many(scenario, [method], config)[method]``. Raises
+    :class:`fgloc.errors.LocalizationError` when the data cannot support a pose.
     """
-    if method not in METHODS:
-        raise FglocError(f"unknown method {method!r}; available: {', '.join(METHODS)}")
-    cfg = config or Config()
-    timer = Timer()
-    res = METHODS[method](scenario, cfg, timer)
-    res.timings = dict(timer.seconds)
-    return res
-
-
-class SharedStages:
-    """The stages several methods share on one scenario, each computed on first use and kept:
-    the target cloud and coarse pose, the filter's tracks (placed by T_coarse) and their
-    batch / fixed-lag smoothing. ``config`` sets them ([map], [coarse], [tracking],
-    [smoothing]); the stage seconds are kept per stage, so a method's result can report what
-    a run of its own would have spent."""
-
-    def __init__(self, scenario: Scenario, config: Config | None = None) -> None:
-        self.scenario = scenario
-        self.config = config or Config()
-        self.seconds: dict[str, float] = {}
-        self._cache: dict[str, object] = {}
-
-    def _stage(self, key: str, fn: Callable[[Timer], object]) -> object:
-        if key not in self._cache:
-            timer = Timer()
-            self._cache[key] = fn(timer)
-            self.seconds.update(timer.seconds)
-        return self._cache[key]
-
-    def coarse(self) -> tuple[TargetCloud, CoarseResult]:
-        from fgloc.coarse import target_and_coarse
-
-        return self._stage("coarse", lambda t: target_and_coarse(self.scenario, self.config, t))
-
-    def tracks(self) -> TrackSet:
-        from fgloc.tracking import track_scenario
-
-        _, coarse = self.coarse()
-
-        def run(timer: Timer) -> TrackSet:
-            with timer.stage("tracking"):
-                return track_scenario(self.scenario, coarse.T_coarse, self.config.tracking)
-        return self._stage("tracks", run)
-
-    def smoothed(self, name: str | None = None) -> TrackSet:
-        """The filter's tracks smoothed by ``name`` (default ``[smoothing] smoother``)."""
-        _, coarse = self.coarse()
-        name = name or self.config.smoothing.smoother
-
-        def run(timer: Timer) -> TrackSet:
-            with timer.stage(f"smoothing ({name})"):
-                return smooth_tracks(self.scenario, self.tracks(), coarse.T_coarse, name,
-                                     self.config)
-        return self._stage(f"smoothed {name}", run)
-
-    def times(self, *stages: str) -> dict[str, float]:
-        """Seconds of the named shared stages (those that ran)."""
-        return {k: v for k, v in self.seconds.items() if k in stages}
-
-
-_SHARED = {"icp": ("target cloud", "coarse ICP"),
-           "filter-sicp": ("target cloud", "coarse ICP", "tracking")}
-_SHARED["joint"] = _SHARED["filter-sicp"]
+    return localize_many(scenario, [method], config)[method]
 
 
 def localize_many(scenario: Scenario, methods: list[str], config: Config | None = None,
                   stages: SharedStages | None = None) -> dict[str, LocalizationResult]:
     """Localize ``scenario`` with every method in ``methods`` (names of :data:`METHODS`),
-    computing the stages they share once: the target cloud and coarse pose, the filter's
-    tracks, the smoothing, and filter-sicp's registration (joint starts from it). Results are
-    the same as separate :func:`localize` calls; each one's ``timings`` holds the shared
-    stages it depends on plus its own, i.e. what a separate run would report.
+    computing what they share once: the shared stages (target cloud and coarse pose, the
+    filter's tracks, the smoothing) and the result a method starts from (joint starts from
+    filter-sicp's). Each result's ``timings`` holds the shared stages it read and the own
+    stages of it and of the method it starts from, i.e. what a run of its own reports.
 
     ``stages`` reuses shared stages across calls (e.g. a sweep over ``[fine]`` or ``[joint]``
     settings: they must have been built with the same [map], [coarse], [tracking] and
     [smoothing]; only ``config``'s other sections are read here)."""
-    from fgloc.fine import register_tracks
-    from fgloc.registration.joint import joint_from_tracks
-
     unknown = [m for m in methods if m not in METHODS]
     if unknown:
         raise FglocError(f"unknown method {unknown[0]!r}; available: {', '.join(METHODS)}")
     cfg = config or Config()
     st = stages or SharedStages(scenario, cfg)
-    out: dict[str, LocalizationResult] = {}
-    own: dict[str, dict[str, float]] = {}
+    done: dict[str, tuple[LocalizationResult, set[str], dict[str, float]]] = {}
 
-    def fine(method: str, tracks: TrackSet) -> LocalizationResult:
-        timer = Timer()
-        target, coarse = st.coarse()
-        res = register_tracks(scenario, cfg, target, coarse, tracks, timer, method=method)
-        own[method] = dict(timer.seconds)
-        return res
-
-    for method in methods:
-        if method == "icp":
-            out[method], own[method] = _icp_result(scenario, cfg, *st.coarse()), {}
-        elif method == "smoother-sicp":
-            out[method] = fine(method, st.smoothed())
-        elif "filter-sicp" not in out:          # filter-sicp, or joint's start
-            out["filter-sicp"] = fine("filter-sicp", st.tracks())
-        if method == "joint":
+    def run(method: str) -> tuple[LocalizationResult, set[str], dict[str, float]]:
+        """(result, shared stages read, own seconds) of ``method`` and of what it starts
+        from."""
+        if method not in done:
+            spec = METHODS[method]
+            read: set[str] = set()
+            own: dict[str, float] = {}
+            kw = {}
+            if spec.start is not None:
+                kw["start"], read, own = run(spec.start)
+            with st.reading() as now:
+                inputs = [st.get(name, cfg) for name in spec.needs]
             timer = Timer()
-            target, coarse = st.coarse()
-            smoother = cfg.joint.smoother
-            smoothed = None if smoother == "none" else st.smoothed(smoother)
-            out[method] = joint_from_tracks(scenario, cfg, target, coarse, st.tracks(), timer,
-                                            start=out["filter-sicp"], smoothed=smoothed)
-            own[method] = {**own["filter-sicp"], **timer.seconds}
-    smoothing = f"smoothing ({cfg.smoothing.smoother})"
+            res = spec.run(scenario, cfg, timer, *inputs, **kw)
+            done[method] = (res, read | now, {**own, **timer.seconds})
+        return done[method]
+
+    out = {}
     for method in methods:
-        shared = _SHARED.get(method, (*_SHARED["filter-sicp"], smoothing))
-        if method == "joint" and cfg.joint.smoother != "none":
-            shared = (*shared, f"smoothing ({cfg.joint.smoother})")
-        out[method].timings = {**st.times(*shared), **own[method]}
-    return {m: out[m] for m in methods}
+        res, read, own = run(method)
+        res.timings = {**st.seconds_of(read), **own}
+        out[method] = res
+    return out

@@ -16,7 +16,7 @@ from fgloc.io.json_file import read_json
 
 if TYPE_CHECKING:
     from fgloc.map import TargetCloud
-    from fgloc.modes import ModeFit
+    from fgloc.registration.modes import ModeFit
     from fgloc.tracks import TrackSet
 
 
@@ -44,10 +44,11 @@ class LocalizationResult:
     target: the labelled target cloud the pose was registered against (for reports).
     tracks: the vehicle tracks the method used (with ``T_frame_to_L`` set), or None.
     status: "resolved", or "ambiguous" when the coarse stage's modes could not be told apart
-    (:mod:`fgloc.modes`; the pose is the best mode's, the covariance covers every mode).
-    modes: JSON-ready summary of every mode (best first; :meth:`fgloc.modes.ModeChoice.summary`).
-    mode_fits: the modes' fits (:class:`fgloc.modes.ModeFit`, best first; the joint starts from
-    them). z_std: std. dev. (m) of the sensor height, or None when the method gives none.
+    (:mod:`fgloc.registration.modes`; the pose is the best mode's, the covariance covers every
+    mode). modes: JSON-ready summary of every mode (best first;
+    :meth:`fgloc.registration.modes.ModeChoice.summary`). mode_fits: the modes' fits
+    (:class:`fgloc.registration.modes.ModeFit`, best first; the joint starts from them).
+    z_std: std. dev. (m) of the sensor height, or None when the method gives none.
     """
 
     method: str

@@ -21,7 +21,7 @@ from fgloc.batch.job import JOB_FILE, is_finished, job_dir, remove_leftovers
 from fgloc.cli import main
 from fgloc.config import to_dict
 from fgloc.errors import InputError
-from fgloc.evaluate import pose_error
+from fgloc.evaluation.pose import pose_error
 from fgloc.geo import LocalFrame
 from fgloc.io import read_ground_truth, write_scenario
 from fgloc.result import read_result_json

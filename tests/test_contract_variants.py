@@ -21,7 +21,7 @@ from lanelet2.io import Origin
 from lanelet2.io import write as l2_write
 from lanelet2.projection import UtmProjector
 
-from fgloc.evaluate import pose_error
+from fgloc.evaluation.pose import pose_error
 from fgloc.geo import pose_from_se3, transformer
 from fgloc.io import load_scenario
 from fgloc.pipeline import localize

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fgloc.evaluate import pose_error, pose_error_vector
+from fgloc.evaluation.pose import pose_error, pose_error_vector
 from fgloc.geo import se3_from_pose
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from matplotlib.path import Path as MplPath
 
-from fgloc.evaluate_tracking import (
+from fgloc.evaluation.tracking import (
     box_intersection_area,
     evaluate_tracks,
     in_field_of_view,

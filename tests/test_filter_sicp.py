@@ -9,19 +9,21 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fgloc.coarse import CoarseResult, _kabsch_2d, _rodrigues, coarse_localize
+from fgloc.coarse import CoarseResult, coarse_localize
+from fgloc.coarse.icp import _kabsch_2d
+from fgloc.coarse.vertical import rodrigues
 from fgloc.config import Config, dump_config, load_config
-from fgloc.evaluate import pose_error
-from fgloc.fine import coarse_tilt_covariance, register_tracks, sensor_covariance
+from fgloc.evaluation.pose import pose_error
 from fgloc.geo import rot_from_ypr, rot_z, se2, se3, transform_points
 from fgloc.labels import LEFT, RIGHT, STRAIGHT
 from fgloc.map import build_target_cloud
 from fgloc.pipeline import METHODS, localize
 from fgloc.progress import Timer
 from fgloc.registration.config import FineConfig
+from fgloc.registration.fine import coarse_tilt_covariance, register_tracks, sensor_covariance
+from fgloc.registration.source import build_source_cloud, choose_tracks, voxel_per_label
 from fgloc.scenario import RadarData
 from fgloc.sim import simulate
-from fgloc.source import build_source_cloud, choose_tracks, voxel_per_label
 from fgloc.tracking import track_scenario
 from fgloc.tracks import N_STATE, Track, TrackSet
 
@@ -157,7 +159,7 @@ def test_coarse_tilt_covariance_is_the_shift_a_real_tilt_error_causes():
     p_s = (x - T_true[:3, 3]) @ T_true[:3, :3]
 
     def sensor_shift(w: np.ndarray) -> np.ndarray:
-        T_c = se3(_rodrigues(w).T @ T_true[:3, :3], T_true[:3, 3])
+        T_c = se3(rodrigues(w).T @ T_true[:3, :3], T_true[:3, 3])
         q = p_s @ T_c[:3, :3].T + T_c[:3, 3]
         # the best 2D rigid transform from the placed to the true positions
         ang, t = _kabsch_2d(q[:, :2], x[:, :2])

@@ -345,3 +345,23 @@ def test_extent_rows_selection_and_jacobian() -> None:
     # in the factor: 4 rows after the detection rows
     fac = contour_measurement_factor(track_key(0, 0), z, sensor, GP, extent=ExtentSettings())
     assert fac.dim() == len(z) + 4
+
+
+def test_extent_rows_sampling_gap_correction() -> None:
+    """With gap_max > 0 the length rows measure each end one sampling gap (span / (n - 1),
+    capped) beyond the extreme detection; the width rows and the Jacobian are unchanged."""
+    rng = np.random.default_rng(4)
+    x = random_state(rng, 0.05)
+    h = np.array([np.cos(x[YAW]), np.sin(x[YAW])])
+    lat = np.array([-h[1], h[0]])
+    sensor = x[:2] + 30.0 * lat + 5.0 * h
+    z = box_detections(x, sensor, per_edge=8) + rng.normal(0, 0.05, (1, 2))
+    plain = ExtentRows(z, sensor, ExtentSettings(), sigma_factor=0.35)
+    lo = (z - x[:2]) @ h
+    for cap in (0.05, 10.0):
+        fixed = ExtentRows(z, sensor, ExtentSettings(gap_max=cap), sigma_factor=0.35)
+        gap = min(float(np.ptp(lo)) / (len(z) - 1), cap)
+        e0, J0 = plain.rows(x, jacobian=True)
+        e1, J1 = fixed.rows(x, jacobian=True)
+        np.testing.assert_allclose(e1 - e0, [gap, 0.0, gap, 0.0], atol=1e-12)
+        np.testing.assert_allclose(J1, J0)

@@ -343,7 +343,7 @@ def test_arrow_solve_and_covariance_match_gtsam():
 def test_localize_joint_end_to_end():
     """``localize(..., "joint")`` on a short simulated intersection: a pose near the truth, a
     covariance, refined tracks and the degeneracy report in the diagnostics."""
-    from fgloc.evaluate import pose_error
+    from fgloc.evaluation.pose import pose_error
     from fgloc.pipeline import localize
     from fgloc.sim import simulate
 

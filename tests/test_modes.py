@@ -1,5 +1,6 @@
-"""The coarse stage's modes carried to the end (fgloc.modes): the comparison statistic, the
-merge, the covering covariance, and on sparse simulated traffic no confidently wrong pose."""
+"""The coarse stage's modes carried to the end (fgloc.registration.modes): the comparison
+statistic, the merge, the covering covariance, and on sparse simulated traffic no confidently
+wrong pose."""
 
 from __future__ import annotations
 
@@ -10,8 +11,8 @@ import pytest
 
 from fgloc.config import CoarseConfig, Config
 from fgloc.geo import se2, se2_to_se3
-from fgloc.modes import AMBIGUOUS, RESOLVED, ModeFit, choose_mode, separation_z
 from fgloc.pipeline import localize, localize_many
+from fgloc.registration.modes import AMBIGUOUS, RESOLVED, ModeFit, choose_mode, separation_z
 from fgloc.sim import SimConfig, simulate
 
 

@@ -12,7 +12,7 @@ from test_smoothing_graph import DT, make_track
 
 from factors.gtsam_factors import track_key
 from fgloc.config import Config
-from fgloc.evaluate_tracking import evaluate_tracks
+from fgloc.evaluation.tracking import evaluate_tracks
 from fgloc.pipeline import track
 from fgloc.sim import SimConfig, simulate
 from fgloc.smoothing import SmoothingConfig
@@ -151,7 +151,7 @@ def test_batch_beats_the_filter_on_more_cars(case: str, seed: int) -> None:
 
 # one truck per scenario (class mix: trucks only), its length unobservable for a while: the
 # filter promotes it to the long-vehicle contour; with the smoothers' long-vehicle model
-# (docs/method.md 6) its centre error drops well below the car model's. Measured on
+# (docs/method.md 5) its centre error drops well below the car model's. Measured on
 # intersection 1-6 and T-junction 1-6 (15 s): batch long below batch car by 23-85 % on 8 of the
 # 11 seeds with a scored track, equal or within 1 % on the rest (intersection 5, 6: the truck
 # split into two tracks; T-junction 3: its contour never reached 9 m)

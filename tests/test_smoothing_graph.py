@@ -10,7 +10,7 @@ import pytest
 from factors.ctra import ctra_predict
 from factors.gp import rectangle_radius
 from factors.gtsam_factors import decode_track_key
-from fgloc.evaluate_tracking import contour_polygons
+from fgloc.evaluation.tracking import contour_polygons
 from fgloc.smoothing import SmoothingConfig
 from fgloc.smoothing.graph import (
     TrackModel,

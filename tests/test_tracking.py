@@ -7,7 +7,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
-from fgloc.evaluate_tracking import iou_polygon_rectangle
+from fgloc.evaluation.tracking import iou_polygon_rectangle
 from fgloc.geo import LocalFrame, rot_from_ypr, se3, se3_inv, transform_points, wrap_angle
 from fgloc.labels import LEFT, RIGHT, STRAIGHT
 from fgloc.scenario import (
@@ -299,7 +299,7 @@ def test_simulated_intersection_regression_guard() -> None:
     0.92, per-track RMS 0.30 m (pooled 0.31 m), yaw 0.84 deg, IoU 0.83, no false track; plain
     per-track RMS 0.70 m (pooled 0.80 m), IoU 0.62, 3 false tracks.
     """
-    from fgloc.evaluate_tracking import evaluate_tracks
+    from fgloc.evaluation.tracking import evaluate_tracks
     from fgloc.sim import simulate
 
     scn = simulate("intersection", 1, duration=30.0, vehicles=20)

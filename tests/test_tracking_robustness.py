@@ -9,7 +9,7 @@ import pytest
 
 from bench.robustness import tracks_covering_two
 from fgloc.config import Config, from_dict
-from fgloc.evaluate_tracking import contour_polygons, evaluate_tracks
+from fgloc.evaluation.tracking import contour_polygons, evaluate_tracks
 from fgloc.pipeline import track
 from fgloc.sim import SimConfig, simulate_detailed
 from fgloc.tracks import YAW

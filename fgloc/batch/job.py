@@ -100,7 +100,7 @@ def run_job(job: Job, out: str) -> dict[str, Any]:
     ``traceback.txt``; only interrupts (KeyboardInterrupt, SystemExit) propagate.
     """
     from fgloc.config import Config, from_dict
-    from fgloc.evaluate import pose_error
+    from fgloc.evaluation.pose import pose_error
     from fgloc.geo import pose_from_se3
     from fgloc.io import load_scenario
     from fgloc.outputs import write_localization

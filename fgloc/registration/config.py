@@ -53,9 +53,9 @@ class SicpConfig:
     0 = isotropic (plain point-to-point information)."""
 
 
-#: What the source cloud of filter-sicp is made of (see :mod:`fgloc.source`).
+#: What the source cloud of filter-sicp is made of (see :mod:`fgloc.registration.source`).
 SOURCE_KINDS: tuple[str, ...] = ("detections", "centres", "contours")
-#: What the source cloud of filter-sicp is registered to (see :mod:`fgloc.fine`).
+#: What the source cloud of filter-sicp is registered to (see :mod:`fgloc.registration.fine`).
 TARGET_KINDS: tuple[str, ...] = ("road-points", "lane-centres", "visible-sides")
 
 

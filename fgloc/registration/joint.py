@@ -2,8 +2,8 @@
 factors, optimized jointly with every track state, with a calibrated covariance.
 
 Pipeline: target cloud -> coarse pose -> GP-EOT tracks in C -> filter-sicp's registration
-(the start, :func:`fgloc.fine.register_tracks`) -> the joint graph below -> ``T_fine`` (C -> L)
-with its marginal covariance -> ``T_utm = T~_fine · T_coarse``.
+(the start, :func:`fgloc.registration.fine.register_tracks`) -> the joint graph below ->
+``T_fine`` (C -> L) with its marginal covariance -> ``T_utm = T~_fine · T_coarse``.
 
 The problem (frame C unless stated; the factor graph of docs/method.md section 7)
 -------------------------------------------------------------------------------
@@ -753,26 +753,6 @@ def _sensor_std(cov: np.ndarray | None) -> dict[str, float] | None:
 
 
 # ---- the method ----------------------------------------------------------------------------
-def run_joint(scn: Scenario, cfg: Config, timer: Timer) -> LocalizationResult:
-    """``--method joint`` (module docstring); stage times go to ``timer``.
-
-    Raises :class:`fgloc.errors.LocalizationError` when the coarse stage cannot find a pose.
-    """
-    from fgloc.coarse import target_and_coarse
-    from fgloc.smoothing.run import smooth_tracks
-    from fgloc.tracking import track_scenario
-
-    check_joint_config(cfg.joint)
-    target, coarse = target_and_coarse(scn, cfg, timer)
-    with timer.stage("tracking"):
-        tracks = track_scenario(scn, coarse.T_coarse, cfg.tracking)
-    smoothed = None
-    if cfg.joint.smoother != "none":
-        with timer.stage(f"smoothing ({cfg.joint.smoother})"):
-            smoothed = smooth_tracks(scn, tracks, coarse.T_coarse, cfg.joint.smoother, cfg)
-    return joint_from_tracks(scn, cfg, target, coarse, tracks, timer, smoothed=smoothed)
-
-
 def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: CoarseResult,
                       tracks: TrackSet, timer: Timer,
                       start: LocalizationResult | None = None,
@@ -784,12 +764,17 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
     sensor's (x, y, yaw) in L and the degeneracy report. Every mode of the start
     (``start.mode_fits``: filter-sicp's registrations of the coarse modes) is refined from its
     registration against lines seen from its sensor position, and the fits are compared as in
-    :mod:`fgloc.modes` (``status``, ``modes``, a covering covariance when ambiguous). Raises
-    ValueError when ``smoothed`` holds other tracks than ``tracks``."""
-    from fgloc.fine import coarse_tilt_covariance, mode_targets, register_tracks, sensor_covariance
-    from fgloc.modes import ModeFit, choose_mode, track_costs
+    :mod:`fgloc.registration.modes` (``status``, ``modes``, a covering covariance when
+    ambiguous). Raises ValueError when ``smoothed`` holds other tracks than ``tracks``."""
+    from fgloc.registration.fine import (
+        coarse_tilt_covariance,
+        mode_targets,
+        register_tracks,
+        sensor_covariance,
+    )
+    from fgloc.registration.modes import ModeFit, choose_mode, track_costs
+    from fgloc.registration.source import build_source_cloud, choose_tracks
     from fgloc.smoothing.graph import detection_range_rates, extent_trusted, placed_detections
-    from fgloc.source import build_source_cloud, choose_tracks
 
     check_joint_config(cfg.joint)
     if smoothed is not None and [t.id for t in smoothed.tracks] != [t.id for t in tracks.tracks]:

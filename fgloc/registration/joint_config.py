@@ -106,9 +106,9 @@ class JointConfig:
     """Add the coarse roll and pitch's uncertainty (``CoarseResult.tilt_covariance``) to the
     sensor's covariance: the joint keeps the coarse tilt, and a tilt error moves the sensor,
     several metres above the vehicles the registration aligns, sideways
-    (:func:`fgloc.fine.coarse_tilt_covariance`). Where one road leaves the roll about it to
-    the prior (T-junction 5: 2.3 deg off, 0.2 m across the road) this is the largest error
-    term. False = leave it out."""
+    (:func:`fgloc.registration.fine.coarse_tilt_covariance`). Where one road leaves the roll
+    about it to the prior (T-junction 5: 2.3 deg off, 0.2 m across the road) this is the
+    largest error term. False = leave it out."""
     range_bias_sigma: float = 0.2
     """Prior standard deviation (m per 100 m of range) of a range-proportional side bias: an
     offset of every contour point towards the sensor that grows with its distance from the

@@ -26,9 +26,9 @@ import numpy as np
 from fgloc.geo import LocalFrame, natural_utm_zone, transformer, utm_zone, wrap_angle
 from fgloc.io.lanelet_map import WGS84, crop_lanelet_osm, read_lanelet_map
 from fgloc.map import points_in_polygon
-from fgloc.scenario import Lanelet, LaneletMap, Scenario
+from fgloc.scenario import Lanelet, LaneletMap, Scenario, resample_polyline
 from fgloc.sim.als import BUILDING, GROUND, synthesize_als
-from fgloc.sim.config import SensorSimConfig, SimConfig
+from fgloc.sim.config import SimConfig
 from fgloc.sim.core import SimResult, drive_and_observe
 from fgloc.sim.mounting import Mounting
 from fgloc.sim.real_roads import (
@@ -49,6 +49,10 @@ _STAGES = ("junction", "sensor", "site", "scenery", "als", "traffic", "radar")
 SITE_RADIUS = 500.0
 #: height (m) of walkways above the ground around them
 SIDEWALK_RAISE = 0.12
+#: mast places compared by the mapped road they see, and the share of the radar's max_range
+#: counted as seen
+MAST_CANDIDATES = 12
+VIEW_RANGE_FRACTION = 0.75
 
 
 @dataclass
@@ -107,33 +111,56 @@ def _read_text_map(text: str, crs: str, frame: LocalFrame) -> LaneletMap:
         return read_lanelet_map(path, crs, frame)
 
 
-def _place_mast(rng: np.random.Generator, cfg: SensorSimConfig, net: RoadNetwork,
-                area: RoadArea, lmap: LaneletMap, target: np.ndarray) -> Mounting:
+def _every_metre(xy: np.ndarray) -> np.ndarray:
+    """The polyline (n, 2) resampled about every metre (m, L)."""
+    length = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
+    return resample_polyline(xy, max(2, int(length) + 1))
+
+
+def _place_mast(rng: np.random.Generator, cfg: SimConfig, net: RoadNetwork, area: RoadArea,
+                lmap: LaneletMap, target: np.ndarray) -> Mounting:
     """Mast ``setback`` m off a road edge ``junction_distance`` m from the junction centre
-    ``target``, clear of the lanes, the drivable lanelets and the map's buildings; looking at
-    the junction (yaw jitter, height, pitch and roll as the synthetic simulator's)."""
+    ``target``, clear of the lanes, the drivable lanelets and the map's buildings, looking at
+    the junction (yaw jitter, height, pitch and roll as the synthetic simulator's).
+
+    Of up to MAST_CANDIDATES such places the one that sees the most mapped road is taken (the
+    drivable lanelets' centre lines, sampled every metre, inside the radar's horizontal field of
+    view and within ``VIEW_RANGE_FRACTION`` x ``max_range``), as an installer would aim the
+    radar at the traffic: on a real map a junction near the map's edge otherwise gets a radar
+    staring at the few metres of road the map has beyond it."""
+    s = cfg.sensor
     edge, normal = net.curb_line(1.0)
     dist = np.linalg.norm(edge - target, axis=1)
     blocked = [ll.polygon() for ll in lmap.lanelets]
     blocked += [a.outline for a in lmap.areas if a.subtype == "building"]
+    road = np.vstack([_every_metre(ll.centerline(50)) for ll in lmap.lanelets])
+    places: list[tuple[np.ndarray, float, int]] = []
     for _ in range(400):
-        cand = np.flatnonzero(np.abs(dist - rng.uniform(*cfg.junction_distance)) < 2.0)
+        cand = np.flatnonzero(np.abs(dist - rng.uniform(*s.junction_distance)) < 2.0)
         if not len(cand):
             continue
         i = int(rng.choice(cand))
-        xy = edge[i] + rng.uniform(*cfg.setback) * normal[i]
-        if area.clearance(xy[None])[0] < 0.9 * cfg.setback[0]:
+        xy = edge[i] + rng.uniform(*s.setback) * normal[i]
+        if area.clearance(xy[None])[0] < 0.9 * s.setback[0]:
             continue
         if any(points_in_polygon(xy[None], poly, 0.5)[0] for poly in blocked):
             continue
-        break
-    else:
+        look = target - xy
+        yaw = float(np.arctan2(look[1], look[0]))
+        rel = road - xy
+        seen = (np.hypot(rel[:, 0], rel[:, 1]) <= VIEW_RANGE_FRACTION * cfg.radar.max_range) \
+            & (np.abs(wrap_angle(np.arctan2(rel[:, 1], rel[:, 0]) - yaw))
+               <= np.deg2rad(cfg.radar.hfov_deg) / 2.0)
+        places.append((xy, yaw, int(seen.sum())))
+        if len(places) == MAST_CANDIDATES:
+            break
+    if not places:
         raise RuntimeError("no roadside position for the sensor near the junction")
-    look = target - xy
-    yaw = float(np.arctan2(look[1], look[0])) + np.deg2rad(rng.uniform(-1, 1) * cfg.yaw_jitter_deg)
-    return Mounting(xy, float(rng.uniform(*cfg.mast_height)), float(wrap_angle(yaw)),
-                    float(np.deg2rad(rng.uniform(*cfg.pitch_deg))),
-                    float(np.deg2rad(rng.uniform(-1, 1) * cfg.roll_deg)))
+    xy, yaw, _ = max(places, key=lambda p: p[2])
+    yaw += np.deg2rad(rng.uniform(-1, 1) * s.yaw_jitter_deg)
+    return Mounting(xy, float(rng.uniform(*s.mast_height)), float(wrap_angle(yaw)),
+                    float(np.deg2rad(rng.uniform(*s.pitch_deg))),
+                    float(np.deg2rad(rng.uniform(-1, 1) * s.roll_deg)))
 
 
 def _with_heights(lmap: LaneletMap, terrain: Terrain) -> LaneletMap:
@@ -219,7 +246,7 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
         raise RuntimeError(f"the junction at lat {jlat:.6f}, lon {jlon:.6f} fell apart in the crop")
     routes = junction_routes(lmap0, junction, route_reach)
     net = build_map_network(lmap0, routes, junction.centre, cfg.als.extent)
-    mount = _place_mast(rng["sensor"], cfg.sensor, net, RoadArea(net), lmap0, junction.centre)
+    mount = _place_mast(rng["sensor"], cfg, net, RoadArea(net), lmap0, junction.centre)
 
     slope = site_rng.uniform(*cfg.als.slope)
     downhill = site_rng.uniform(-np.pi, np.pi)

@@ -147,8 +147,9 @@ class TrackModel:
         scfg = smoothing or SmoothingConfig()
         rw = scfg.size_walk_scale * (tcfg.sigma_length_rw**2 * np.outer(gl, gl)
                                      + tcfg.sigma_width_rw**2 * np.outer(gw, gw))
+        gap = tcfg.extent_gap_max if tcfg.extent_gap_correction else 0.0
         ext = (ExtentSettings(tcfg.sigma_extent, tcfg.extent_min_points, tcfg.extent_min_cover,
-                              tcfg.extent_min_incidence) if scfg.extent_rows else None)
+                              tcfg.extent_min_incidence, gap) if scfg.extent_rows else None)
         return TrackModel(tcfg, scfg, gp, rw, ConditionalTable(gp), ext, long)
 
     @property

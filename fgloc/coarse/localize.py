@@ -34,6 +34,10 @@ Method
 
 Fitness and inlier RMSE are planar (2D) quantities: the share of source points with a road point
 within the last correspondence range, and the RMS 2D distance of those points.
+
+The pieces: the source (step 1) in :mod:`fgloc.coarse.points`, the planar targets, ICP and
+search (steps 2-4) in :mod:`fgloc.coarse.icp`, the vertical fit in :mod:`fgloc.coarse.vertical`;
+this module drives them and keeps the modes (:class:`CoarseMode`).
 """
 
 from __future__ import annotations
@@ -42,22 +46,27 @@ import time
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.ndimage import distance_transform_edt
-from scipy.spatial import cKDTree
 
-from fgloc._open3d import open3d
+from fgloc.coarse.icp import (
+    IcpOutcome,
+    LaneCentres,
+    PlanarTarget,
+    RoadModel,
+    ScoreRaster,
+    apply_planar,
+    distinct_peaks,
+    icp_planar,
+    robust_score,
+    search_grid,
+)
+from fgloc.coarse.points import dynamic_points
+from fgloc.coarse.vertical import StaticGround, below_fov_floor, fit_vertical, rodrigues
 from fgloc.config import CoarseConfig, Config
 from fgloc.errors import LocalizationError
 from fgloc.geo import pose_from_se3, rot_from_ypr, rot_z, se2, se3, wrap_angle, ypr_from_rot
-from fgloc.map import (
-    TargetCloud,
-    approx_position_local,
-    build_target_cloud,
-    check_inside_als,
-    voxel_centroids,
-)
+from fgloc.map import TargetCloud, approx_position_local, build_target_cloud, check_inside_als
 from fgloc.progress import Timer
-from fgloc.scenario import Lanelet, RadarData, Scenario
+from fgloc.scenario import Scenario
 
 
 @dataclass
@@ -121,392 +130,6 @@ class CoarseMode:
         return out
 
 
-# --------------------------------------------------------------------------------------------
-# source cloud
-# --------------------------------------------------------------------------------------------
-def dynamic_points(radar: RadarData, cfg: CoarseConfig) -> tuple[np.ndarray, int]:
-    """Filtered dynamic cloud (M, 3) in S and the number of dynamic detections before filtering.
-
-    Keeps ``|doppler| >= cfg.doppler_min``, averages per ``cfg.voxel_size`` voxel and drops the
-    points DBSCAN (``dbscan_eps`` m, ``dbscan_min_points``) labels as noise.
-    """
-    dyn = np.asarray(radar.xyz, dtype=float)[np.abs(radar.doppler) >= cfg.doppler_min]
-    if dyn.shape[0] == 0:
-        return np.zeros((0, 3)), 0
-    pts, _ = voxel_centroids(dyn, np.zeros(dyn.shape[0], dtype=np.int64), cfg.voxel_size)
-    o3d = open3d()
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
-    lab = np.asarray(pcd.cluster_dbscan(cfg.dbscan_eps, cfg.dbscan_min_points, False))
-    return pts[lab >= 0], int(dyn.shape[0])
-
-
-# --------------------------------------------------------------------------------------------
-# planar road model
-# --------------------------------------------------------------------------------------------
-@dataclass
-class PlanarTarget:
-    """Points (M, 2) in L with their KD-tree, the target of a planar ICP."""
-
-    xy: np.ndarray
-    tree: cKDTree
-
-    @classmethod
-    def of(cls, xy: np.ndarray) -> PlanarTarget:
-        return cls(xy=xy, tree=cKDTree(xy))
-
-
-@dataclass
-class ScoreRaster:
-    """float32 raster (nx, ny) of ``clip(1 - d / tau, 0, 1)``, d the distance (m) from the cell
-    centre to the nearest occupied cell; origin (2,) is the centre of cell (0, 0), cell (m).
-    The raster extends ``pad`` m beyond the points, so its outer ``pad - tau`` m score 0."""
-
-    score: np.ndarray
-    origin: np.ndarray
-    cell: float
-
-    @classmethod
-    def build(cls, xy: np.ndarray, cell: float, pad: float, tau: float) -> ScoreRaster:
-        """The raster of points (M, 2) in L."""
-        origin = xy.min(axis=0) - pad
-        shape = np.ceil((xy.max(axis=0) + pad - origin) / cell).astype(int) + 1
-        occ = np.zeros(shape, dtype=bool)
-        ij = np.round((xy - origin) / cell).astype(int)
-        occ[ij[:, 0], ij[:, 1]] = True
-        dist = distance_transform_edt(~occ) * cell
-        return cls(np.clip(1.0 - dist / tau, 0.0, 1.0).astype(np.float32), origin, cell)
-
-
-@dataclass
-class RoadModel:
-    """Planar view of the road points: a 2D KD-tree with heights, and a score raster.
-
-    planar: unique road points in L (2D) and their tree; z: (M,) their heights (m). score:
-    float32 raster (nx, ny) of ``clip(1 - d / tau, 0, 1)``, d being the distance (m) from the
-    cell centre to the nearest occupied road cell; origin (2,) is the centre of cell (0, 0). The
-    raster extends ``pad`` m beyond the road, so its outer ``pad - tau`` m score 0.
-    """
-
-    planar: PlanarTarget
-    z: np.ndarray
-    score: np.ndarray
-    origin: np.ndarray
-    cell: float
-
-    @classmethod
-    def build(cls, target: TargetCloud, cell: float, pad: float, tau: float) -> RoadModel:
-        xyz = target.unique_xyz()
-        raster = ScoreRaster.build(xyz[:, :2], cell, pad, tau)
-        return cls(PlanarTarget.of(xyz[:, :2]), z=xyz[:, 2], score=raster.score,
-                   origin=raster.origin, cell=cell)
-
-    def distance(self, xy: np.ndarray, upper: float = np.inf) -> np.ndarray:
-        """2D distance (m) of points (N, 2) to the nearest road point (inf beyond ``upper``)."""
-        return self.planar.tree.query(xy, distance_upper_bound=upper)[0]
-
-    def road_height(self, xy: np.ndarray, k: int = 4) -> tuple[np.ndarray, np.ndarray]:
-        """Mean height of the k nearest road points under each xy and the nearest distance (m)."""
-        d, i = self.planar.tree.query(xy, k=k)
-        return self.z[i].mean(axis=1), d[:, 0]
-
-
-@dataclass
-class LaneCentres:
-    """Lane centre lines sampled in L: points (K, 2) and unit left normals (K, 2)."""
-
-    xy: np.ndarray
-    normal: np.ndarray
-
-    @classmethod
-    def build(cls, lanelets: list[Lanelet], step: float) -> LaneCentres:
-        xy, normal = [], []
-        for ll in lanelets:
-            length = max(_length(ll.left[:, :2]), _length(ll.right[:, :2]))
-            c = ll.centerline(max(2, int(np.ceil(length / step)) + 1))
-            d = np.gradient(c, axis=0)
-            d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
-            xy.append(c)
-            normal.append(np.column_stack([-d[:, 1], d[:, 0]]))
-        return cls(np.vstack(xy), np.vstack(normal))
-
-    def towards(self, sensor_xy: np.ndarray, offset: float) -> PlanarTarget:
-        """The centre lines shifted ``offset`` m sideways towards ``sensor_xy`` (2,)."""
-        side = np.sign(np.einsum("ij,ij->i", sensor_xy - self.xy, self.normal))
-        return PlanarTarget.of(self.xy + (offset * side)[:, None] * self.normal)
-
-
-def _length(p: np.ndarray) -> float:
-    """Length (m) of a polyline (n, 2)."""
-    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
-
-
-def robust_score(d: np.ndarray, tau: float) -> float:
-    """Mean of clip(1 - d / tau, 0, 1): 1 for a cloud entirely on the road, 0 for one off it."""
-    return float(np.clip(1.0 - np.asarray(d) / tau, 0.0, 1.0).mean()) if np.size(d) else 0.0
-
-
-def _planar(xy: np.ndarray, pose: np.ndarray) -> np.ndarray:
-    """Apply a planar pose (x, y, yaw) to (N, 2) points."""
-    c, s = np.cos(pose[2]), np.sin(pose[2])
-    return xy @ np.array([[c, s], [-s, c]]) + pose[:2]
-
-
-def _kabsch_2d(p: np.ndarray, q: np.ndarray) -> tuple[float, np.ndarray]:
-    """Rotation angle and translation (2,) best mapping points p onto q (both (N, 2))."""
-    pc, qc = p.mean(axis=0), q.mean(axis=0)
-    h = (p - pc).T @ (q - qc)
-    ang = float(np.arctan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1]))
-    c, s = np.cos(ang), np.sin(ang)
-    return ang, qc - np.array([[c, -s], [s, c]]) @ pc
-
-
-@dataclass
-class IcpOutcome:
-    """Planar ICP result: pose (x, y, yaw), whether the last stage converged, iterations run."""
-
-    pose: np.ndarray
-    converged: bool
-    iterations: int
-
-
-def icp_planar(
-    src: np.ndarray, target: PlanarTarget, pose0: np.ndarray, ranges: list[float],
-    iterations: int, tol: float = 1e-3,
-) -> IcpOutcome:
-    """Point-to-point planar ICP of source points (N, 2) (sensor-centred, levelled) against a
-    planar target, one stage per correspondence range (m); returns the pose mapping src to L.
-
-    A stage ends when the update moves the source by less than ``tol`` m (translation plus
-    rotation times the source radius) or after ``iterations`` steps.
-    """
-    pose = np.asarray(pose0, dtype=float).copy()
-    radius = float(np.sqrt((src**2).sum(axis=1).max())) if len(src) else 0.0
-    converged, total = False, 0
-    for rng in ranges:
-        converged = False
-        for _ in range(iterations):
-            total += 1
-            cur = _planar(src, pose)
-            d, idx = target.tree.query(cur, distance_upper_bound=rng)
-            ok = np.isfinite(d)
-            if ok.sum() < 3:
-                break
-            ang, t = _kabsch_2d(cur[ok], target.xy[idx[ok]])
-            c, s = np.cos(ang), np.sin(ang)
-            pose[:2] = np.array([[c, -s], [s, c]]) @ pose[:2] + t
-            pose[2] = wrap_angle(pose[2] + ang)
-            if np.hypot(*t) + abs(ang) * radius < tol:
-                converged = True
-                break
-    return IcpOutcome(pose=pose, converged=converged, iterations=total)
-
-
-# --------------------------------------------------------------------------------------------
-# global hypothesis search
-# --------------------------------------------------------------------------------------------
-def search_grid(
-    src: np.ndarray, road: RoadModel | ScoreRaster, centre: np.ndarray, yaws: np.ndarray,
-    offs: np.ndarray,
-) -> np.ndarray:
-    """Robust score (nyaw, n, n) of every (yaw, start position ``centre + (offs[i], offs[j])``)
-    hypothesis for source points (N, 2), read from the score raster.
-
-    offs must be multiples of the raster cell. Points off the raster are clamped into its
-    zero-score border (which needs the raster padded by at least 2 max|offs| + tau).
-    """
-    nx, ny = road.score.shape
-    flat = road.score.ravel()
-    k = np.round(offs / road.cell).astype(np.int64)
-    shift = (k[:, None] * ny + k[None, :]).ravel()
-    m = int(np.abs(k).max())
-    out = np.empty((len(yaws), shift.size), dtype=np.float32)
-    for a, yaw in enumerate(yaws):
-        ij = np.round((_planar(src, np.array([*centre, yaw])) - road.origin) / road.cell)
-        i = np.clip(ij[:, 0].astype(np.int64), m, nx - 1 - m)
-        j = np.clip(ij[:, 1].astype(np.int64), m, ny - 1 - m)
-        out[a] = np.take(flat, (i * ny + j)[:, None] + shift[None, :]).mean(axis=0)
-    return out.reshape(len(yaws), len(offs), len(offs))
-
-
-def distinct_peaks(
-    scores: np.ndarray, yaws: np.ndarray, offs: np.ndarray, k: int, yaw_sep: float,
-    pos_sep: float,
-) -> list[tuple[float, float, float, float]]:
-    """Up to k best hypotheses (score, yaw, dx, dy) at least yaw_sep rad or pos_sep m apart."""
-    order = np.argsort(scores, axis=None)[::-1]
-    picked: list[tuple[float, float, float, float]] = []
-    for flat in order:
-        a, i, j = np.unravel_index(flat, scores.shape)
-        yaw, dx, dy = float(yaws[a]), float(offs[i]), float(offs[j])
-        if all(
-            abs(wrap_angle(yaw - p[1])) >= yaw_sep or np.hypot(dx - p[2], dy - p[3]) >= pos_sep
-            for p in picked
-        ):
-            picked.append((float(scores[a, i, j]), yaw, dx, dy))
-            if len(picked) == k:
-                break
-    return picked
-
-
-# --------------------------------------------------------------------------------------------
-# vertical fit
-# --------------------------------------------------------------------------------------------
-#: ASPRS classes that are never an obstacle above the road: ground, noise, water, road surface,
-#: ignored ground
-_GROUND_LIKE = np.array([2, 7, 9, 11, 20])
-
-
-@dataclass
-class StaticGround:
-    """Static returns near the ground whose height the ALS gives (kerbs, the road's edge).
-
-    src: (M, 3) detections in S with ``|doppler| <= static_doppler_max`` (a regular subsample
-    of at most ``static_points``). high: 2D KD-tree over the ALS points outside the road
-    classes (buildings, vegetation, poles) and their heights ``high_z`` (M',) in L. lanes: a
-    KD-tree over the lane centre samples (a return within ``static_lane_clearance`` of a lane
-    centre may be a vehicle that stands or crosses the beam, not the ground).
-    """
-
-    src: np.ndarray
-    high: cKDTree | None
-    high_z: np.ndarray
-    lanes: cKDTree
-
-    @classmethod
-    def build(cls, radar: RadarData, als_xyz: np.ndarray, als_class: np.ndarray,
-              centre: np.ndarray, reach: float, lanes: LaneCentres, cfg: CoarseConfig
-              ) -> StaticGround:
-        """From the radar rows, the ALS (xyz (N, 3) in L, ASPRS classes (N,)) within ``reach``
-        m of ``centre`` (2,) (every class but ground, road, water, noise and ignored ground
-        may be an obstacle; the height test decides for unclassified points) and the lanes."""
-        st = np.asarray(radar.xyz, dtype=float)[np.abs(radar.doppler) <= cfg.static_doppler_max]
-        st = st[:: max(1, len(st) // cfg.static_points)] if len(st) else np.zeros((0, 3))
-        near = np.hypot(*(als_xyz[:, :2] - centre).T) <= reach
-        off = near & ~np.isin(als_class, _GROUND_LIKE)
-        high = cKDTree(als_xyz[off, :2]) if off.any() else None
-        return cls(st, high, als_xyz[off, 2].astype(float), cKDTree(lanes.xy))
-
-    def rows(self, r_tilt: np.ndarray, pose2d: np.ndarray, road: RoadModel,
-             cfg: CoarseConfig) -> tuple[np.ndarray, np.ndarray]:
-        """The static returns that qualify at this placement: their levelled sensor-centred
-        coordinates (K, 3) and the ALS road height under each (K,). A return qualifies within
-        ``static_ground_distance`` m of a road point, at least ``static_lane_clearance`` m from
-        every lane centre, with no ALS point higher than ``static_clearance_height`` m above
-        that road height within ``static_clearance`` m (no wall, tree or pole it could be)."""
-        lev = self.src @ r_tilt.T
-        xy = _planar(lev[:, :2], pose2d)
-        zr, dn = road.road_height(xy)
-        ok = (dn <= cfg.static_ground_distance) & (
-            self.lanes.query(xy)[0] >= cfg.static_lane_clearance)
-        if self.high is not None and ok.any():
-            d, i = self.high.query(xy[ok], k=8, distance_upper_bound=cfg.static_clearance)
-            found = np.isfinite(d)
-            hz = np.where(found, self.high_z[np.minimum(i, len(self.high_z) - 1)], -np.inf)
-            ok[np.flatnonzero(ok)] = ~np.any(hz > zr[ok, None] + cfg.static_clearance_height,
-                                             axis=1)
-        return lev[ok], zr[ok]
-
-
-def fit_vertical(
-    lev: np.ndarray, xy_l: np.ndarray, road: RoadModel, allowed: np.ndarray,
-    tilt: tuple[float, float], z_prior: float, cfg: CoarseConfig,
-    statics: tuple[np.ndarray, np.ndarray] | None = None,
-) -> tuple[np.ndarray, float, np.ndarray] | None:
-    """Small tilt (wx, wy) rad about the levelled axes and the sensor height z (m in L) from the
-    moving returns ``lev`` (N, 3, levelled, sensor-centred) and the static ground returns
-    ``statics`` ((K, 3) levelled, (K,) ALS road height under each; :meth:`StaticGround.rows`).
-
-    Unknowns ``(wx, wy, z, h_v, h_s)``: h_v the mean height of the moving returns above the
-    road, h_s that of the static ones. Rows: ``lev_z + wx lev_y - wy lev_x + z - h = z_road``
-    for the ``allowed`` moving points within ``cfg.icp_ranges[-1]`` of the road (h = h_v) and
-    for the static ones (h = h_s), each group dropping residuals beyond 3 of its MADs. Priors:
-    z ~ z_prior (``height_prior_sigma``), total pitch, roll ~ 0 (``tilt_prior_sigma_deg``;
-    ``tilt`` = current (pitch, roll) rad, to first order wy adds to the pitch and wx to the
-    roll), h_v ~ ``reflection_height`` +- ``reflection_height_sigma`` (nobody knows where a
-    given radar's returns sit on the bodies; 0 fixes it), h_s ~ ``static_height`` +-
-    ``static_height_sigma``. The moving returns alone fix only ``z - h_v`` (and the tilt): their
-    height errors are largely systematic (body heights, field of view), so they weigh as
-    ``vertical_effective_points`` measurements of sigma ``height_residual_sigma``. The static
-    ones (at least ``static_min_points``) weigh as at most ``static_effective_points``
-    measurements of their own scatter (1.4826 MAD), each row divided by
-    ``sqrt(1 + (range / static_noise_range)^2)`` (the elevation noise grows with range).
-    Returns (wx, wy), z and the 5x5 covariance of the unknowns (z's variance at [2, 2]), or
-    None when fewer than 10 moving points lie on the road.
-    """
-    zr, dn = road.road_height(xy_l)
-    use = allowed & (dn <= cfg.icp_ranges[-1])
-    if use.sum() < 10:
-        return None
-    nv = int(use.sum())
-    groups = [(np.column_stack([lev[use, 1], -lev[use, 0], np.ones(nv), -np.ones(nv),
-                                np.zeros(nv)]), zr[use] - lev[use, 2])]
-    if statics is not None and len(statics[1]) >= cfg.static_min_points:
-        ls, zg = statics
-        ns = len(zg)
-        # the elevation noise makes a return's height noise grow with its range
-        scale = np.sqrt(1.0 + (np.hypot(ls[:, 0], ls[:, 1]) / cfg.static_noise_range) ** 2)
-        groups.append((np.column_stack([ls[:, 1], -ls[:, 0], np.ones(ns), np.zeros(ns),
-                                        -np.ones(ns)]) / scale[:, None], (zg - ls[:, 2]) / scale))
-    st = np.deg2rad(cfg.tilt_prior_sigma_deg)
-    sd = np.array([st, st, cfg.height_prior_sigma, max(cfg.reflection_height_sigma, 1e-6),
-                   max(cfg.static_height_sigma, 1e-6)])
-    a_prior = np.diag(1.0 / sd)
-    b_prior = np.array([-tilt[1], -tilt[0], z_prior, cfg.reflection_height,
-                        cfg.static_height]) / sd
-    keep = [np.ones(len(b), dtype=bool) for _, b in groups]
-    sigma = [cfg.height_residual_sigma, np.inf]
-    for it in range(4):
-        aw, bw = [a_prior], [b_prior]
-        for g, ((a, b), k) in enumerate(zip(groups, keep)):
-            if it == 0 and g == 1:          # the statics join once a first solution exists
-                continue
-            eff = cfg.vertical_effective_points if g == 0 else min(
-                cfg.static_effective_points, k.sum())
-            wd = np.sqrt(eff / k.sum()) / sigma[g]
-            aw.append(a[k] * wd)
-            bw.append(b[k] * wd)
-        aw, bw = np.vstack(aw), np.concatenate(bw)
-        sol = np.linalg.lstsq(aw, bw, rcond=None)[0]
-        for g, (a, b) in enumerate(groups):
-            r = b - a @ sol
-            med = np.median(r[keep[g]]) if it else np.median(r)
-            mad = 1.4826 * np.median(np.abs(r - med)[keep[g]] if it else np.abs(r - med))
-            keep[g] = np.abs(r - med) <= 3.0 * (mad + 1e-6)
-            if g == 1:
-                sigma[1] = max(mad, 0.05)
-    return sol[:2], float(sol[2]), np.linalg.inv(aw.T @ aw)
-
-
-def below_fov_floor(
-    src: np.ndarray, r_tilt: np.ndarray, z: float, z_road: np.ndarray, vfov_deg: float
-) -> np.ndarray:
-    """Mask of points (N, 3, in S) whose whole vertical extent above the road is in view.
-
-    Near the mast the lower edge of the vertical field of view (elevation -vfov/2 in S) passes
-    above the road, so only the upper parts of vehicles return detections there and their
-    heights are biased high. A point qualifies when, along its azimuth, that edge reaches the
-    road (height ``z_road`` (N,) m in L) before the point's horizontal distance, for the sensor at
-    height ``z`` (m in L) with tilt ``r_tilt``.
-    """
-    az = np.arctan2(src[:, 1], src[:, 0])
-    e = -0.5 * np.deg2rad(vfov_deg)
-    ce = np.cos(e)
-    ray = np.column_stack([ce * np.cos(az), ce * np.sin(az), np.full_like(az, np.sin(e))])
-    ray = ray @ r_tilt.T
-    lev = src @ r_tilt.T
-    rho = np.hypot(lev[:, 0], lev[:, 1])
-    edge = z + ray[:, 2] / np.maximum(np.hypot(ray[:, 0], ray[:, 1]), 1e-9) * rho
-    return edge <= z_road
-
-
-def _rodrigues(w: np.ndarray) -> np.ndarray:
-    """Rotation matrix of a rotation vector (rad)."""
-    th = float(np.linalg.norm(w))
-    if th < 1e-12:
-        return np.eye(3)
-    k = w / th
-    kx = np.array([[0.0, -k[2], k[1]], [k[2], 0.0, -k[0]], [-k[1], k[0], 0.0]])
-    return np.eye(3) + np.sin(th) * kx + (1.0 - np.cos(th)) * kx @ kx
 
 
 # --------------------------------------------------------------------------------------------
@@ -535,7 +158,7 @@ def _lane_fit(lev: np.ndarray, target: PlanarTarget | LaneCentres, pose: np.ndar
                      iterations or cfg.icp_iterations).pose
     if lanes is not None:
         target = lanes.towards(end[:2], cfg.visible_side_offset)
-    d = target.tree.query(_planar(lev, end), distance_upper_bound=tau)[0]
+    d = target.tree.query(apply_planar(lev, end), distance_upper_bound=tau)[0]
     return robust_score(d, tau), end
 
 
@@ -611,7 +234,7 @@ def _height_at(src: np.ndarray, road: RoadModel, statics: StaticGround, final: _
     with ``final``'s tilt (a mode a lane away stands on other road heights); ``final``'s own
     when the fit finds too few points."""
     lev = src @ final.r_tilt.T
-    xy_l = _planar(lev[:, :2], pose2d)
+    xy_l = apply_planar(lev[:, :2], pose2d)
     seen = below_fov_floor(src, final.r_tilt, final.z, road.road_height(xy_l)[0], vfov_deg)
     pitch, roll = ypr_from_rot(final.r_tilt)[1:]
     out = fit_vertical(lev, xy_l, road, seen, (pitch, roll), z_prior, cfg,
@@ -658,7 +281,8 @@ def _search(
     for _, yaw, dx, dy in peaks:
         pose0 = np.array([centre[0] + dx, centre[1] + dy, yaw])
         pose = icp_planar(sub, road.planar, pose0, cfg.icp_ranges, cfg.icp_iterations).pose
-        refined.append((robust_score(road.distance(_planar(sub, pose)), cfg.icp_ranges[-1]), pose))
+        d = road.distance(apply_planar(sub, pose))
+        refined.append((robust_score(d, cfg.icp_ranges[-1]), pose))
     refined.sort(key=lambda item: -item[0])
     return refined, yaws, scores
 
@@ -694,7 +318,7 @@ def _refine(
         target = lanes.towards(pose2d[:2], cfg.visible_side_offset)
         out = icp_planar(lev[:, :2], target, pose2d, cfg.lane_icp_ranges, cfg.icp_iterations)
         pose2d = out.pose
-        xy_l = _planar(lev[:, :2], pose2d)
+        xy_l = apply_planar(lev[:, :2], pose2d)
         seen = below_fov_floor(src, r_tilt, z, road.road_height(xy_l)[0], vfov_deg)
         rows = None if statics is None else statics.rows(r_tilt, pose2d, road, cfg)
         vertical = fit_vertical(lev, xy_l, road, seen, (pitch, roll), z_prior, cfg, rows)
@@ -706,7 +330,7 @@ def _refine(
         # (wx, wy) turn about the levelled axes, which are L's turned by the yaw
         to_l = rot_z(pose2d[2])
         tilt_cov = to_l[:2, :2] @ cov[:2, :2] @ to_l[:2, :2].T
-        full = to_l @ _rodrigues(np.array([w[0], w[1], 0.0])) @ r_tilt
+        full = to_l @ rodrigues(np.array([w[0], w[1], 0.0])) @ r_tilt
         yaw, pitch, roll = ypr_from_rot(full)
         pose2d = np.array([pose2d[0], pose2d[1], yaw])
         r_tilt = rot_from_ypr(0.0, pitch, roll)
@@ -773,7 +397,7 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig) -> Co
     timings["refinement"] = time.perf_counter() - t
 
     T = se3(rot_z(ref.pose2d[2]) @ ref.r_tilt, [ref.pose2d[0], ref.pose2d[1], ref.z])
-    d = road.distance(_planar((src @ ref.r_tilt.T)[:, :2], ref.pose2d), cfg.icp_ranges[-1])
+    d = road.distance(apply_planar((src @ ref.r_tilt.T)[:, :2], ref.pose2d), cfg.icp_ranges[-1])
     inl = np.isfinite(d)
     fitness = float(inl.mean())
     rmse = float(np.sqrt(np.mean(d[inl] ** 2))) if inl.any() else float("nan")

@@ -1,0 +1,196 @@
+"""The coarse stage's modes carried to the end: every mode's final fit scored on the same data,
+the best one chosen, and an honest ``ambiguous`` status when the data cannot tell them apart.
+
+The coarse stage keeps every distinct pose that fits the lane centres almost as well as the
+best one (:func:`fgloc.coarse.localize.coarse_modes`; typically shifts of a lane width along or
+across the roads under sparse traffic). Each later method registers every mode (reusing the tracks
+placed by the best mode, moved rigidly by the mode's start) and hands its final poses here:
+
+* **Same data, same cost**: each pose ``T_k`` (C -> L) is scored on the same tracked
+  detections (the method's labelled source cloud, frame C) against the same kind of target
+  (the lane centre lines of each point's label shifted towards mode k's sensor) with the
+  robust cost ``rho(d) = min(d, c)^2 / c^2`` (``coarse.mode_cost_scale`` c), summed per track.
+* **Choice**: the mode of least total cost.
+* **Told apart?** The points of one vehicle share its errors, so the evidence against mode k
+  is counted per track: ``D_j`` = track j's cost under k minus under the best mode, and
+  ``z_k = sum_j D_j / sqrt(sum_j D_j^2)`` (a self-normalized sum: about N(0, 1) when the
+  tracks' differences are symmetric about 0, i.e. when k fits as well; ``sqrt(n)`` when n
+  tracks all prefer the best by the same amount). Mode k is ruled out when
+  ``z_k >= coarse.mode_z``; otherwise the result is ``status = "ambiguous"``.
+* **Ambiguous**: the reported pose stays the best mode's, but the covariance covers every mode
+  not ruled out: ``mean_k (C_k + e_k e_k^T)``, ``e_k`` the mode's (x, y, yaw) minus the
+  reported one and ``C_k`` its own covariance (where the method has one), so the truth at any
+  of them lies within about ``sqrt(number of modes)`` standard deviations.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from fgloc.config import CoarseConfig
+from fgloc.geo import LocalFrame, pose_from_se3, se2_to_se3, transform_points, wrap_angle
+from fgloc.registration.sicp import ALL, SemanticTargets
+from fgloc.registration.source import SourceCloud
+
+if TYPE_CHECKING:
+    from fgloc.coarse import CoarseResult
+
+RESOLVED = "resolved"
+AMBIGUOUS = "ambiguous"
+
+
+@dataclass
+class ModeFit:
+    """One mode's final fit.
+
+    T_fine: 3x3 SE(2) C -> L of the final registration; T_local: 4x4 S -> L of the pose.
+    covariance: 3x3 of the sensor's (x [m], y [m], yaw [rad]) in L, or None. track_cost: (J,)
+    robust cost per track (the order of :func:`track_costs`'s ids, the same for every mode of
+    one run). lane_score: the coarse mode's lane-centre score. converged: the registration's.
+    start: 3x3 SE(2) C -> L, the coarse mode's start (:attr:`fgloc.coarse.CoarseMode.start`).
+    z_std: std. dev. (m) of the height (T_local's z, that of the coarse mode), or None.
+    """
+
+    T_fine: np.ndarray
+    T_local: np.ndarray
+    covariance: np.ndarray | None
+    track_cost: np.ndarray
+    lane_score: float
+    converged: bool
+    start: np.ndarray
+    z_std: float | None = None
+
+    @property
+    def cost(self) -> float:
+        return float(self.track_cost.sum())
+
+    @property
+    def sensor(self) -> np.ndarray:
+        """(x, y, yaw) of the sensor in L (m, m, rad)."""
+        return np.array([self.T_local[0, 3], self.T_local[1, 3],
+                         np.arctan2(self.T_local[1, 0], self.T_local[0, 0])])
+
+
+def track_costs(src: SourceCloud, targets: SemanticTargets, T: np.ndarray, scale: float
+                ) -> np.ndarray:
+    """Summed robust cost ``min(d, scale)^2 / scale^2`` per track (ordered by track id) of the
+    source points moved by T (3x3 C -> L); d is the distance (m) to the nearest target point
+    of the point's label (of any label when the target has none of it)."""
+    xy = transform_points(T, src.xy)
+    d = np.full(len(xy), scale)
+    for code in np.unique(src.label):
+        sel = src.label == code
+        idx, tree = targets.tree(int(code) if targets.count(int(code)) else ALL)
+        if len(idx):
+            d[sel] = tree.query(xy[sel], distance_upper_bound=scale)[0]
+    rho = np.minimum(d, scale) ** 2 / scale**2
+    _, inv = np.unique(src.track_id, return_inverse=True)
+    return np.bincount(inv.reshape(-1), weights=rho)
+
+
+def separation_z(worse: np.ndarray, best: np.ndarray) -> float:
+    """Standard errors by which per-track costs ``best`` beat ``worse`` (same tracks):
+    ``sum D / sqrt(sum D^2)``, ``D = worse - best``; 0 when they agree exactly."""
+    diff = np.asarray(worse, float) - np.asarray(best, float)
+    norm = float(np.sqrt((diff**2).sum()))
+    return float(diff.sum() / norm) if norm > 0.0 else 0.0
+
+
+def merge_modes(fits: list[ModeFit], cfg: CoarseConfig) -> list[ModeFit]:
+    """The fits best (least cost) first, without those that ended within
+    ``mode_separation`` m and ``mode_separation_deg`` of a better one (the same pose)."""
+    kept: list[ModeFit] = []
+    for fit in sorted(fits, key=lambda f: f.cost):
+        if all(np.hypot(*(fit.sensor[:2] - k.sensor[:2])) >= cfg.mode_separation
+               or abs(wrap_angle(fit.sensor[2] - k.sensor[2]))
+               >= np.deg2rad(cfg.mode_separation_deg) for k in kept):
+            kept.append(fit)
+    return kept
+
+
+@dataclass
+class ModeChoice:
+    """The comparison of merged fits (best first): z (M,) standard errors by which the best
+    beats each (0 for itself); tied: indices of the modes not ruled out (the best included);
+    status "resolved" (only the best) or "ambiguous"."""
+
+    fits: list[ModeFit]
+    z: np.ndarray
+    tied: list[int]
+
+    @property
+    def status(self) -> str:
+        return RESOLVED if len(self.tied) == 1 else AMBIGUOUS
+
+    @property
+    def best(self) -> ModeFit:
+        return self.fits[0]
+
+    def covariance(self, cfg: CoarseConfig) -> np.ndarray | None:
+        """The best mode's covariance when resolved; else the covering one (module
+        docstring), about the best mode's pose (None when resolved without a covariance). A
+        mode without a covariance of its own counts with the mode set's resolution, half the
+        separation (``cfg.mode_separation`` m, ``mode_separation_deg``) as std. dev."""
+        if self.status == RESOLVED:
+            return self.best.covariance
+        centre = self.best.sensor
+        floor = np.diag(np.square(0.5 * np.array(
+            [cfg.mode_separation, cfg.mode_separation, np.deg2rad(cfg.mode_separation_deg)])))
+        acc = np.zeros((3, 3))
+        for k in self.tied:
+            e = self.fits[k].sensor - centre
+            e[2] = wrap_angle(e[2])
+            own = self.fits[k].covariance
+            acc += np.outer(e, e) + (floor if own is None else own)
+        return acc / len(self.tied)
+
+    def summary(self, frame: LocalFrame) -> list[dict[str, object]]:
+        """JSON-ready modes, best first: world pose, cost, z, tied, lane score, std. devs."""
+        out = []
+        for k, fit in enumerate(self.fits):
+            x, y, z, yaw, _, _ = pose_from_se3(frame.pose_to_world(fit.T_local))
+            cov = fit.covariance
+            out.append({
+                "x": x, "y": y, "z": z, "yaw_deg": float(np.rad2deg(yaw)),
+                "z_std_m": fit.z_std,
+                "cost": fit.cost if len(fit.track_cost) else None, "separation_z": float(self.z[k]),
+                "selected": k == 0, "tied": k in self.tied,
+                "coarse_lane_score": fit.lane_score, "converged": fit.converged,
+                "std": None if cov is None else {
+                    "x_m": float(np.sqrt(cov[0, 0])), "y_m": float(np.sqrt(cov[1, 1])),
+                    "yaw_deg": float(np.rad2deg(np.sqrt(cov[2, 2])))},
+            })
+        return out
+
+    def warnings(self, method: str) -> list[str]:
+        """The ambiguity warning (none when resolved)."""
+        if self.status == RESOLVED:
+            return []
+        c = self.best.sensor
+        parts = [f"{np.hypot(*(self.fits[k].sensor[:2] - c[:2])):.1f} m / "
+                 f"{np.rad2deg(abs(wrap_angle(self.fits[k].sensor[2] - c[2]))):.1f} deg "
+                 f"(z {self.z[k]:.1f})" for k in self.tied[1:]]
+        return [f"{method}: ambiguous pose: {len(self.tied)} modes fit the data alike (the "
+                f"reported one and {'; '.join(parts)} away); the covariance covers them all"]
+
+
+def coarse_choice(coarse: CoarseResult) -> ModeChoice:
+    """The coarse stage's modes as they stand (the icp method): the lane-centre scores cannot
+    rule a mode out (they are all within ``mode_margin``), so more than one is ambiguous."""
+    fits = [ModeFit(m.start, m.placed(se2_to_se3(m.start) @ coarse.T_coarse), None,
+                    np.zeros(0), m.lane_score, coarse.converged, m.start, m.z_std)
+            for m in coarse.modes]
+    return ModeChoice(fits, np.zeros(len(fits)), list(range(len(fits))))
+
+
+def choose_mode(fits: list[ModeFit], cfg: CoarseConfig) -> ModeChoice:
+    """Merge the fits, pick the least cost and rule out modes by ``cfg.mode_z`` (module
+    docstring)."""
+    merged = merge_modes(fits, cfg)
+    best = merged[0].track_cost
+    z = np.array([separation_z(f.track_cost, best) for f in merged])
+    tied = [k for k in range(len(merged)) if k == 0 or z[k] < cfg.mode_z]
+    return ModeChoice(merged, z, tied)

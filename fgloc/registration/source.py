@@ -1,0 +1,154 @@
+"""The labelled source cloud of the fine registration, built from the tracks (paper III-C).
+
+The paper's source cloud Z is the set of radar measurements the tracker used, each labelled by
+the driving behaviour (kappa = yawrate / v against eta) of its track's state, voxel-downsampled
+to the target's voxel size. :func:`build_source_cloud` builds it (``FineConfig.source =
+"detections"``) and two track-derived alternatives: the tracked vehicle centres ("centres") and
+the tracked contour points ("contours"), all in the coarse frame C.
+
+Rules chosen here:
+
+* Trajectory subset: the paper registers a random subset of the trajectories (20 of 80, 50 of
+  146). ``n_trajectories`` and ``trajectory_share`` pick one without replacement with the
+  caller's generator (seeded from ``Config.seed``), so a run is reproducible.
+* Downsampling: one 2D voxel grid anchored at the origin of C; points are averaged per
+  (label, voxel) pair so labels stay pure. A voxel holding points of several tracks keeps the
+  track id of its first point (in track order), so ``track_id`` says where a point came from,
+  not which tracks share its voxel.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fgloc.config import Config
+from fgloc.geo import transform_points
+from fgloc.labels import NAMES
+from fgloc.registration.config import SOURCE_KINDS, TARGET_KINDS, FineConfig
+from fgloc.scenario import Scenario
+from fgloc.tracks import N_CONTOUR, N_KIN, YAW, Track, TrackSet, contour_angles
+
+
+@dataclass
+class SourceCloud:
+    """Labelled source points of the fine registration.
+
+    xy: (N, 2) float64 m in the coarse frame C. label: (N,) int8 codes of :mod:`fgloc.labels`.
+    track_id: (N,) int64 id of the track each point came from (first point of its voxel).
+    kind: the ``FineConfig.source`` it was built as. n_tracks_used / n_tracks_total: trajectories
+    in the cloud / available. n_raw: points before downsampling.
+    """
+
+    xy: np.ndarray
+    label: np.ndarray
+    track_id: np.ndarray
+    kind: str
+    n_tracks_used: int
+    n_tracks_total: int
+    n_raw: int
+
+    def __len__(self) -> int:
+        return int(self.xy.shape[0])
+
+    def summary(self) -> dict[str, object]:
+        """JSON-ready counts: points in total and per label name, trajectories used."""
+        return {
+            "kind": self.kind,
+            "n_points": len(self),
+            "n_points_raw": self.n_raw,
+            "points_per_label": {NAMES[k]: int((self.label == k).sum()) for k in NAMES},
+            "n_tracks_used": self.n_tracks_used,
+            "n_tracks_total": self.n_tracks_total,
+        }
+
+
+def check_fine_config(cfg: FineConfig) -> None:
+    """Raise ValueError naming the first invalid FineConfig field."""
+    problems = {
+        "source": cfg.source not in SOURCE_KINDS,
+        "target": cfg.target not in TARGET_KINDS,
+        "lane_sample_step": not cfg.lane_sample_step > 0.0,
+        "start_range": not cfg.start_range >= 0.0,
+        "n_trajectories": cfg.n_trajectories is not None and cfg.n_trajectories < 1,
+        "trajectory_share": not 0.0 < cfg.trajectory_share <= 1.0,
+        "voxel_size": cfg.voxel_size is not None and not cfg.voxel_size > 0.0,
+    }
+    bad = [k for k, v in problems.items() if v]
+    if bad:
+        raise ValueError(f"invalid fine config field {bad[0]}: {getattr(cfg, bad[0])!r}")
+
+
+def choose_tracks(n: int, cfg: FineConfig, rng: np.random.Generator) -> np.ndarray:
+    """Sorted indices of the trajectories to use out of ``n``: all, or a random subset of
+    ``min(n_trajectories, ceil(trajectory_share * n))`` drawn without replacement."""
+    k = int(np.ceil(cfg.trajectory_share * n - 1e-9))
+    if cfg.n_trajectories is not None:
+        k = min(k, cfg.n_trajectories)
+    if k >= n:
+        return np.arange(n)
+    return np.sort(rng.choice(n, size=k, replace=False))
+
+
+def _track_points(
+    scn: Scenario, tr: Track, T_coarse: np.ndarray, kind: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 2) points in C of one track and the (n,) label of each."""
+    if kind == "detections":
+        xy = transform_points(T_coarse, np.asarray(scn.radar.xyz, float)[tr.det_index])[:, :2]
+        return xy, tr.labels[tr.det_step]
+    if kind == "centres":
+        return tr.states[:, :2], tr.labels
+    s = tr.states
+    ang = contour_angles()[None, :] + s[:, YAW, None]
+    r = s[:, N_KIN : N_KIN + N_CONTOUR]
+    xy = np.stack([s[:, 0, None] + r * np.cos(ang), s[:, 1, None] + r * np.sin(ang)], axis=-1)
+    return xy.reshape(-1, 2), np.repeat(tr.labels, N_CONTOUR)
+
+
+def voxel_per_label(
+    xy: np.ndarray, label: np.ndarray, voxel: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Average points (N, 2) per occupied (label, voxel) cell of a grid of edge ``voxel`` m
+    anchored at the origin. Returns the (M, 2) centroids, their (M,) labels and the (M,) index
+    of the first input point of each cell."""
+    if xy.shape[0] == 0:
+        return np.zeros((0, 2)), label[:0], np.zeros(0, dtype=np.int64)
+    cell = np.floor(xy / voxel).astype(np.int64)
+    cell -= cell.min(axis=0)
+    span = cell.max(axis=0) + 1
+    key = (label.astype(np.int64) * span[0] + cell[:, 0]) * span[1] + cell[:, 1]
+    _, first, inv = np.unique(key, return_index=True, return_inverse=True)
+    inv = inv.reshape(-1)
+    n = np.bincount(inv).astype(float)
+    cent = np.column_stack([np.bincount(inv, weights=xy[:, k]) / n for k in range(2)])
+    return cent, label[first], first
+
+
+def build_source_cloud(
+    scn: Scenario, tracks: TrackSet, T_coarse: np.ndarray, cfg: Config,
+    rng: np.random.Generator | None = None,
+) -> SourceCloud:
+    """Labelled source cloud in C from the tracks (module docstring), as ``cfg.fine`` says.
+
+    tracks: the tracker's output in frame C (``det_index`` into ``scn.radar``, ``det_step`` into
+    each track's states). T_coarse: 4x4 S -> L that placed the detections, i.e. S -> C. The
+    voxel edge is ``cfg.fine.voxel_size``, else ``cfg.map.voxel_size`` (the target's). rng draws
+    the trajectory subset (None: ``np.random.default_rng(cfg.seed)``). Raises ValueError for an
+    invalid ``cfg.fine``.
+    """
+    fine = cfg.fine
+    check_fine_config(fine)
+    voxel = cfg.map.voxel_size if fine.voxel_size is None else fine.voxel_size
+    used = choose_tracks(len(tracks), fine, rng or np.random.default_rng(cfg.seed))
+    parts = [_track_points(scn, tracks.tracks[i], T_coarse, fine.source) for i in used]
+    xy = np.vstack([p[0] for p in parts]) if parts else np.zeros((0, 2))
+    label = np.concatenate([p[1] for p in parts] + [np.zeros(0, np.int8)]).astype(np.int8)
+    track_id = np.concatenate(
+        [np.full(len(p[1]), tracks.tracks[i].id, dtype=np.int64) for i, p in zip(used, parts)]
+        + [np.zeros(0, np.int64)]
+    )
+    cent, lab, first = voxel_per_label(xy, label, voxel)
+    return SourceCloud(cent, lab, track_id[first], fine.source, int(used.size), len(tracks),
+                       int(xy.shape[0]))
