@@ -94,7 +94,7 @@ def test_fixed_lag_between_filter_and_batch_on_a_busy_intersection() -> None:
     # 7 detections made the fixed-lag smoother diverge (heading flipped, 19 m contour) when
     # ISAM2 checked relinearization only every 3rd update (pooled centre RMS 0.81 m against
     # the filter's 0.43 m, yaw error 5.2 deg); measured at c62332d: 0.433 m, 0.61 deg
-    # (docs/benchmarks.md, "Fixed-lag smoother speed")
+    # (docs/experiments.md, "Fixed-lag smoother speed")
     scn = simulate("intersection", 1, duration=60.0, vehicles=30)
     cfg = Config()
     run = track(scn, cfg, oracle_pose=True)
@@ -109,7 +109,7 @@ def test_fixed_lag_between_filter_and_batch_on_a_busy_intersection() -> None:
 
 
 # one passenger car per scenario (class mix: cars only). Measured on other seeds
-# (docs/benchmarks.md): the batch smoother lowers the yaw error on every one, but its centre
+# (docs/experiments.md): the batch smoother lowers the yaw error on every one, but its centre
 # RMS is worse on some (a contour too long or short where no side is seen at enough incidence
 # to measure the length), so these are cases where it wins, not a claim that it always does.
 CASES = [("intersection", 6)]
@@ -133,7 +133,7 @@ def one_car(case: str, seed: int) -> None:
           f"{m1.iou:.3f}")
     assert m1.n_states == m0.n_states > 20
     assert m1.centre_rms < m0.centre_rms and m1.yaw_error_deg < m0.yaw_error_deg
-    # IoU: the aggregate rises (docs/benchmarks.md); on these single cars it must not drop
+    # IoU: the aggregate rises (docs/experiments.md); on these single cars it must not drop
     # (curve 3 with the range-rate rows: 0.7687 -> 0.7679)
     assert m1.iou > m0.iou - 0.002
 

@@ -101,4 +101,4 @@ class FineConfig:
     """First maximum correspondence distance (m) of SICP for this method, overriding
     ``sicp.max_correspondence`` (50 m in the paper, meant for a start far from the solution);
     0 = use ``sicp.max_correspondence``. The coarse pose is within about a metre, and a wide
-    first range lets far, wrong correspondences bias the result (docs/benchmarks.md)."""
+    first range lets far, wrong correspondences bias the result (docs/experiments.md)."""

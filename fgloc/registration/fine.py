@@ -8,7 +8,7 @@ What the source and the target are is configured in ``[fine]`` (:class:`FineConf
 paper registers the tracks' detections to the labelled ALS road points from a 50 m first
 correspondence range. Started from the coarse pose that makes the pose worse: inside the road
 the cost is flat (any pose keeping the points on the asphalt fits) and the wide first ranges
-let off-road detections pull it by about a metre (docs/benchmarks.md). The default instead
+let off-road detections pull it by about a metre (docs/experiments.md). The default instead
 registers the same labelled detections to the labelled lanelet centre lines shifted towards
 the sensor by ``coarse.visible_side_offset`` (the radar sees a vehicle's near side), from a
 5 m first range: the coarse stage's lane model, but with only the detections the tracker

@@ -37,7 +37,7 @@ eliminating the banded track block (one banded Cholesky for all tracks) onto the
 the offsets. The same factors as gtsam CustomFactors (:func:`factors.registration_factors.
 point_to_point_factor`, :func:`fgloc.smoothing.graph.build_track_graph`) give the same step
 and the same pose marginal (tests); one Python callback per factor and linearization made the
-gtsam optimization ~70x slower (docs/benchmarks.md).
+gtsam optimization ~70x slower (docs/experiments.md).
 
 Correlation and the covariance
 ------------------------------
@@ -58,7 +58,7 @@ marginal covariance of ``T`` at the solution (the inverse of its Schur complemen
 constant side bias and of one lateral bias per lanelet that are considered, not estimated
 (``consider_side_bias_sigma``, ``consider_lane_bias_sigma``, :func:`consider_covariance`),
 and are mapped to the sensor's (x, y, yaw) in L. Their
-calibration (NEES) is measured in docs/benchmarks.md.
+calibration (NEES) is measured in docs/experiments.md.
 
 Degeneracy report: the information of ``T`` (inverse marginal covariance) re-expressed in
 metric coordinates about the matched points' centroid (translation, and rotation as arc length

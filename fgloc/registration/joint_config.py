@@ -35,7 +35,7 @@ class JointConfig:
     The batch smoother halves the lateral error of a track's first seconds; the joint came
     out closer from its tracks on the default simulated intersections and T-junctions (seeds
     1-5) but not under changed simulator settings, at ~4 CPU s per track-minute more
-    (docs/benchmarks.md, joint section)."""
+    (docs/experiments.md, joint section)."""
     lateral_model: str = "contour"
     """Target of a contour point: "contour" = the lane centre line moved sideways by the
     point's lateral place in its vehicle (r sin theta: a vehicle drives centred in its lane);
@@ -45,7 +45,7 @@ class JointConfig:
     """Extent rows (the measured ends of a vehicle, docs/method.md 5.4) in the joint's track
     factors; the other track-factor settings are ``[smoothing]``'s. Off by default: on the
     simulated intersections and T-junctions (seeds 1-5) the joint came out closer without
-    them (docs/benchmarks.md, joint section)."""
+    them (docs/experiments.md, joint section)."""
     relinearize_tracks: bool = False
     """Relinearize the track factors (process, contour measurement) at every round; False =
     linearize them once at the filter's states (they are nearly linear there; the rounds then
@@ -134,7 +134,7 @@ class JointConfig:
     """At most this many re-association + optimization rounds. The pose converges like ICP,
     linearly (each round's step ~0.5-0.7 of the previous one), and a noise re-estimation can
     restart it: with 8, 7 of 30 runs on varied simulator settings (radar noise x2, spread
-    reflections, clutter, traffic; docs/benchmarks.md) stopped 1-20 mm short of settled."""
+    reflections, clutter, traffic; docs/experiments.md) stopped 1-20 mm short of settled."""
     optimizer: str = "levenberg-marquardt"
     """Optimizer of a round: "levenberg-marquardt" (damped) or "gauss-newton" (one
     linearization and one error evaluation per iteration, but undamped: on simulated

@@ -13,7 +13,7 @@ Damping (Marquardt): the diagonal of a track's system is scaled by ``1 + lambda`
 ``lambda * DAMPING_FLOOR`` so a direction no factor observes still has a finite step). On simulated
 intersections this scale-invariant damping ended at a lower centre error than a damping of
 ``lambda * I`` (gtsam's default) at the same final cost (seeds 1-3, 30 s: pooled centre RMS
-0.280 / 0.731 / 0.401 m against 0.303 / 0.788 / 0.498 m; docs/benchmarks.md).
+0.280 / 0.731 / 0.401 m against 0.303 / 0.788 / 0.498 m; docs/experiments.md).
 """
 
 from __future__ import annotations

@@ -71,7 +71,7 @@ class SmoothingConfig:
     tracks; otherwise the smoothed tracks carry no covariances."""
     relinearize_threshold: float = 1.0
     """Fixed-lag (ISAM2): relinearize a variable whose update exceeds this (any component,
-    state units). Measured on intersection seeds 1-3 (docs/benchmarks.md, "Fixed-lag
+    state units). Measured on intersection seeds 1-3 (docs/experiments.md, "Fixed-lag
     smoother speed"): 0.3 with a check every 3 updates let a badly born track diverge (heading
     flipped, contour 19 m long) and cost more CPU; 1.0 checked every update did not."""
     relinearize_skip: int = 1
