@@ -19,6 +19,12 @@ NAMES: dict[int, str] = {STRAIGHT: "straight", LEFT: "left", RIGHT: "right"}
 CODES: dict[str, int] = {v: k for k, v in NAMES.items()}
 
 
+def mirrored(codes: np.ndarray) -> np.ndarray:
+    """Label codes of the same paths driven the other way: LEFT and RIGHT swapped."""
+    codes = np.asarray(codes)
+    return np.where(codes == LEFT, RIGHT, np.where(codes == RIGHT, LEFT, codes)).astype(codes.dtype)
+
+
 def label_names(codes: np.ndarray) -> np.ndarray:
     """Array of label names for an array of label codes."""
     lut = np.array([NAMES[k] for k in sorted(NAMES)], dtype=object)

@@ -105,6 +105,12 @@ class AlsCloud:
         return int(self.xyz.shape[0])
 
 
+#: A two-way lanelet (tag ``one_way`` = no / false: both directions drive it) at least this wide
+#: (m) holds one lane per direction, each keeping to its right half (right-hand traffic): a
+#: two-way street mapped as one lanelet. A narrower one is a single shared lane at its centre.
+TWO_WAY_MIN_WIDTH: float = 5.0
+
+
 @dataclass
 class Lanelet:
     """One lanelet: left and right bounds as (n, 3) float64 polylines in L (z may be 0 when the
@@ -121,9 +127,33 @@ class Lanelet:
 
     def centerline(self, n: int = 20) -> np.ndarray:
         """(n, 2) centre line from arc-length-resampled bounds."""
-        return 0.5 * (
-            resample_polyline(self.left[:, :2], n) + resample_polyline(self.right[:, :2], n)
-        )
+        return self.line_at(0.5, n)
+
+    def line_at(self, share: float, n: int) -> np.ndarray:
+        """(n, 2) line ``share`` of the way from the right bound (0) to the left bound (1),
+        between arc-length-resampled bounds, in the lanelet's direction."""
+        return (share * resample_polyline(self.left[:, :2], n)
+                + (1.0 - share) * resample_polyline(self.right[:, :2], n))
+
+    @property
+    def two_way(self) -> bool:
+        """Both directions may drive it (tag ``one_way`` = no / false)."""
+        return self.attributes.get("one_way", "yes").strip().lower() in ("no", "false")
+
+    def width(self) -> float:
+        """Mean distance (m) between the arc-length-resampled bounds."""
+        return float(np.linalg.norm(resample_polyline(self.left[:, :2], 10)
+                                    - resample_polyline(self.right[:, :2], 10), axis=1).mean())
+
+    def driving_lines(self, n: int, two_way_min_width: float = TWO_WAY_MIN_WIDTH
+                      ) -> list[tuple[np.ndarray, bool]]:
+        """Where vehicles drive on the lanelet: (n, 2) lines in their driving direction, each
+        with whether it runs against the lanelet's direction. The centre line, except on a
+        two-way lanelet at least ``two_way_min_width`` m wide (:data:`TWO_WAY_MIN_WIDTH`): the
+        centre of its right half forward and the centre of its left half backward."""
+        if not (self.two_way and self.width() >= two_way_min_width):
+            return [(self.centerline(n), False)]
+        return [(self.line_at(0.25, n), False), (self.line_at(0.75, n)[::-1], True)]
 
 
 def resample_polyline(p: np.ndarray, n: int) -> np.ndarray:

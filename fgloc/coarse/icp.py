@@ -84,22 +84,28 @@ class RoadModel:
 
 @dataclass
 class LaneCentres:
-    """Lane centre lines sampled in L: points (K, 2) and unit left normals (K, 2)."""
+    """Lane centre lines sampled in L: points (K, 2), unit left normals (K, 2) of the driving
+    direction, and whether each sample's lane runs against its lanelet's direction (K,) (the
+    left half of a two-way lanelet, :meth:`Lanelet.driving_lines`)."""
 
     xy: np.ndarray
     normal: np.ndarray
+    against: np.ndarray
 
     @classmethod
     def build(cls, lanelets: list[Lanelet], step: float) -> LaneCentres:
-        xy, normal = [], []
+        """Every driving line of the lanelets (:meth:`Lanelet.driving_lines`: the centre line,
+        or one line per direction on a wide two-way lanelet) every about ``step`` m."""
+        xy, normal, against = [], [], []
         for ll in lanelets:
             length = max(_length(ll.left[:, :2]), _length(ll.right[:, :2]))
-            c = ll.centerline(max(2, int(np.ceil(length / step)) + 1))
-            d = np.gradient(c, axis=0)
-            d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
-            xy.append(c)
-            normal.append(np.column_stack([-d[:, 1], d[:, 0]]))
-        return cls(np.vstack(xy), np.vstack(normal))
+            for c, back in ll.driving_lines(max(2, int(np.ceil(length / step)) + 1)):
+                d = np.gradient(c, axis=0)
+                d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+                xy.append(c)
+                normal.append(np.column_stack([-d[:, 1], d[:, 0]]))
+                against.append(np.full(len(c), back))
+        return cls(np.vstack(xy), np.vstack(normal), np.concatenate(against))
 
     def towards(self, sensor_xy: np.ndarray, offset: float) -> PlanarTarget:
         """The centre lines shifted ``offset`` m sideways towards ``sensor_xy`` (2,)."""

@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 
 from fgloc.config import Config
 from fgloc.geo import se2_params, se2_to_se3, transform_points
-from fgloc.labels import NAMES
+from fgloc.labels import NAMES, mirrored
 from fgloc.progress import Timer
 from fgloc.registration.config import FineConfig, SicpConfig
 from fgloc.registration.modes import RESOLVED, ModeFit, choose_mode, track_costs
@@ -48,16 +48,20 @@ def lane_centre_points(
     scn: Scenario, target: TargetCloud, step: float, towards: np.ndarray | None = None,
     offset: float = 0.0,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(K, 2) samples (m, in L) of the centre lines of the lanelets in ``target``, every about
-    ``step`` m, and the (K,) label code of each (its lanelet's label). With ``towards`` (2,) m,
-    every sample is shifted ``offset`` m sideways towards that point (the sensor)."""
+    """(K, 2) samples (m, in L) of the lane centre lines of the lanelets in ``target``
+    (:meth:`LaneCentres.build`: one per direction on a wide two-way lanelet), every about
+    ``step`` m, and the (K,) label code of each (its lanelet's label, mirrored on a lane driven
+    against the lanelet's direction). With ``towards`` (2,) m, every sample is shifted
+    ``offset`` m sideways towards that point (the sensor)."""
     from fgloc.coarse import LaneCentres
 
     used = set(np.unique(target.lanelet_id).tolist())
     lanelets = [ll for ll in scn.lanelets.lanelets if ll.id in used]
     lanes = [LaneCentres.build([ll], step) for ll in lanelets]
     xy = [lc.xy if towards is None else lc.towards(towards, offset).xy for lc in lanes]
-    label = [np.full(len(p), target.lanelet_labels[ll.id], np.int8) for p, ll in zip(xy, lanelets)]
+    label = [np.where(lc.against, mirrored(np.int8(target.lanelet_labels[ll.id])),
+                      target.lanelet_labels[ll.id]).astype(np.int8)
+             for lc, ll in zip(lanes, lanelets)]
     return np.vstack(xy), np.concatenate(label)
 
 

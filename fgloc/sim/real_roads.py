@@ -30,6 +30,9 @@ ROUTE_STEP = 1.0
 SMOOTH_HALF_WINDOW = 2
 #: how far (m) beside a bound the curb test looks for another drivable lanelet
 CURB_PROBE = 1.0
+#: a two-way lanelet (``one_way`` = no) at least this wide (m) is a two-way street: vehicles
+#: drive the centre of its right half (right-hand traffic), else its centre line
+KEEP_RIGHT_MIN_WIDTH = 5.0
 
 
 @dataclass
@@ -96,11 +99,13 @@ def junction_routes(lmap: LaneletMap, junction: Junction, reach: float) -> list[
 
 
 def _polyline(lanelets: list[Lanelet], attr: str) -> np.ndarray:
-    """(n, 2) concatenation of the lanelets' centre lines (``attr="centre"``) or bounds,
+    """(n, 2) concatenation of the lanelets' lanes in their direction (``attr="centre"``: the
+    centre line, the right half's on a two-way street, :meth:`Lanelet.driving_lines`) or bounds,
     resampled every ROUTE_STEP m, kinks at the joins smoothed."""
     parts = []
     for ll in lanelets:
-        p = ll.centerline(50) if attr == "centre" else getattr(ll, attr)[:, :2]
+        p = (ll.driving_lines(50, KEEP_RIGHT_MIN_WIDTH)[0][0] if attr == "centre"
+             else getattr(ll, attr)[:, :2])
         parts.append(p if not parts else p[1:])
     xy = np.vstack(parts)
     length = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
@@ -130,8 +135,8 @@ def piece_from_polyline(pid: int, xy: np.ndarray, width: float, curb: bool = Fal
 
 
 def _mean_width(lanelets: list[Lanelet]) -> float:
-    return float(np.mean([np.linalg.norm(resample_polyline(ll.left[:, :2], 10)
-                                         - resample_polyline(ll.right[:, :2], 10), axis=1).mean()
+    """Mean width (m) of the lanes a route drives (half a two-way street's)."""
+    return float(np.mean([ll.width() / len(ll.driving_lines(2, KEEP_RIGHT_MIN_WIDTH))
                           for ll in lanelets]))
 
 

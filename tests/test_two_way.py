@@ -1,0 +1,129 @@
+"""Two-way streets mapped as one lanelet (``one_way`` = no), as real Lanelet2 maps have them.
+
+The Lanelet2 example map draws many two-way streets as one 6-7.5 m wide lanelet; vehicles keep
+to the right half in their direction. The lane models must put a lane per direction there (not
+one lane on the centre line, 1.5-1.9 m beside where the vehicles drive) and the simulator must
+drive it so.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fgloc.coarse import LaneCentres
+from fgloc.config import Config
+from fgloc.geo import se2, transform_points
+from fgloc.labels import LEFT, RIGHT, STRAIGHT
+from fgloc.map import TargetCloud
+from fgloc.registration.fine import fine_sicp_config, lane_centre_points
+from fgloc.registration.sicp import SemanticTargets, sicp
+from fgloc.scenario import Lanelet, LaneletMap
+from fgloc.sim.real_roads import _polyline
+
+
+def _street(lid: int, start: tuple[float, float], heading_deg: float, length: float,
+            width: float, one_way: str) -> Lanelet:
+    """A straight lanelet ``width`` m wide from ``start`` along ``heading_deg``."""
+    h = np.deg2rad(heading_deg)
+    d, n = np.array([np.cos(h), np.sin(h)]), np.array([-np.sin(h), np.cos(h)])
+    s = np.linspace(0.0, length, 2)[:, None]
+    axis = np.asarray(start) + s * d
+    z = np.zeros((2, 1))
+    return Lanelet(lid, np.hstack([axis + 0.5 * width * n, z]),
+                   np.hstack([axis - 0.5 * width * n, z]),
+                   {"type": "lanelet", "subtype": "road", "one_way": one_way})
+
+
+def _arc(lid: int, radius: float, width: float, one_way: str) -> Lanelet:
+    """A quarter circle to the left (counter-clockwise) around the origin, ``width`` m wide."""
+    a = np.linspace(-np.pi / 2, 0.0, 30)
+    ring = np.column_stack([np.cos(a), np.sin(a), np.zeros_like(a)])
+    return Lanelet(lid, ring * [radius - width / 2, radius - width / 2, 0],
+                   ring * [radius + width / 2, radius + width / 2, 0], {"one_way": one_way})
+
+
+@pytest.mark.parametrize(("width", "one_way", "lanes"),
+                         [(7.0, "no", 2), (7.0, "false", 2), (4.0, "no", 1), (7.0, "yes", 1)])
+def test_driving_lines_of_two_way_and_one_way_lanelets(width: float, one_way: str,
+                                                       lanes: int) -> None:
+    ll = _street(1, (0.0, 0.0), 0.0, 40.0, width, one_way)
+    lines = ll.driving_lines(5)
+    assert len(lines) == lanes
+    if lanes == 1:
+        np.testing.assert_allclose(lines[0][0][:, 1], 0.0, atol=1e-12)
+        assert not lines[0][1]
+        return
+    (fwd, back_fwd), (rev, back_rev) = lines
+    # keep right: forward on the right half's centre (y = -w/4), backward on the left half's
+    np.testing.assert_allclose(fwd[:, 1], -width / 4, atol=1e-12)
+    np.testing.assert_allclose(rev[:, 1], width / 4, atol=1e-12)
+    assert fwd[-1, 0] > fwd[0, 0] and rev[-1, 0] < rev[0, 0]
+    assert (back_fwd, back_rev) == (False, True)
+
+
+def test_lane_centres_face_each_lane_direction() -> None:
+    lc = LaneCentres.build([_street(1, (0.0, 0.0), 0.0, 20.0, 7.0, "no")], 0.5)
+    fwd, rev = ~lc.against, lc.against
+    assert fwd.sum() == rev.sum() > 0
+    np.testing.assert_allclose(lc.normal[fwd], [[0.0, 1.0]] * int(fwd.sum()), atol=1e-9)
+    np.testing.assert_allclose(lc.normal[rev], [[0.0, -1.0]] * int(rev.sum()), atol=1e-9)
+
+
+def _scene(lanelets: list[Lanelet], labels: dict[int, int]) -> tuple[object, TargetCloud]:
+    """A stand-in scenario (only ``lanelets`` is read) and a target cloud naming the lanelets."""
+    class _Scn:
+        pass
+    scn = _Scn()
+    scn.lanelets = LaneletMap(lanelets)
+    ids = np.array([ll.id for ll in lanelets], dtype=np.int64)
+    target = TargetCloud(np.zeros((len(ids), 3)), np.array([labels[i] for i in ids], np.int8),
+                         ids, labels)
+    return scn, target
+
+
+def test_lane_against_a_turning_lanelet_takes_the_mirrored_label() -> None:
+    turn = _arc(7, 12.0, 7.0, "no")
+    scn, target = _scene([turn], {7: LEFT})
+    xy, label = lane_centre_points(scn, target, 0.5)
+    r = np.hypot(xy[:, 0], xy[:, 1])
+    # keeping right, the lanelet's own direction (a left turn) takes the outer half (radius
+    # 12 + 1.75), the other direction the inner half, turning right
+    np.testing.assert_array_equal(label[r > 12.0], LEFT)
+    np.testing.assert_array_equal(label[r < 12.0], RIGHT)
+    # (the arc is a 30-point polygon: its chords lie up to 3 cm inside the circle)
+    assert np.all(np.minimum(np.abs(r - 10.25), np.abs(r - 13.75)) < 0.04)
+    assert (r > 12.0).sum() == (r < 12.0).sum()
+
+
+def test_fine_registration_on_two_way_streets_recovers_the_true_pose() -> None:
+    """Vehicles keep right on two two-way streets (an L); their points registered to the lane
+    model from a known offset come back to the truth. With one lane on each street's centre
+    line (the old model) the result is pulled ~w/4 = 1.75 m sideways."""
+    w = 7.0
+    streets = [_street(1, (0.0, 0.0), 0.0, 80.0, w, "no"),
+               _street(2, (0.0, -40.0), 90.0, 80.0, w, "no")]
+    scn, target = _scene(streets, {1: STRAIGHT, 2: STRAIGHT})
+    rng = np.random.default_rng(4)
+    # traffic in each street's own direction only (as on a one-directional stretch of a day)
+    along = np.linspace(0.0, 80.0, 400)
+    truth = np.vstack([np.column_stack([along, np.full(400, -w / 4)]),          # eastbound
+                       np.column_stack([np.full(400, w / 4), along - 40.0])])   # northbound
+    truth = truth + rng.normal(0.0, 0.15, truth.shape)
+    T_err = se2(0.4, -0.3, np.deg2rad(0.5))
+    src = transform_points(np.linalg.inv(T_err), truth)
+    cfg = Config()
+    res = sicp(src, np.full(len(src), STRAIGHT), SemanticTargets.build(
+        *lane_centre_points(scn, target, cfg.fine.lane_sample_step)), None, np.eye(3),
+        fine_sicp_config(cfg))
+    err = transform_points(res.T, src) - truth
+    assert np.abs(err.mean(axis=0)).max() < 0.05
+    assert np.sqrt((err**2).sum(axis=1).mean()) < 0.25
+
+
+def test_simulated_routes_keep_right_on_a_two_way_street() -> None:
+    street = _street(1, (0.0, 0.0), 0.0, 60.0, 7.0, "no")
+    xy = _polyline([street], "centre")
+    np.testing.assert_allclose(xy[:, 1], -1.75, atol=1e-9)
+    one_way = _street(2, (0.0, 0.0), 0.0, 60.0, 7.0, "yes")
+    np.testing.assert_allclose(_polyline([one_way], "centre")[:, 1], 0.0, atol=1e-9)
