@@ -129,11 +129,18 @@ class Lanelet:
         """(n, 2) centre line from arc-length-resampled bounds."""
         return self.line_at(0.5, n)
 
-    def line_at(self, share: float, n: int) -> np.ndarray:
+    def line_at(self, share: float | np.ndarray, n: int) -> np.ndarray:
         """(n, 2) line ``share`` of the way from the right bound (0) to the left bound (1),
-        between arc-length-resampled bounds, in the lanelet's direction."""
+        between arc-length-resampled bounds, in the lanelet's direction; ``share`` a number or
+        (n,) values along the line."""
+        share = np.asarray(share, dtype=float).reshape(-1, 1)
         return (share * resample_polyline(self.left[:, :2], n)
                 + (1.0 - share) * resample_polyline(self.right[:, :2], n))
+
+    def samples(self, step: float) -> int:
+        """Number of samples about ``step`` m apart along the longer bound (at least 2)."""
+        length = max(_length(self.left[:, :2]), _length(self.right[:, :2]))
+        return max(2, int(np.ceil(length / step)) + 1)
 
     @property
     def two_way(self) -> bool:
@@ -145,15 +152,61 @@ class Lanelet:
         return float(np.linalg.norm(resample_polyline(self.left[:, :2], 10)
                                     - resample_polyline(self.right[:, :2], 10), axis=1).mean())
 
-    def driving_lines(self, n: int, two_way_min_width: float = TWO_WAY_MIN_WIDTH
-                      ) -> list[tuple[np.ndarray, bool]]:
-        """Where vehicles drive on the lanelet: (n, 2) lines in their driving direction, each
-        with whether it runs against the lanelet's direction. The centre line, except on a
-        two-way lanelet at least ``two_way_min_width`` m wide (:data:`TWO_WAY_MIN_WIDTH`): the
-        centre of its right half forward and the centre of its left half backward."""
-        if not (self.two_way and self.width() >= two_way_min_width):
-            return [(self.centerline(n), False)]
-        return [(self.line_at(0.25, n), False), (self.line_at(0.75, n)[::-1], True)]
+    def keeps_right(self, two_way_min_width: float = TWO_WAY_MIN_WIDTH) -> bool:
+        """A two-way lanelet wide enough for one lane per direction."""
+        return self.two_way and self.width() >= two_way_min_width
+
+
+def lane_lines(lanelets: list[Lanelet], step: float,
+               two_way_min_width: float = TWO_WAY_MIN_WIDTH
+               ) -> list[tuple[Lanelet, np.ndarray, bool]]:
+    """Where vehicles drive on the lanelets: per lane (lanelet, (n, 2) line about ``step`` m
+    sampled in the driving direction, whether it runs against the lanelet's direction).
+
+    A lanelet has one lane on its centre line, except a two-way lanelet at least
+    ``two_way_min_width`` m wide (:data:`TWO_WAY_MIN_WIDTH`, a two-way street mapped as one
+    lanelet): the centre of its right half forward, the centre of its left half backward
+    (right-hand traffic). A one-way lanelet of the list that starts (ends) where such a lane
+    ends (starts) -- a junction lanelet leading into or out of a two-way street -- bends its line
+    linearly over its length from (to) that lane's end, so the lane model has no jump there.
+    """
+    halves = [ll.keeps_right(two_way_min_width) for ll in lanelets]
+    ends: list[tuple[np.ndarray, np.ndarray]] = []   # (first point, last point) of every lane
+    for ll, half in zip(lanelets, halves):
+        if half:
+            for share in (0.25, 0.75):
+                line = ll.line_at(share, 2)
+                ends.append((line[0], line[-1]) if share == 0.25 else (line[-1], line[0]))
+    out = []
+    for ll, half in zip(lanelets, halves):
+        n = ll.samples(step)
+        if half:
+            out += [(ll, ll.line_at(0.25, n), False), (ll, ll.line_at(0.75, n)[::-1], True)]
+            continue
+        start = _share_on(ll.left[0, :2], ll.right[0, :2], [e[1] for e in ends])
+        end = _share_on(ll.left[-1, :2], ll.right[-1, :2], [e[0] for e in ends])
+        out.append((ll, ll.line_at(np.linspace(start, end, n), n), False))
+    return out
+
+
+def _share_on(left: np.ndarray, right: np.ndarray, points: list[np.ndarray],
+              tol: float = 0.25) -> float:
+    """Share (0 = ``right``, 1 = ``left``) of the first of ``points`` within ``tol`` m of the
+    segment right -> left (a lanelet's start or end bound, its end points); 0.5 when none is."""
+    d = left - right
+    length2 = float(d @ d)
+    if length2 <= 0.0:
+        return 0.5
+    for p in points:
+        t = float((p - right) @ d) / length2
+        if 0.0 < t < 1.0 and np.linalg.norm(right + t * d - p) <= tol:
+            return t
+    return 0.5
+
+
+def _length(p: np.ndarray) -> float:
+    """Length (m) of a polyline (n, 2)."""
+    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
 
 
 def resample_polyline(p: np.ndarray, n: int) -> np.ndarray:

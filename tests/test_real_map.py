@@ -150,7 +150,7 @@ def test_no_target_point_on_crosswalk_walkway_or_bicycle_lane(crop_map: LaneletM
     summary = target.summary()
     assert summary["ignored_lanelets"] == crop_map.ignored_by_kind()
     # what coarse, fine and joint build their lane models from: drivable lanelets only
-    lane_xy, _ = lane_centre_points(scn, target, 2.0)
+    lane_xy, _, _ = lane_centre_points(scn, target, 2.0)
     assert inside_any(lane_xy, crop_map.lanelets).all()
     assert not (inside_any(lane_xy, others) & ~inside_any(lane_xy, crop_map.lanelets)).any()
 

@@ -18,7 +18,7 @@ from fgloc.labels import LEFT, RIGHT, STRAIGHT
 from fgloc.map import TargetCloud
 from fgloc.registration.fine import fine_sicp_config, lane_centre_points
 from fgloc.registration.sicp import SemanticTargets, sicp
-from fgloc.scenario import Lanelet, LaneletMap
+from fgloc.scenario import Lanelet, LaneletMap, lane_lines
 from fgloc.sim.real_roads import _polyline
 
 
@@ -45,16 +45,16 @@ def _arc(lid: int, radius: float, width: float, one_way: str) -> Lanelet:
 
 @pytest.mark.parametrize(("width", "one_way", "lanes"),
                          [(7.0, "no", 2), (7.0, "false", 2), (4.0, "no", 1), (7.0, "yes", 1)])
-def test_driving_lines_of_two_way_and_one_way_lanelets(width: float, one_way: str,
-                                                       lanes: int) -> None:
+def test_lane_lines_of_two_way_and_one_way_lanelets(width: float, one_way: str,
+                                                    lanes: int) -> None:
     ll = _street(1, (0.0, 0.0), 0.0, 40.0, width, one_way)
-    lines = ll.driving_lines(5)
-    assert len(lines) == lanes
+    lines = lane_lines([ll], 10.0)
+    assert len(lines) == lanes and all(owner is ll for owner, _, _ in lines)
     if lanes == 1:
-        np.testing.assert_allclose(lines[0][0][:, 1], 0.0, atol=1e-12)
-        assert not lines[0][1]
+        np.testing.assert_allclose(lines[0][1][:, 1], 0.0, atol=1e-12)
+        assert not lines[0][2]
         return
-    (fwd, back_fwd), (rev, back_rev) = lines
+    (_, fwd, back_fwd), (_, rev, back_rev) = lines
     # keep right: forward on the right half's centre (y = -w/4), backward on the left half's
     np.testing.assert_allclose(fwd[:, 1], -width / 4, atol=1e-12)
     np.testing.assert_allclose(rev[:, 1], width / 4, atol=1e-12)
@@ -85,7 +85,7 @@ def _scene(lanelets: list[Lanelet], labels: dict[int, int]) -> tuple[object, Tar
 def test_lane_against_a_turning_lanelet_takes_the_mirrored_label() -> None:
     turn = _arc(7, 12.0, 7.0, "no")
     scn, target = _scene([turn], {7: LEFT})
-    xy, label = lane_centre_points(scn, target, 0.5)
+    xy, label, _ = lane_centre_points(scn, target, 0.5)
     r = np.hypot(xy[:, 0], xy[:, 1])
     # keeping right, the lanelet's own direction (a left turn) takes the outer half (radius
     # 12 + 1.75), the other direction the inner half, turning right
@@ -127,3 +127,57 @@ def test_simulated_routes_keep_right_on_a_two_way_street() -> None:
     np.testing.assert_allclose(xy[:, 1], -1.75, atol=1e-9)
     one_way = _street(2, (0.0, 0.0), 0.0, 60.0, 7.0, "yes")
     np.testing.assert_allclose(_polyline([one_way], "centre")[:, 1], 0.0, atol=1e-9)
+
+
+def test_junction_lanelet_bends_into_the_two_way_streets_lane() -> None:
+    """A one-way junction lanelet (4 m wide) ending on the start bound of a two-way street
+    (7 m): its lane runs from its own centre to the street's right half, no jump at the join."""
+    street = _street(2, (20.0, 0.0), 0.0, 40.0, 7.0, "no")
+    z = np.zeros((3, 1))
+    x = np.array([[0.0], [10.0], [20.0]])
+    # widening from 4 m to the street's whole start bound (y = 3.5 to -3.5)
+    junction = Lanelet(1, np.hstack([x, [[2.0], [2.75], [3.5]], z]),
+                       np.hstack([x, [[-2.0], [-2.75], [-3.5]], z]), {"one_way": "yes"})
+    lines = {(ll.id, back): c for ll, c, back in lane_lines([junction, street], 1.0)}
+    bend = lines[(1, False)]
+    np.testing.assert_allclose(bend[0], [0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(bend[-1], lines[(2, False)][0], atol=1e-9)
+    np.testing.assert_allclose(bend[-1], [20.0, -1.75], atol=1e-9)
+    # alone (no street after it) it keeps its centre line
+    np.testing.assert_allclose(lane_lines([junction], 1.0)[0][1][:, 1], 0.0, atol=1e-9)
+    route = _polyline([junction, street], "centre")
+    step = np.linalg.norm(np.diff(route, axis=0), axis=1)
+    assert step.max() < 1.05     # no jump at the join (1 m resampling)
+    np.testing.assert_allclose(route[-10:, 1], -1.75, atol=1e-6)
+
+
+@pytest.mark.parametrize("gate_deg", [180.0, 90.0])
+def test_sicp_matches_points_to_the_lane_of_their_direction(gate_deg: float) -> None:
+    """Two two-way streets crossing (lanes 2.5 m apart), traffic seen in one direction on each;
+    started 1.4 m towards the other lanes, SICP with directions (the default 90 deg gate) comes back
+    to the truth; without them (the old matching) points match the other direction's lanes
+    and the pose stays off (0.13 m in this setting)."""
+    import dataclasses
+
+    lanes_xy, lanes_dir = [], []
+    s = np.linspace(-40.0, 40.0, 321)
+    for xy, d in ((np.column_stack([s, np.full_like(s, -1.25)]), (1.0, 0.0)),
+                  (np.column_stack([s, np.full_like(s, 1.25)]), (-1.0, 0.0)),
+                  (np.column_stack([np.full_like(s, 1.25), s]), (0.0, 1.0)),
+                  (np.column_stack([np.full_like(s, -1.25), s]), (0.0, -1.0))):
+        lanes_xy.append(xy)
+        lanes_dir.append(np.tile(d, (len(s), 1)))
+    xy, direction = np.vstack(lanes_xy), np.vstack(lanes_dir)
+    targets = SemanticTargets.build(xy, np.full(len(xy), STRAIGHT), direction)
+    truth, truth_dir = np.vstack([lanes_xy[0], lanes_xy[2]]), np.vstack([lanes_dir[0],
+                                                                       lanes_dir[2]])
+    T_err = se2(-1.4, 1.4, 0.0)
+    src = transform_points(np.linalg.inv(T_err), truth)
+    cfg = dataclasses.replace(fine_sicp_config(Config()), direction_gate_deg=gate_deg)
+    res = sicp(src, np.full(len(src), STRAIGHT), targets, None, np.eye(3), cfg,
+               source_direction=truth_dir)
+    err = np.abs(transform_points(res.T, src) - truth).mean(axis=0)
+    if gate_deg < 180.0:
+        assert err.max() < 0.01
+    else:
+        assert err.max() > 0.1      # pulled towards the lanes of the other direction

@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from fgloc.geo import wrap_angle
 from fgloc.map import TargetCloud
-from fgloc.scenario import Lanelet
+from fgloc.scenario import Lanelet, lane_lines
 
 
 @dataclass
@@ -85,37 +85,36 @@ class RoadModel:
 @dataclass
 class LaneCentres:
     """Lane centre lines sampled in L: points (K, 2), unit left normals (K, 2) of the driving
-    direction, and whether each sample's lane runs against its lanelet's direction (K,) (the
-    left half of a two-way lanelet, :meth:`Lanelet.driving_lines`)."""
+    direction, whether each sample's lane runs against its lanelet's direction (K,) (the left
+    half of a two-way street) and the index (K,) of its lanelet in the list it was built from
+    (:func:`fgloc.scenario.lane_lines`)."""
 
     xy: np.ndarray
     normal: np.ndarray
     against: np.ndarray
+    lanelet: np.ndarray
 
     @classmethod
     def build(cls, lanelets: list[Lanelet], step: float) -> LaneCentres:
-        """Every driving line of the lanelets (:meth:`Lanelet.driving_lines`: the centre line,
-        or one line per direction on a wide two-way lanelet) every about ``step`` m."""
-        xy, normal, against = [], [], []
-        for ll in lanelets:
-            length = max(_length(ll.left[:, :2]), _length(ll.right[:, :2]))
-            for c, back in ll.driving_lines(max(2, int(np.ceil(length / step)) + 1)):
-                d = np.gradient(c, axis=0)
-                d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
-                xy.append(c)
-                normal.append(np.column_stack([-d[:, 1], d[:, 0]]))
-                against.append(np.full(len(c), back))
-        return cls(np.vstack(xy), np.vstack(normal), np.concatenate(against))
+        """Every lane of the lanelets (:func:`fgloc.scenario.lane_lines`: the centre line, one
+        line per direction on a two-way street, bent into it on the junction lanelets of the
+        list that lead into or out of one), samples about ``step`` m apart."""
+        index = {id(ll): k for k, ll in enumerate(lanelets)}
+        xy, normal, against, which = [], [], [], []
+        for ll, c, back in lane_lines(lanelets, step):
+            d = np.gradient(c, axis=0)
+            d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+            xy.append(c)
+            normal.append(np.column_stack([-d[:, 1], d[:, 0]]))
+            against.append(np.full(len(c), back))
+            which.append(np.full(len(c), index[id(ll)], dtype=np.int64))
+        return cls(np.vstack(xy), np.vstack(normal), np.concatenate(against),
+                   np.concatenate(which))
 
     def towards(self, sensor_xy: np.ndarray, offset: float) -> PlanarTarget:
         """The centre lines shifted ``offset`` m sideways towards ``sensor_xy`` (2,)."""
         side = np.sign(np.einsum("ij,ij->i", sensor_xy - self.xy, self.normal))
         return PlanarTarget.of(self.xy + (offset * side)[:, None] * self.normal)
-
-
-def _length(p: np.ndarray) -> float:
-    """Length (m) of a polyline (n, 2)."""
-    return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
 
 
 def robust_score(d: np.ndarray, tau: float) -> float:

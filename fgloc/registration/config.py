@@ -47,6 +47,12 @@ class SicpConfig:
     with a warning (its points take no part)."""
     sigma_floor: float = 0.05
     """Lower bound (m) of the residual standard deviation used for the information matrix."""
+    direction_gate_deg: float = 90.0
+    """When the source points and the target carry driving directions (filter-sicp: the tracks'
+    headings and the lanes' directions), a source point is matched only to target points whose
+    direction lies within this angle (deg) of its own: never to the lane of the other direction
+    (on a two-way street mapped as one lanelet the two lanes lie 3 m apart). 180 = directions
+    ignored."""
     info_window: float = 8.0
     """Half-width (m) of the square target neighbourhood whose spread shapes each
     correspondence's weight matrix in the information (so sliding along a road shows as weak);

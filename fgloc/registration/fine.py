@@ -47,22 +47,22 @@ if TYPE_CHECKING:
 def lane_centre_points(
     scn: Scenario, target: TargetCloud, step: float, towards: np.ndarray | None = None,
     offset: float = 0.0,
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(K, 2) samples (m, in L) of the lane centre lines of the lanelets in ``target``
     (:meth:`LaneCentres.build`: one per direction on a wide two-way lanelet), every about
     ``step`` m, and the (K,) label code of each (its lanelet's label, mirrored on a lane driven
-    against the lanelet's direction). With ``towards`` (2,) m, every sample is shifted
-    ``offset`` m sideways towards that point (the sensor)."""
+    against the lanelet's direction), and the (K, 2) unit driving direction of each. With
+    ``towards`` (2,) m, every sample is shifted ``offset`` m sideways towards that point (the
+    sensor)."""
     from fgloc.coarse import LaneCentres
 
     used = set(np.unique(target.lanelet_id).tolist())
     lanelets = [ll for ll in scn.lanelets.lanelets if ll.id in used]
-    lanes = [LaneCentres.build([ll], step) for ll in lanelets]
-    xy = [lc.xy if towards is None else lc.towards(towards, offset).xy for lc in lanes]
-    label = [np.where(lc.against, mirrored(np.int8(target.lanelet_labels[ll.id])),
-                      target.lanelet_labels[ll.id]).astype(np.int8)
-             for lc, ll in zip(lanes, lanelets)]
-    return np.vstack(xy), np.concatenate(label)
+    lanes = LaneCentres.build(lanelets, step)
+    xy = lanes.xy if towards is None else lanes.towards(towards, offset).xy
+    own = np.array([target.lanelet_labels[ll.id] for ll in lanelets], np.int8)[lanes.lanelet]
+    direction = np.column_stack([lanes.normal[:, 1], -lanes.normal[:, 0]])
+    return xy, np.where(lanes.against, mirrored(own), own).astype(np.int8), direction
 
 
 def fine_targets(
@@ -206,7 +206,8 @@ def register_tracks(
     with timer.stage("SICP"):
         for start, mode in zip(coarse.mode_starts(), coarse.modes or [None]):
             targets = mode_targets(scn, target, cfg, coarse, start)
-            res = sicp(src.xy, src.label, targets, None, start, scfg)
+            res = sicp(src.xy, src.label, targets, None, start, scfg,
+                       source_direction=src.direction)
             T_local = se2_to_se3(res.T) @ coarse.T_coarse
             fits.append(ModeFit(res.T, T_local if mode is None else mode.placed(T_local), None,
                                 track_costs(src, targets, res.T, cfg.coarse.mode_cost_scale),

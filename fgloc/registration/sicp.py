@@ -67,6 +67,8 @@ from fgloc.registration.config import KERNELS, MODES, SicpConfig
 ALL: int = -1
 #: Smallest grid cell (m) of the summed-area tables of the target moments.
 _MIN_CELL: float = 0.5
+#: Nearest target points searched per source point when directions gate the candidates.
+_DIRECTED_K: int = 32
 #: Above this condition number the information matrix counts as singular (no covariance).
 _SINGULAR_COND: float = 1e12
 
@@ -75,12 +77,15 @@ _SINGULAR_COND: float = 1e12
 class SemanticTargets:
     """Labelled target points with one KD-tree per label, each built once, on first use.
 
-    xy: (M, 2) float64 m in the target frame. label: (M,) int64 label codes. Reuse one object
-    across :func:`sicp` calls against the same target to build its trees only once.
+    xy: (M, 2) float64 m in the target frame. label: (M,) int64 label codes. direction: None, or
+    (M, 2) unit driving directions in the target frame (lanes: a source point with a direction
+    is then matched to a lane driven its way, :func:`sicp`). Reuse one object across
+    :func:`sicp` calls against the same target to build its trees only once.
     """
 
     xy: np.ndarray
     label: np.ndarray
+    direction: np.ndarray | None = None
     _trees: dict[int, tuple[np.ndarray, cKDTree]] = field(
         default_factory=dict, init=False, repr=False
     )
@@ -89,14 +94,21 @@ class SemanticTargets:
     )
 
     @classmethod
-    def build(cls, xy: np.ndarray, label: np.ndarray) -> SemanticTargets:
-        """Validate and wrap target points (M, 2) and labels (M,); trees come lazily."""
+    def build(cls, xy: np.ndarray, label: np.ndarray,
+              direction: np.ndarray | None = None) -> SemanticTargets:
+        """Validate and wrap target points (M, 2), labels (M,) and optional unit driving
+        directions (M, 2); trees come lazily."""
         xy = np.asarray(xy, dtype=np.float64)
         label = np.asarray(label, dtype=np.int64).reshape(-1)
         if xy.ndim != 2 or xy.shape[1] != 2 or xy.shape[0] != label.shape[0]:
             raise ValueError(f"target_xy must be (M, 2) matching target_label (M,), got "
                              f"{xy.shape} and {label.shape}")
-        return cls(xy, label)
+        if direction is not None:
+            direction = np.asarray(direction, dtype=np.float64)
+            if direction.shape != xy.shape:
+                raise ValueError(f"target direction must be (M, 2) like target_xy, got "
+                                 f"{direction.shape}")
+        return cls(xy, label, direction)
 
     def count(self, code: int) -> int:
         """Number of target points of label ``code`` (ALL: every point)."""
@@ -254,6 +266,7 @@ def check_config(cfg: SicpConfig) -> None:
         "min_points_per_label": cfg.min_points_per_label < 1,
         "sigma_floor": not cfg.sigma_floor > 0.0,
         "info_window": cfg.info_window < 0.0,
+        "direction_gate_deg": not 0.0 < cfg.direction_gate_deg <= 180.0,
     }
     bad = [k for k, v in problems.items() if v]
     if bad:
@@ -286,8 +299,13 @@ def _groups(source_label: np.ndarray, targets: SemanticTargets, cfg: SicpConfig)
     return _Groups(codes, group, compat[:, codes], dropped, warnings)
 
 
-def _match(moved: np.ndarray, g: _Groups, targets: SemanticTargets, rmax: float) -> _Matches:
-    """Least-cost (d^2 / compatibility) correspondence of every source point within rmax (m)."""
+def _match(moved: np.ndarray, g: _Groups, targets: SemanticTargets, rmax: float,
+           heading: np.ndarray | None = None, min_cos: float = -1.0) -> _Matches:
+    """Least-cost (d^2 / compatibility) correspondence of every source point within rmax (m).
+    With ``heading`` (n, 2) (unit directions in the target frame) only target points whose
+    direction has a cosine above ``min_cos`` with it are candidates: the nearest such among
+    the :data:`_DIRECTED_K` nearest (a point nearer to many samples of wrong-way lanes than to
+    any of its own lane has no match)."""
     n = moved.shape[0]
     index, group = np.full(n, -1, dtype=np.int64), np.full(n, -1, dtype=np.int64)
     dist, compat, cost = np.full(n, np.inf), np.zeros(n), np.full(n, np.inf)
@@ -296,7 +314,18 @@ def _match(moved: np.ndarray, g: _Groups, targets: SemanticTargets, rmax: float)
         c_all = g.compat[g.source_group[src], k]
         q = src[c_all > 0.0]
         idx, tree = targets.tree(code)
-        d, j = tree.query(moved[q], distance_upper_bound=rmax)
+        if heading is None:
+            d, j = tree.query(moved[q], distance_upper_bound=rmax)
+        else:
+            kk = min(_DIRECTED_K, len(idx))
+            dk, jk = tree.query(moved[q], k=kk, distance_upper_bound=rmax)
+            dk, jk = dk.reshape(len(q), kk), jk.reshape(len(q), kk)
+            found = np.isfinite(dk)
+            jk = np.where(found, jk, 0)
+            cos = np.einsum("nkj,nj->nk", targets.direction[idx[jk]], heading[q])
+            dk = np.where(found & (cos > min_cos), dk, np.inf)
+            first = np.argmin(dk, axis=1)
+            d, j = dk[np.arange(len(q)), first], jk[np.arange(len(q)), first]
         c = c_all[c_all > 0.0]
         better = np.isfinite(d) & (d * d / c < cost[q])
         q, d, j, c = q[better], d[better], j[better], c[better]
@@ -387,13 +416,18 @@ def sicp(
     cfg: SicpConfig,
     *,
     weights: np.ndarray | None = None,
+    source_direction: np.ndarray | None = None,
 ) -> SicpResult:
     """Register labelled source points to labelled target points in SE(2) (module docstring).
 
     source_xy: (N, 2) m in the source frame; source_label: (N,) label codes. target_xy: (M, 2) m
     in the target frame with target_label (M,), or a prebuilt :class:`SemanticTargets` (then
     target_label is None) whose KD-trees are reused. T0: 3x3 initial source -> target
-    transform. weights: optional (N,) non-negative per-point weights. Plain ICP is
+    transform. weights: optional (N,) non-negative per-point weights. source_direction:
+    optional (N, 2) unit driving directions of the source points (source frame); with target
+    directions and ``cfg.direction_gate_deg < 180`` a source point is matched only to target
+    points whose direction lies within that angle of its own (rotated by the current pose): a
+    vehicle is never registered to the lane of the other direction. Plain ICP is
     ``cfg.mode = "none"``. Raises ValueError on malformed input or config.
     """
     check_config(cfg)
@@ -412,13 +446,20 @@ def sicp(
     if user_w.shape != lab.shape or np.any(user_w < 0.0):
         raise ValueError("weights must be (N,) and non-negative")
     g = _groups(lab, targets, cfg)
+    directed = (source_direction is not None and targets.direction is not None
+                and cfg.direction_gate_deg < 180.0)
+    if directed:
+        u_src = np.asarray(source_direction, dtype=np.float64)
+        if u_src.shape != src.shape:
+            raise ValueError(f"source_direction must be (N, 2) like source_xy, got {u_src.shape}")
 
     T = np.asarray(T0, dtype=np.float64).copy()
     rng, prev_rng, prev_rmse = cfg.max_correspondence, np.nan, np.nan
     stop, iterations = "max_iterations", 0
     while True:  # each pass matches at the current T and range, so m always belongs to T
         moved = transform_points(T, src)
-        m = _match(moved, g, targets, rng)
+        m = _match(moved, g, targets, rng, u_src @ T[:2, :2].T if directed else None,
+                   float(np.cos(np.deg2rad(cfg.direction_gate_deg))))
         ok = m.ok & (user_w > 0.0)
         w_all = np.zeros(src.shape[0])
         w_all[ok] = user_w[ok] * m.compat[ok] * kernel_weights(m.dist[ok], cfg.kernel,

@@ -38,7 +38,9 @@ class SourceCloud:
     xy: (N, 2) float64 m in the coarse frame C. label: (N,) int8 codes of :mod:`fgloc.labels`.
     track_id: (N,) int64 id of the track each point came from (first point of its voxel).
     kind: the ``FineConfig.source`` it was built as. n_tracks_used / n_tracks_total: trajectories
-    in the cloud / available. n_raw: points before downsampling.
+    in the cloud / available. n_raw: points before downsampling. direction: (N, 2) unit driving
+    direction in C of the tracks' states the points came from (mean over the voxel; the first
+    point's where the voxel's directions cancel).
     """
 
     xy: np.ndarray
@@ -48,6 +50,7 @@ class SourceCloud:
     n_tracks_used: int
     n_tracks_total: int
     n_raw: int
+    direction: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.xy.shape[0])
@@ -93,26 +96,28 @@ def choose_tracks(n: int, cfg: FineConfig, rng: np.random.Generator) -> np.ndarr
 
 def _track_points(
     scn: Scenario, tr: Track, T_coarse: np.ndarray, kind: str
-) -> tuple[np.ndarray, np.ndarray]:
-    """(n, 2) points in C of one track and the (n,) label of each."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(n, 2) points in C of one track, the (n,) label and the (n,) heading (rad, C) of each."""
     if kind == "detections":
         xy = transform_points(T_coarse, np.asarray(scn.radar.xyz, float)[tr.det_index])[:, :2]
-        return xy, tr.labels[tr.det_step]
+        return xy, tr.labels[tr.det_step], tr.states[tr.det_step, YAW]
     if kind == "centres":
-        return tr.states[:, :2], tr.labels
+        return tr.states[:, :2], tr.labels, tr.states[:, YAW]
     s = tr.states
     ang = contour_angles()[None, :] + s[:, YAW, None]
     r = s[:, N_KIN : N_KIN + N_CONTOUR]
     xy = np.stack([s[:, 0, None] + r * np.cos(ang), s[:, 1, None] + r * np.sin(ang)], axis=-1)
-    return xy.reshape(-1, 2), np.repeat(tr.labels, N_CONTOUR)
+    return (xy.reshape(-1, 2), np.repeat(tr.labels, N_CONTOUR),
+            np.repeat(s[:, YAW], N_CONTOUR))
 
 
 def voxel_per_label(
-    xy: np.ndarray, label: np.ndarray, voxel: float
+    xy: np.ndarray, label: np.ndarray, voxel: float, values: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Average points (N, 2) per occupied (label, voxel) cell of a grid of edge ``voxel`` m
-    anchored at the origin. Returns the (M, 2) centroids, their (M,) labels and the (M,) index
-    of the first input point of each cell."""
+    anchored at the origin. Returns the (M, 2) centroids (with ``values`` (N, 2): the cells'
+    means of those instead), their (M,) labels and the (M,) index of the first input point of
+    each cell."""
     if xy.shape[0] == 0:
         return np.zeros((0, 2)), label[:0], np.zeros(0, dtype=np.int64)
     cell = np.floor(xy / voxel).astype(np.int64)
@@ -122,7 +127,8 @@ def voxel_per_label(
     _, first, inv = np.unique(key, return_index=True, return_inverse=True)
     inv = inv.reshape(-1)
     n = np.bincount(inv).astype(float)
-    cent = np.column_stack([np.bincount(inv, weights=xy[:, k]) / n for k in range(2)])
+    v = xy if values is None else values
+    cent = np.column_stack([np.bincount(inv, weights=v[:, k]) / n for k in range(2)])
     return cent, label[first], first
 
 
@@ -145,10 +151,15 @@ def build_source_cloud(
     parts = [_track_points(scn, tracks.tracks[i], T_coarse, fine.source) for i in used]
     xy = np.vstack([p[0] for p in parts]) if parts else np.zeros((0, 2))
     label = np.concatenate([p[1] for p in parts] + [np.zeros(0, np.int8)]).astype(np.int8)
+    heading = np.concatenate([p[2] for p in parts] + [np.zeros(0)])
     track_id = np.concatenate(
         [np.full(len(p[1]), tracks.tracks[i].id, dtype=np.int64) for i, p in zip(used, parts)]
         + [np.zeros(0, np.int64)]
     )
     cent, lab, first = voxel_per_label(xy, label, voxel)
+    unit = np.column_stack([np.cos(heading), np.sin(heading)])
+    direction, _, _ = voxel_per_label(xy, label, voxel, unit)
+    norm = np.linalg.norm(direction, axis=1, keepdims=True)
+    direction = np.where(norm > 1e-6, direction / np.maximum(norm, 1e-12), unit[first])
     return SourceCloud(cent, lab, track_id[first], fine.source, int(used.size), len(tracks),
-                       int(xy.shape[0]))
+                       int(xy.shape[0]), direction)

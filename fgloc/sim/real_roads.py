@@ -18,7 +18,7 @@ from scipy.cluster.hierarchy import fcluster, linkage
 
 from fgloc.labels import junction_movements
 from fgloc.map import crop_to_lanelets, points_in_polygon
-from fgloc.scenario import Lanelet, LaneletMap, MapArea, resample_polyline
+from fgloc.scenario import Lanelet, LaneletMap, MapArea, lane_lines, resample_polyline
 from fgloc.sim.config import AlsSimConfig
 from fgloc.sim.paths import Prim
 from fgloc.sim.roads import LanePiece, RoadNetwork
@@ -100,12 +100,15 @@ def junction_routes(lmap: LaneletMap, junction: Junction, reach: float) -> list[
 
 def _polyline(lanelets: list[Lanelet], attr: str) -> np.ndarray:
     """(n, 2) concatenation of the lanelets' lanes in their direction (``attr="centre"``: the
-    centre line, the right half's on a two-way street, :meth:`Lanelet.driving_lines`) or bounds,
+    centre line, the right half's on a two-way street, :func:`fgloc.scenario.lane_lines`) or bounds,
     resampled every ROUTE_STEP m, kinks at the joins smoothed."""
+    if attr == "centre":
+        lines = [c for _, c, back in lane_lines(lanelets, ROUTE_STEP / 2, KEEP_RIGHT_MIN_WIDTH)
+                 if not back]
+    else:
+        lines = [getattr(ll, attr)[:, :2] for ll in lanelets]
     parts = []
-    for ll in lanelets:
-        p = (ll.driving_lines(50, KEEP_RIGHT_MIN_WIDTH)[0][0] if attr == "centre"
-             else getattr(ll, attr)[:, :2])
+    for p in lines:
         parts.append(p if not parts else p[1:])
     xy = np.vstack(parts)
     length = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
@@ -136,7 +139,7 @@ def piece_from_polyline(pid: int, xy: np.ndarray, width: float, curb: bool = Fal
 
 def _mean_width(lanelets: list[Lanelet]) -> float:
     """Mean width (m) of the lanes a route drives (half a two-way street's)."""
-    return float(np.mean([ll.width() / len(ll.driving_lines(2, KEEP_RIGHT_MIN_WIDTH))
+    return float(np.mean([ll.width() / (2 if ll.keeps_right(KEEP_RIGHT_MIN_WIDTH) else 1)
                           for ll in lanelets]))
 
 
