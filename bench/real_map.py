@@ -5,16 +5,14 @@ the routing graph) and each seed, ``fgloc.sim.real_map.simulate_on_map`` builds 
 that junction (``--duration`` s of traffic) and ``fgloc.localize_many`` runs every method on it;
 once per ``[map] labels`` mode (routing graph, Menger curvature); the 2D and yaw errors against
 the simulated truth are printed per run, then the mean and the worst seed per junction and
-method, and with ``--write`` the table goes into the
-``real-map`` section of docs/benchmarks.md.
+method. docs/benchmarks.md's table comes from ``python -m bench.report --only real_map``.
 
-    OMP_NUM_THREADS=1 python bench/real_map.py --seeds 1 2 3 --write
+    OMP_NUM_THREADS=1 python -m bench.real_map --seeds 1 2 3
 """
 
 from __future__ import annotations
 
 import argparse
-import platform
 import sys
 import time
 from pathlib import Path
@@ -23,7 +21,6 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from bench.report_section import provenance, replace_section  # noqa: E402
 from fgloc.config import Config  # noqa: E402
 from fgloc.evaluation.pose import pose_error  # noqa: E402
 from fgloc.pipeline import localize_many  # noqa: E402
@@ -89,23 +86,9 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=60.0)
     ap.add_argument("--labels", choices=["routing", "curvature"], nargs="+",
                     default=["routing", "curvature"], help="[map] labels modes compared")
-    ap.add_argument("--write", action="store_true", help="write docs/benchmarks.md's section")
     args = ap.parse_args()
     sites, errors = run(args.map, args.junctions, args.seeds, args.duration, args.labels)
-    body = table(sites, args.seeds, args.labels, errors)
-    print(body)
-    if args.write:
-        cmd = ("OMP_NUM_THREADS=1 python bench/real_map.py --seeds "
-               + " ".join(map(str, args.seeds)) + f" --junctions {args.junctions} --duration "
-               f"{args.duration:g} --labels {' '.join(args.labels)} --write")
-        head = (f"## Real Lanelet2 map: every method at junctions of the Lanelet2 example map\n\n"
-                f"Scenarios simulated on `{args.map.name}` (Karlsruhe, BSD-3-Clause, FZI) with "
-                "`fgloc.sim.real_map.simulate_on_map` at its largest junctions of the routing "
-                f"graph, {args.duration:g} s each, seeds {args.seeds}; errors against the "
-                "simulated truth (mean and worst seed); each scenario localized with the "
-                "routing-graph labels (default) and with Menger curvature labels only.\n\n"
-                f"Command: `{cmd}`  \n{provenance()}, Python {platform.python_version()}\n")
-        replace_section(ROOT / "docs" / "benchmarks.md", "real-map", head + "\n" + body)
+    print(table(sites, args.seeds, args.labels, errors))
 
 
 if __name__ == "__main__":

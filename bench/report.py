@@ -16,6 +16,9 @@ written file is edited by hand; the paragraph above each table lives in ``TABLES
 
 ``--set TABLE.PARAM=VALUE`` (VALUE as JSON) changes a table's parameter; a result whose
 parameters differ from the table's full set is marked REDUCED in the report, with both.
+``--jobs N`` runs the independent runs of the tables without time columns (robustness, the
+runs of sparse) in N processes; their figures are the same as with one (deterministic per
+seed), only the wall time and the load in the provenance line differ.
 """
 
 from __future__ import annotations
@@ -25,7 +28,8 @@ import dataclasses
 import json
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,18 +40,41 @@ DOCS = results.ROOT / "docs"
 
 
 # ------------------------------------------------------------------- producers (wrappers)
-def produce_robustness(settings: list[str], seeds: list[int], duration: float) -> Produced:
-    """bench/robustness.py's matrix: per setting and seed :func:`bench.robustness.run_one`."""
+def _ordered_map(fn: Callable, items: Iterable[tuple], jobs: int) -> Iterator:
+    """``fn(*item)`` for every item, in order; in ``jobs`` worker processes when > 1."""
+    if jobs <= 1:
+        yield from (fn(*item) for item in items)
+        return
+    with ProcessPoolExecutor(max_workers=jobs) as pool:
+        yield from pool.map(fn, *zip(*items))
+
+
+def _robustness_run(setting: str, seed: int, duration: float):
     from bench import robustness as rb
     from fgloc.config import Config
 
+    return rb.run_one(setting, seed, duration, Config(), True)
+
+
+def _sparse_runs(case: str, rate: float, seed: int, duration: float, tol: float):
+    from bench import sparse as sp
+    from fgloc.config import Config
+
+    return sp.run_one(case, seed, rate, duration, Config(), tol)
+
+
+def produce_robustness(settings: list[str], seeds: list[int], duration: float,
+                       jobs: int = 1) -> Produced:
+    """bench/robustness.py's matrix: per setting and seed :func:`bench.robustness.run_one`
+    (in ``jobs`` processes)."""
+    from bench import robustness as rb
+
     runs = []
-    for setting in settings:
-        for seed in seeds:
-            r = rb.run_one(setting, seed, duration, Config(), True)
-            print(f"robustness {setting:<11} {seed:>2} {r.case:<12} " + " ".join(
-                f"{k}={v:.3f}" for k, v in r.figures.items()), flush=True)
-            runs.append(r)
+    items = [(setting, seed, duration) for setting in settings for seed in seeds]
+    for r in _ordered_map(_robustness_run, items, jobs):
+        print(f"robustness {r.setting:<11} {r.seed:>2} {r.case:<12} " + " ".join(
+            f"{k}={v:.3f}" for k, v in r.figures.items()), flush=True)
+        runs.append(r)
     rows = [{"setting": r.setting, "seed": r.seed, "case": r.case, "vehicles": r.vehicles,
              **r.figures} for r in runs]
     return Produced(rows, rb.table(runs, settings),
@@ -56,19 +83,21 @@ def produce_robustness(settings: list[str], seeds: list[int], duration: float) -
 
 
 def produce_sparse(cases: list[str], rates: list[float], seeds: list[int], duration: float,
-                   height: bool, timing: bool, mode_tolerance: float = 0.5) -> Produced:
-    """bench/sparse.py: per case, traffic rate and seed :func:`bench.sparse.run_one`; the
-    sensor-height and the modes' time parts when asked."""
+                   height: bool, timing: bool, mode_tolerance: float = 0.5,
+                   jobs: int = 1) -> Produced:
+    """bench/sparse.py: per case, traffic rate and seed :func:`bench.sparse.run_one` (in
+    ``jobs`` processes); the sensor-height and the modes' time parts when asked (after
+    them, in this process: the time part measures)."""
     from bench import sparse as sp
     from fgloc.config import Config
 
     cfg = Config()
     runs = []
-    for case in cases:
-        for rate in rates:
-            for seed in seeds:
-                runs += sp.run_one(case, seed, rate, duration, cfg, mode_tolerance)
-                print(f"sparse {case} {rate:g}/min seed {seed} done", flush=True)
+    items = [(case, rate, seed, duration, mode_tolerance) for case in cases for rate in rates
+             for seed in seeds]
+    for item, got in zip(items, _ordered_map(_sparse_runs, items, jobs)):
+        runs += got
+        print(f"sparse {item[0]} {item[1]:g}/min seed {item[2]} done", flush=True)
     body = [*sp.table(runs), "", *sp.totals(runs)]
     if height:
         body += ["", "Sensor height (coarse stage; 60 s, default traffic, the cases and seeds "
@@ -154,6 +183,8 @@ class Table:
     produce: Callable[..., Produced]
     full: dict
     quick: dict
+    parallel: bool = False
+    """Its producer takes ``jobs`` (independent runs, no time columns among them)."""
 
 
 _ALL_METHODS = ["filter-sicp", "icp", "joint", "smoother-sicp"]
@@ -183,7 +214,7 @@ TABLES: list[Table] = [
           produce_robustness,
           {"settings": ["default", "platoons", "trucks", "low-returns", "far-sparse", "oblique",
                         "10-per-min", "combined"], "seeds": [1, 2, 3, 4, 5], "duration": 60.0},
-          {"settings": ["combined"], "seeds": [1], "duration": 30.0}),
+          {"settings": ["combined"], "seeds": [1], "duration": 30.0}, parallel=True),
     Table("sparse", "Sparse traffic", "bench/sparse.py",
           "Few vehicles per minute: a run must be resolved within 0.3 m or report itself "
           "ambiguous with the truth among its tied modes, never confidently wrong. Per case, "
@@ -194,7 +225,7 @@ TABLES: list[Table] = [
           {"cases": ["intersection", "tjunction"], "rates": [5.0, 10.0, 20.0],
            "seeds": [1, 2, 3, 4, 5], "duration": 60.0, "height": True, "timing": True},
           {"cases": ["intersection", "tjunction"], "rates": [5.0], "seeds": [1],
-           "duration": 60.0, "height": False, "timing": False}),
+           "duration": 60.0, "height": False, "timing": False}, parallel=True),
     Table("real_map", "Real Lanelet2 map", "bench/real_map.py",
           "Scenarios simulated on the Lanelet2 example map (Karlsruhe, BSD-3-Clause, FZI) at "
           "its largest junctions of the routing graph; every method, mean and worst seed per "
@@ -272,14 +303,15 @@ def reduced(table: Table, params: dict, quick: bool = False) -> dict:
 
 
 def run_table(table: Table, quick: bool, overrides: dict, command: str,
-              root: Path = results.RESULTS) -> Path | None:
-    """Produce one table and store it; returns the JSON path (None when the table is
+              root: Path = results.RESULTS, jobs: int = 1) -> Path | None:
+    """Produce one table and store it (its runs in ``jobs`` processes when the table is
+    ``parallel``); returns the JSON path (None when the table is
     :class:`bench.results.Unavailable` here)."""
     params = {**(table.quick if quick else table.full), **overrides}
     print(f"== {table.name}: {params}", flush=True)
     commit, started, t0 = results.git_commit(), results.utc_now(), time.perf_counter()
     try:
-        produced = table.produce(**params)
+        produced = table.produce(**params, **({"jobs": jobs} if table.parallel else {}))
     except results.Unavailable as e:
         print(f"== {table.name}: not measured ({e}); the stored result stays", flush=True)
         return None
@@ -443,6 +475,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--set", nargs="+", default=[], metavar="TABLE.PARAM=JSON",
                     help="change a table's parameter (marked REDUCED in the report)")
     ap.add_argument("--out", type=Path, default=None, help="write the markdown here instead")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="processes for the runs of the robustness and sparse tables")
     args = ap.parse_args(argv)
     sets = parse_sets(args.set)
     argv = sys.argv[1:] if argv is None else argv
@@ -450,7 +484,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.render_only:
         for t in TABLES:
             if args.only is None or t.name in args.only:
-                run_table(t, args.quick, sets.get(t.name, {}), command)
+                run_table(t, args.quick, sets.get(t.name, {}), command, jobs=args.jobs)
     print(f"wrote {write_report(args.quick, args.out)}")
     return 0
 

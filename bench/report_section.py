@@ -1,5 +1,5 @@
-"""Replace (or append) a generated section of docs/benchmarks.md between the markers
-``<!-- BEGIN <name> -->`` and ``<!-- END <name> -->``; written atomically."""
+"""Where and when a bench script measured: the provenance line its printed table carries
+(docs/benchmarks.md itself is written whole by ``python -m bench.report``)."""
 
 from __future__ import annotations
 
@@ -8,8 +8,6 @@ import platform
 import subprocess
 import time
 from pathlib import Path
-
-from fgloc.io.atomic import write_text_atomic
 
 
 def provenance() -> str:
@@ -25,18 +23,3 @@ def provenance() -> str:
             f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
             f"OMP_NUM_THREADS={os.environ.get('OMP_NUM_THREADS', 'unset')}")
 
-
-def replace_section(path: str | Path, name: str, body: str) -> None:
-    """Put ``body`` between the ``name`` markers of ``path``: replaces the block if present,
-    appends it at the end of the file otherwise."""
-    p = Path(path)
-    begin, end = f"<!-- BEGIN {name} -->", f"<!-- END {name} -->"
-    text = p.read_text() if p.exists() else ""
-    block = f"{begin}\n{body.strip()}\n{end}"
-    if begin in text and end in text:
-        head, rest = text.split(begin, 1)
-        tail = rest.split(end, 1)[1]
-        new = head + block + tail
-    else:
-        new = text.rstrip("\n") + ("\n\n" if text else "") + block + "\n"
-    write_text_atomic(p, new)

@@ -13,15 +13,15 @@ two vehicles (a track whose contour covers at least half of the footprints of tw
 vehicles at once for 10 steps or more), truck length error (|median contour extent along the
 heading - true length| of the tracks following a truck, m) and centre bias towards the sensor
 (m, > 0: towards it), per-track centre RMS (the paper's average RMS), yaw error and IoU of the
-filter and the batch smoother (:func:`fgloc.evaluate_tracking.evaluate_tracks`, visibility
+filter and the batch smoother (:func:`fgloc.evaluation.tracking.evaluate_tracks`, visibility
 from the true pose and the FOV), and the 2D / yaw error of filter-sicp and joint
 (:func:`fgloc.localize_many`). The table gives per setting the mean over the seeds and the
 worst seed.
 
-    OMP_NUM_THREADS=1 python bench/robustness.py            # seeds 1-5, the full matrix
-    OMP_NUM_THREADS=1 python bench/robustness.py --quick    # seeds 1-2, 30 s, a smoke set
+    OMP_NUM_THREADS=1 python -m bench.robustness            # seeds 1-5, the full matrix
+    OMP_NUM_THREADS=1 python -m bench.robustness --quick    # seeds 1-2, 30 s, a smoke set
 
-``--write`` puts the table into docs/benchmarks.md between the ``robustness`` markers.
+docs/benchmarks.md's table comes from ``python -m bench.report --only robustness``.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.report_section import provenance, replace_section
+from bench.report_section import provenance
 from fgloc import localize_many, track
 from fgloc.config import Config, from_dict, load_config
 from fgloc.evaluation.pose import pose_error
@@ -252,8 +252,6 @@ def main() -> int:
                     help="tracking only (faster, while iterating on the tracker)")
     ap.add_argument("--config", default=None, help="fgloc config TOML (default: all defaults)")
     ap.add_argument("--json", default=None, help="also write every run's figures here")
-    ap.add_argument("--write", default=None, metavar="BENCHMARKS_MD",
-                    help="write the table into this file between the robustness markers")
     args = ap.parse_args()
     if args.quick:
         args.seeds, args.duration = [1, 2], 30.0
@@ -271,11 +269,12 @@ def main() -> int:
                     [{"setting": x.setting, "seed": x.seed, "case": x.case,
                       "vehicles": x.vehicles, **x.figures} for x in results], indent=1))
     elapsed = time.perf_counter() - t0
-    command = "OMP_NUM_THREADS=1 python bench/robustness.py" + (" --quick" if args.quick else "")
+    command = "OMP_NUM_THREADS=1 python -m bench.robustness" + (" --quick" if args.quick else "")
     extra = [a for a in sys.argv[1:] if a not in ("--quick",)]
     if extra:
         command += " " + " ".join(extra)
-    head = [f"### Robustness matrix (`bench/robustness.py{' --quick' if args.quick else ''}`)",
+    quick = " --quick" if args.quick else ""
+    head = [f"### Robustness matrix (`python -m bench.robustness{quick}`)",
             "", f"Command: `{command}`", "",
             f"{provenance()}, {args.duration:g} s scenarios, seeds {args.seeds} (odd: "
             f"intersection, even: T-junction), {elapsed:.0f} s in total. Cells: mean over the "
@@ -284,8 +283,6 @@ def main() -> int:
             "(> 8 m); cover 2 = tracks covering two vehicles at once."]
     text = "\n".join(head + [""] + table(results, args.settings))
     print("\n" + text)
-    if args.write:
-        replace_section(args.write, "robustness", text)
     return 0
 
 

@@ -19,8 +19,10 @@ uniform 0.2-1.5 m, and uniform 0.9-1.5 m (centred at 1.2 m); per setting the mea
 (a fixed 1.2 m reflection height, no static ground returns). Goal: |dz| <= 0.15 m in every
 setting, the tilt as good as the former model's.
 
-    OMP_NUM_THREADS=1 python bench/sparse.py --write docs/benchmarks.md
-    OMP_NUM_THREADS=1 python bench/sparse.py --quick
+    OMP_NUM_THREADS=1 python -m bench.sparse
+    OMP_NUM_THREADS=1 python -m bench.sparse --quick
+
+docs/benchmarks.md's table comes from ``python -m bench.report --only sparse``.
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.report_section import provenance, replace_section
+from bench.report_section import provenance
 from fgloc.coarse import coarse_localize
 from fgloc.config import Config, load_config
 from fgloc.evaluation.pose import pose_error, pose_error_vector
@@ -291,8 +293,6 @@ def main() -> int:
                          "(printed, not written)")
     ap.add_argument("--config", default=None, help="fgloc config TOML (default: all defaults)")
     ap.add_argument("--json", default=None, help="also write every run's figures here")
-    ap.add_argument("--write", default=None, metavar="BENCHMARKS_MD",
-                    help="write the table into this file between the sparse markers")
     args = ap.parse_args()
     if args.quick:
         args.seeds, args.rates = [1], [5.0, 10.0]
@@ -322,9 +322,9 @@ def main() -> int:
                                         "process, OMP_NUM_THREADS=1):", "",
                                         *timing_rows(cfg, 1 if args.quick else 2)]
     elapsed = time.perf_counter() - t0
-    command = "OMP_NUM_THREADS=1 python bench/sparse.py" + (" " if len(sys.argv) > 1 else "") \
+    command = "OMP_NUM_THREADS=1 python -m bench.sparse" + (" " if len(sys.argv) > 1 else "") \
         + " ".join(sys.argv[1:])
-    head = [f"### Sparse traffic (`bench/sparse.py{' --quick' if args.quick else ''}`)", "",
+    head = [f"### Sparse traffic (`python -m bench.sparse{' --quick' if args.quick else ''}`)", "",
             f"Command: `{command}`", "",
             f"{provenance()}, {args.duration:g} s scenarios, seeds {args.seeds}, "
             f"{elapsed:.0f} s in total. "
@@ -333,8 +333,6 @@ def main() -> int:
             f"one of its tied modes lies within {args.mode_tolerance:g} m of it.", ""]
     text = "\n".join(head + table(runs) + [""] + totals(runs) + height + timing)
     print("\n" + text)
-    if args.write:
-        replace_section(args.write, "sparse", text)
     return 0
 
 

@@ -43,6 +43,36 @@ def test_run_table_stores_rows_provenance_and_reduction(tmp_path):
     assert json.loads((tmp_path / "toy.json").read_text())["params"]["n"] == 4
 
 
+def pid_square_rows(n: int, scale: float, jobs: int = 1) -> Produced:
+    """A parallel producer: the squares computed in ``jobs`` processes, with the worker pids."""
+    got = list(report._ordered_map(_square_with_pid, [(i, scale) for i in range(n)], jobs))
+    rows = [{"i": i, "value": v, "pid": pid} for i, (v, pid) in enumerate(got)]
+    return Produced(rows, [f"| {r['i']} | {r['value']:g} |" for r in rows], f"{n} squares")
+
+
+def _square_with_pid(i: int, scale: float) -> tuple[float, int]:
+    import os
+
+    return scale * i * i, os.getpid()
+
+
+def test_parallel_table_gets_the_same_rows_in_worker_processes(tmp_path):
+    import os
+
+    par = report.Table("par", "Parallel toy", "tests/test_bench_report.py", "Squares.",
+                       pid_square_rows, {"n": 6, "scale": 0.5}, {"n": 2, "scale": 0.5},
+                       parallel=True)
+    one = json.loads(report.run_table(par, False, {}, "c", tmp_path, jobs=1).read_text())
+    two = json.loads(report.run_table(par, False, {}, "c", tmp_path, jobs=2).read_text())
+    assert [r["value"] for r in two["rows"]] == [r["value"] for r in one["rows"]] == [
+        0.5 * i * i for i in range(6)]
+    assert {r["pid"] for r in one["rows"]} == {os.getpid()}
+    assert os.getpid() not in {r["pid"] for r in two["rows"]}
+    assert two["reduced"] == {}                 # jobs is not a parameter of the set
+    # a table that is not parallel never gets jobs
+    assert report.run_table(TOY, False, {}, "c", tmp_path, jobs=2) is not None
+
+
 def test_unavailable_table_keeps_the_stored_result(tmp_path):
     report.run_table(TOY, False, {}, "first", tmp_path)
 
