@@ -51,12 +51,25 @@ class MapConfig:
     turn_angle_deg: float = 30.0
     """Heading change (deg) from a junction movement's predecessor to its successor above which
     the movement is a turn ("routing" labels)."""
+    two_way_lanes: str = "auto"
+    """Where each direction drives on a two-way street mapped as one lanelet (``one_way =
+    no``; :mod:`fgloc.map.lane_models`): "keep-right" = one lane per direction on the centre of
+    its right half (lanelets at least ``two_way_min_width`` m wide), "centre" = the centre line
+    both ways, "auto" = both as modes of the pose, chosen on the tracks' fit (or reported
+    ambiguous) like the coarse stage's other modes."""
+    two_way_min_width: float = 5.0
+    """Width (m) from which a two-way lanelet holds one lane per direction ("keep-right")."""
 
     def __post_init__(self) -> None:
         if self.labels not in ("routing", "curvature"):
             raise ValueError(f"labels must be 'routing' or 'curvature', got {self.labels!r}")
         if not 0.0 < self.turn_angle_deg < 180.0:
             raise ValueError(f"turn_angle_deg must be in (0, 180), got {self.turn_angle_deg}")
+        if self.two_way_lanes not in ("auto", "keep-right", "centre"):
+            raise ValueError("two_way_lanes must be 'auto', 'keep-right' or 'centre', got "
+                             f"{self.two_way_lanes!r}")
+        if not self.two_way_min_width > 0.0:
+            raise ValueError(f"two_way_min_width must be > 0, got {self.two_way_min_width}")
 
 
 @dataclass

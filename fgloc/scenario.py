@@ -163,12 +163,15 @@ def lane_lines(lanelets: list[Lanelet], step: float,
     """Where vehicles drive on the lanelets: per lane (lanelet, (n, 2) line about ``step`` m
     sampled in the driving direction, whether it runs against the lanelet's direction).
 
-    A lanelet has one lane on its centre line, except a two-way lanelet at least
-    ``two_way_min_width`` m wide (:data:`TWO_WAY_MIN_WIDTH`, a two-way street mapped as one
-    lanelet): the centre of its right half forward, the centre of its left half backward
-    (right-hand traffic). A one-way lanelet of the list that starts (ends) where such a lane
-    ends (starts) -- a junction lanelet leading into or out of a two-way street -- bends its line
-    linearly over its length from (to) that lane's end, so the lane model has no jump there.
+    A lanelet has one lane on its centre line (a two-way lanelet: that line in each
+    direction), except a two-way lanelet at least ``two_way_min_width`` m wide
+    (:data:`TWO_WAY_MIN_WIDTH`, a two-way street mapped as one lanelet): the centre of its right
+    half forward, the centre of its left half backward (right-hand traffic). With
+    ``two_way_min_width = inf`` every two-way lanelet is driven on its centre line both ways
+    (the "centre" lane model of :mod:`fgloc.map.lane_models`). A lanelet of the list that starts
+    (ends) where a right-half lane ends (starts) -- a junction lanelet leading into or out of a
+    two-way street -- bends its line linearly over its length from (to) that lane's end, so the
+    lane model has no jump there.
     """
     halves = [ll.keeps_right(two_way_min_width) for ll in lanelets]
     ends: list[tuple[np.ndarray, np.ndarray]] = []   # (first point, last point) of every lane
@@ -185,7 +188,10 @@ def lane_lines(lanelets: list[Lanelet], step: float,
             continue
         start = _share_on(ll.left[0, :2], ll.right[0, :2], [e[1] for e in ends])
         end = _share_on(ll.left[-1, :2], ll.right[-1, :2], [e[0] for e in ends])
-        out.append((ll, ll.line_at(np.linspace(start, end, n), n), False))
+        line = ll.line_at(np.linspace(start, end, n), n)
+        out.append((ll, line, False))
+        if ll.two_way:
+            out.append((ll, line[::-1], True))
     return out
 
 

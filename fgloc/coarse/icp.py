@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from fgloc.geo import wrap_angle
 from fgloc.map import TargetCloud
-from fgloc.scenario import Lanelet, lane_lines
+from fgloc.scenario import TWO_WAY_MIN_WIDTH, Lanelet, lane_lines
 
 
 @dataclass
@@ -86,30 +86,34 @@ class RoadModel:
 class LaneCentres:
     """Lane centre lines sampled in L: points (K, 2), unit left normals (K, 2) of the driving
     direction, whether each sample's lane runs against its lanelet's direction (K,) (the left
-    half of a two-way street) and the index (K,) of its lanelet in the list it was built from
+    half of a two-way street, or its centre line driven backwards), the index (K,) of its
+    lanelet in the list it was built from and the index (K,) of its lane
     (:func:`fgloc.scenario.lane_lines`)."""
 
     xy: np.ndarray
     normal: np.ndarray
     against: np.ndarray
     lanelet: np.ndarray
+    lane: np.ndarray
 
     @classmethod
-    def build(cls, lanelets: list[Lanelet], step: float) -> LaneCentres:
-        """Every lane of the lanelets (:func:`fgloc.scenario.lane_lines`: the centre line, one
-        line per direction on a two-way street, bent into it on the junction lanelets of the
-        list that lead into or out of one), samples about ``step`` m apart."""
+    def build(cls, lanelets: list[Lanelet], step: float,
+              two_way_min_width: float = TWO_WAY_MIN_WIDTH) -> LaneCentres:
+        """Every lane of the lanelets (:func:`fgloc.scenario.lane_lines` with
+        ``two_way_min_width``, which sets the lane model of two-way lanelets), samples about
+        ``step`` m apart."""
         index = {id(ll): k for k, ll in enumerate(lanelets)}
-        xy, normal, against, which = [], [], [], []
-        for ll, c, back in lane_lines(lanelets, step):
+        xy, normal, against, which, lane = [], [], [], [], []
+        for k, (ll, c, back) in enumerate(lane_lines(lanelets, step, two_way_min_width)):
             d = np.gradient(c, axis=0)
             d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
             xy.append(c)
             normal.append(np.column_stack([-d[:, 1], d[:, 0]]))
             against.append(np.full(len(c), back))
             which.append(np.full(len(c), index[id(ll)], dtype=np.int64))
+            lane.append(np.full(len(c), k, dtype=np.int64))
         return cls(np.vstack(xy), np.vstack(normal), np.concatenate(against),
-                   np.concatenate(which))
+                   np.concatenate(which), np.concatenate(lane))
 
     def towards(self, sensor_xy: np.ndarray, offset: float) -> PlanarTarget:
         """The centre lines shifted ``offset`` m sideways towards ``sensor_xy`` (2,)."""

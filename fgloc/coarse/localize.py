@@ -61,10 +61,11 @@ from fgloc.coarse.icp import (
 )
 from fgloc.coarse.points import dynamic_points
 from fgloc.coarse.vertical import StaticGround, below_fov_floor, fit_vertical, rodrigues
-from fgloc.config import CoarseConfig, Config
+from fgloc.config import CoarseConfig, Config, MapConfig
 from fgloc.errors import LocalizationError
 from fgloc.geo import pose_from_se3, rot_from_ypr, rot_z, se2, se3, wrap_angle, ypr_from_rot
 from fgloc.map import TargetCloud, approx_position_local, build_target_cloud, check_inside_als
+from fgloc.map.lane_models import KEEP_RIGHT, lane_models, min_width
 from fgloc.progress import Timer
 from fgloc.scenario import Scenario
 
@@ -114,7 +115,9 @@ class CoarseMode:
     that moves the best mode's placement onto this one (the same tilt: the registrations
     later reuse the tracks placed by the best mode, moved rigidly). z, z_std: the sensor height
     (m in L) of the vertical fit at this mode's pose and its std. dev. (m; None without a fit);
-    a final pose that started from this mode takes this height.
+    a final pose that started from this mode takes this height. lanes: the lane model of
+    two-way streets it was found with (:mod:`fgloc.map.lane_models`); the later stages register
+    it against the same.
     """
 
     pose2d: np.ndarray
@@ -122,6 +125,7 @@ class CoarseMode:
     start: np.ndarray
     z: float
     z_std: float | None = None
+    lanes: str = KEEP_RIGHT
 
     def placed(self, T_local: np.ndarray) -> np.ndarray:
         """``T_local`` (4x4 S -> L) with this mode's height."""
@@ -218,13 +222,14 @@ def lane_modes(
     return kept
 
 
-def coarse_modes(kept: list[tuple[float, np.ndarray]], final: _Refined,
+def coarse_modes(kept: list[tuple[float, np.ndarray, str]], final: _Refined,
                  heights: list[tuple[float, float | None]]) -> list[CoarseMode]:
-    """The modes (best first) with their starts relative to ``final``'s placement (the first
-    mode's start is the identity: ``final`` is refined from it) and their (z, z std. dev.)."""
+    """The modes (best first; (lane score, pose, lane model) each) with their starts relative
+    to ``final``'s placement (the first mode's start is the identity: ``final`` is refined from
+    it) and their (z, z std. dev.)."""
     base = np.linalg.inv(se2(*final.pose2d))
-    return [CoarseMode(pose, score, np.eye(3) if k == 0 else se2(*pose) @ base, *height)
-            for k, ((score, pose), height) in enumerate(zip(kept, heights))]
+    return [CoarseMode(pose, score, np.eye(3) if k == 0 else se2(*pose) @ base, *height, model)
+            for k, ((score, pose, model), height) in enumerate(zip(kept, heights))]
 
 
 def _height_at(src: np.ndarray, road: RoadModel, statics: StaticGround, final: _Refined,
@@ -249,7 +254,9 @@ def mode_warning(modes: list[CoarseMode]) -> list[str]:
     best = modes[0]
     parts = [f"{np.hypot(*(m.pose2d[:2] - best.pose2d[:2])):.1f} m / "
              f"{np.rad2deg(abs(wrap_angle(m.pose2d[2] - best.pose2d[2]))):.1f} deg "
-             f"({m.lane_score:.3f} vs {best.lane_score:.3f})" for m in modes[1:]]
+             f"({m.lane_score:.3f} vs {best.lane_score:.3f}"
+             f"{'' if m.lanes == best.lanes else ', ' + m.lanes + ' lanes'})"
+             for m in modes[1:]]
     return [f"coarse: {len(modes)} poses fit the lanes almost as well: the best and "
             f"{'; '.join(parts)} away; the later stages compare them (give "
             "sensor.yaw_guess_deg or a better approx_position to narrow the search)"]
@@ -337,8 +344,14 @@ def _refine(
     return _Refined(pose2d, r_tilt, z, out, tilt_cov, z_std, n_static)
 
 
-def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig) -> CoarseResult:
+def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
+                    map_cfg: MapConfig | None = None) -> CoarseResult:
     """Coarse pose of the sensor (S -> L) from the accumulated dynamic detections.
+
+    ``map_cfg`` (default :class:`MapConfig`) sets the lane models of two-way streets
+    (:func:`fgloc.map.lane_models.lane_models`): with two, the modes of each are kept (within
+    ``mode_margin`` of that model's best, at most ``max_modes`` each) and the best of all is
+    refined.
 
     Raises :class:`LocalizationError` for an empty target cloud or fewer than ``cfg.min_points``
     filtered dynamic points, :class:`InputError` for an approximate position outside the ALS. A
@@ -363,9 +376,11 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig) -> Co
     pad = 2.0 * (cfg.position_search_radius + cfg.score_tau)
     road = RoadModel.build(target, cfg.raster_cell, pad, cfg.score_tau)
     used = set(np.unique(target.lanelet_id).tolist())
-    lanes = LaneCentres.build(
-        [ll for ll in scn.lanelets.lanelets if ll.id in used], cfg.lane_sample_step
-    )
+    lanelets = [ll for ll in scn.lanelets.lanelets if ll.id in used]
+    map_cfg = map_cfg or MapConfig()
+    models = {m: LaneCentres.build(lanelets, cfg.lane_sample_step, min_width(m, map_cfg))
+              for m in lane_models(lanelets, map_cfg)}
+    first = next(iter(models))
     centre = approx_position_local(scn)
     height = scn.sensor.approx_height
     z0 = _start_height(road, centre, cfg.default_height if height is None else height)
@@ -380,18 +395,27 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig) -> Co
     fit = src[:: max(1, len(src) // cfg.refine_points)]
     statics = StaticGround.build(scn.radar, np.asarray(scn.als.xyz, dtype=float),
                                  np.asarray(scn.als.classification), centre,
-                                 scn.sensor.max_range + pad, lanes, cfg)
-    ref = _refine(fit, road, lanes, refined[0][1], z0, scn.sensor.vfov_deg, cfg, statics)
-    if cfg.max_modes > 1:
-        kept = lane_modes(refined, ref, fit, lanes, cfg)
-    else:
-        kept = [(_lane_fit((fit @ ref.r_tilt.T)[:, :2], lanes, ref.pose2d, cfg)[0], ref.pose2d)]
-    if _distinct(ref.pose2d, kept[:1], cfg):      # another pose fits the lanes best
-        ref = _refine(fit, road, lanes, kept[0][1], z0, scn.sensor.vfov_deg, cfg, statics)
-        kept[0] = (kept[0][0], ref.pose2d)
+                                 scn.sensor.max_range + pad,
+                                 np.vstack([lc.xy for lc in models.values()]), cfg)
+    ref = _refine(fit, road, models[first], refined[0][1], z0, scn.sensor.vfov_deg, cfg,
+                  statics)
+    kept: list[tuple[float, np.ndarray, str]] = []
+    for model, lanes in models.items():
+        if cfg.max_modes > 1:
+            kept += [(score, pose, model) for score, pose in lane_modes(refined, ref, fit, lanes,
+                                                                        cfg)]
+        else:
+            score, pose = _lane_fit((fit @ ref.r_tilt.T)[:, :2], lanes, ref.pose2d, cfg)
+            kept.append((score, pose, model))
+    kept.sort(key=lambda item: -item[0])
+    if kept[0][2] != first or _distinct(ref.pose2d, kept[:1], cfg):
+        # another pose (or the other lane model) fits the lanes best
+        ref = _refine(fit, road, models[kept[0][2]], kept[0][1], z0, scn.sensor.vfov_deg, cfg,
+                      statics)
+        kept[0] = (kept[0][0], ref.pose2d, kept[0][2])
     heights = [(ref.z, ref.z_std)] + [
         _height_at(fit, road, statics, ref, pose, z0, scn.sensor.vfov_deg, cfg)
-        for _, pose in kept[1:]]
+        for _, pose, _ in kept[1:]]
     modes = coarse_modes(kept, ref, heights)
     warnings = mode_warning(modes)
     timings["refinement"] = time.perf_counter() - t
@@ -437,5 +461,5 @@ def target_and_coarse(scn: Scenario, cfg: Config, timer: Timer) -> tuple[TargetC
     with timer.stage("target cloud"):
         target = build_target_cloud(scn, cfg.map)
     with timer.stage("coarse ICP"):
-        coarse = coarse_localize(scn, target, cfg.coarse)
+        coarse = coarse_localize(scn, target, cfg.coarse, cfg.map)
     return target, coarse

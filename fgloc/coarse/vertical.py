@@ -9,7 +9,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from fgloc.coarse.icp import LaneCentres, RoadModel, apply_planar
+from fgloc.coarse.icp import RoadModel, apply_planar
 from fgloc.config import CoarseConfig
 from fgloc.scenario import RadarData
 
@@ -36,17 +36,18 @@ class StaticGround:
 
     @classmethod
     def build(cls, radar: RadarData, als_xyz: np.ndarray, als_class: np.ndarray,
-              centre: np.ndarray, reach: float, lanes: LaneCentres, cfg: CoarseConfig
+              centre: np.ndarray, reach: float, lane_xy: np.ndarray, cfg: CoarseConfig
               ) -> StaticGround:
         """From the radar rows, the ALS (xyz (N, 3) in L, ASPRS classes (N,)) within ``reach``
         m of ``centre`` (2,) (every class but ground, road, water, noise and ignored ground
-        may be an obstacle; the height test decides for unclassified points) and the lanes."""
+        may be an obstacle; the height test decides for unclassified points) and the lane
+        centre samples ``lane_xy`` (K, 2) m in L (of every lane model)."""
         st = np.asarray(radar.xyz, dtype=float)[np.abs(radar.doppler) <= cfg.static_doppler_max]
         st = st[:: max(1, len(st) // cfg.static_points)] if len(st) else np.zeros((0, 3))
         near = np.hypot(*(als_xyz[:, :2] - centre).T) <= reach
         off = near & ~np.isin(als_class, _GROUND_LIKE)
         high = cKDTree(als_xyz[off, :2]) if off.any() else None
-        return cls(st, high, als_xyz[off, 2].astype(float), cKDTree(lanes.xy))
+        return cls(st, high, als_xyz[off, 2].astype(float), cKDTree(lane_xy))
 
     def rows(self, r_tilt: np.ndarray, pose2d: np.ndarray, road: RoadModel,
              cfg: CoarseConfig) -> tuple[np.ndarray, np.ndarray]:

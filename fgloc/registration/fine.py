@@ -30,61 +30,81 @@ from scipy.spatial import cKDTree
 from fgloc.config import Config
 from fgloc.geo import se2_params, se2_to_se3, transform_points
 from fgloc.labels import NAMES, mirrored
+from fgloc.map.lane_models import KEEP_RIGHT, min_width
 from fgloc.progress import Timer
 from fgloc.registration.config import FineConfig, SicpConfig
 from fgloc.registration.modes import RESOLVED, ModeFit, choose_mode, track_costs
 from fgloc.registration.sicp import SemanticTargets, SicpResult, sicp
 from fgloc.registration.source import SourceCloud, build_source_cloud, check_fine_config
 from fgloc.result import LocalizationResult, json_ready
-from fgloc.scenario import Scenario
+from fgloc.scenario import TWO_WAY_MIN_WIDTH, Lanelet, Scenario
 
 if TYPE_CHECKING:
-    from fgloc.coarse import CoarseResult
+    from fgloc.coarse import CoarseResult, LaneCentres
     from fgloc.map import TargetCloud
     from fgloc.tracks import TrackSet
 
 
 def lane_centre_points(
     scn: Scenario, target: TargetCloud, step: float, towards: np.ndarray | None = None,
-    offset: float = 0.0,
+    offset: float = 0.0, two_way_min_width: float = TWO_WAY_MIN_WIDTH,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(K, 2) samples (m, in L) of the lane centre lines of the lanelets in ``target``
     (:meth:`LaneCentres.build`: one per direction on a wide two-way lanelet), every about
     ``step`` m, and the (K,) label code of each (its lanelet's label, mirrored on a lane driven
     against the lanelet's direction), and the (K, 2) unit driving direction of each. With
     ``towards`` (2,) m, every sample is shifted ``offset`` m sideways towards that point (the
-    sensor)."""
+    sensor). ``two_way_min_width`` (m) sets the lane model of two-way lanelets
+    (:func:`fgloc.map.lane_models.min_width`)."""
     from fgloc.coarse import LaneCentres
 
-    used = set(np.unique(target.lanelet_id).tolist())
-    lanelets = [ll for ll in scn.lanelets.lanelets if ll.id in used]
-    lanes = LaneCentres.build(lanelets, step)
+    lanelets = target_lanelets(scn, target)
+    lanes = LaneCentres.build(lanelets, step, two_way_min_width)
     xy = lanes.xy if towards is None else lanes.towards(towards, offset).xy
-    own = np.array([target.lanelet_labels[ll.id] for ll in lanelets], np.int8)[lanes.lanelet]
     direction = np.column_stack([lanes.normal[:, 1], -lanes.normal[:, 0]])
-    return xy, np.where(lanes.against, mirrored(own), own).astype(np.int8), direction
+    return xy, lane_labels(target, lanelets, lanes), direction
+
+
+def target_lanelets(scn: Scenario, target: TargetCloud) -> list[Lanelet]:
+    """The lanelets of the scenario's map that hold points of ``target``, in map order."""
+    used = set(np.unique(target.lanelet_id).tolist())
+    return [ll for ll in scn.lanelets.lanelets if ll.id in used]
+
+
+def lane_labels(target: TargetCloud, lanelets: list[Lanelet], lanes: LaneCentres) -> np.ndarray:
+    """(K,) int8 label code of each sample of ``lanes`` (built from ``lanelets``): its
+    lanelet's label in ``target``, mirrored (left <-> right) on a lane driven against the
+    lanelet's direction."""
+    own = np.array([target.lanelet_labels[ll.id] for ll in lanelets], np.int8)[lanes.lanelet]
+    return np.where(lanes.against, mirrored(own), own).astype(np.int8)
 
 
 def fine_targets(
-    scn: Scenario, target: TargetCloud, cfg: Config, sensor_xy: np.ndarray
+    scn: Scenario, target: TargetCloud, cfg: Config, sensor_xy: np.ndarray,
+    lanes: str = KEEP_RIGHT,
 ) -> SemanticTargets:
     """The labelled SICP target in L of ``cfg.fine.target`` (see :class:`FineConfig`);
-    sensor_xy: (2,) m, the sensor's position in L (for "visible-sides")."""
+    sensor_xy: (2,) m, the sensor's position in L (for "visible-sides"); lanes: the lane model
+    of two-way streets (:mod:`fgloc.map.lane_models`; not read for "road-points")."""
     check_fine_config(cfg.fine)
     kind, step = cfg.fine.target, cfg.fine.lane_sample_step
     if kind == "road-points":
         return SemanticTargets.build(target.xyz[:, :2], target.label)
+    width = min_width(lanes, cfg.map)
     if kind == "lane-centres":
-        return SemanticTargets.build(*lane_centre_points(scn, target, step))
+        return SemanticTargets.build(*lane_centre_points(scn, target, step,
+                                                         two_way_min_width=width))
     offset = cfg.coarse.visible_side_offset
-    return SemanticTargets.build(*lane_centre_points(scn, target, step, sensor_xy, offset))
+    return SemanticTargets.build(*lane_centre_points(scn, target, step, sensor_xy, offset, width))
 
 
 def mode_targets(scn: Scenario, target: TargetCloud, cfg: Config, coarse: CoarseResult,
-                 start: np.ndarray) -> SemanticTargets:
+                 start: np.ndarray, lanes: str = KEEP_RIGHT) -> SemanticTargets:
     """:func:`fine_targets` for the mode whose placement is ``start`` (3x3 C -> L) applied to
-    the coarse frame: the visible sides face that mode's sensor position."""
-    return fine_targets(scn, target, cfg, transform_points(start, coarse.T_coarse[None, :2, 3])[0])
+    the coarse frame and whose lane model is ``lanes``: the visible sides face that mode's
+    sensor position."""
+    return fine_targets(scn, target, cfg, transform_points(start, coarse.T_coarse[None, :2, 3])[0],
+                        lanes)
 
 
 def fine_sicp_config(cfg: Config) -> SicpConfig:
@@ -205,14 +225,16 @@ def register_tracks(
     fits: list[ModeFit] = []
     with timer.stage("SICP"):
         for start, mode in zip(coarse.mode_starts(), coarse.modes or [None]):
-            targets = mode_targets(scn, target, cfg, coarse, start)
+            lanes = KEEP_RIGHT if mode is None else mode.lanes
+            targets = mode_targets(scn, target, cfg, coarse, start, lanes)
             res = sicp(src.xy, src.label, targets, None, start, scfg,
                        source_direction=src.direction)
             T_local = se2_to_se3(res.T) @ coarse.T_coarse
             fits.append(ModeFit(res.T, T_local if mode is None else mode.placed(T_local), None,
-                                track_costs(src, targets, res.T, cfg.coarse.mode_cost_scale),
+                                track_costs(src, targets, res.T, cfg.coarse.mode_cost_scale,
+                                            cfg.sicp.direction_gate_deg),
                                 1.0 if mode is None else mode.lane_score, res.converged,
-                                start, coarse.z_std if mode is None else mode.z_std))
+                                start, coarse.z_std if mode is None else mode.z_std, lanes))
             runs.append((res, targets))      # SICP's covariance is not calibrated: None
     choice = choose_mode(fits, cfg.coarse)
     res, targets = runs[next(i for i, f in enumerate(fits) if f is choice.best)]

@@ -83,6 +83,7 @@ from factors.registration_factors import line_sqrt_info
 from fgloc.config import Config
 from fgloc.geo import se2, se2_params, se2_to_se3, transform_points, wrap_angle
 from fgloc.labels import NAMES
+from fgloc.map.lane_models import min_width
 from fgloc.progress import Timer
 from fgloc.registration.joint_config import JointConfig, check_joint_config
 from fgloc.registration.joint_solver import (
@@ -96,7 +97,7 @@ from fgloc.registration.joint_solver import (
 )
 from fgloc.registration.sicp import _degeneracy
 from fgloc.result import LocalizationResult, json_ready
-from fgloc.scenario import Scenario
+from fgloc.scenario import TWO_WAY_MIN_WIDTH, Scenario
 from fgloc.smoothing.banded_lm import BandedLayout
 from fgloc.tracks import N_KIN, N_STATE, YAW, Track, TrackSet, X, Y
 
@@ -126,21 +127,20 @@ class LaneLines:
 
     @classmethod
     def build(cls, scn: Scenario, target: TargetCloud, step: float, sensor_xy: np.ndarray,
-              offset: float) -> LaneLines:
-        """Lines of the lanelets that hold target points, sampled every about ``step`` m and
-        shifted ``offset`` m towards ``sensor_xy`` (2,) (0: the centre lines)."""
+              offset: float, two_way_min_width: float = TWO_WAY_MIN_WIDTH) -> LaneLines:
+        """Lane lines of the lanelets that hold target points (:meth:`LaneCentres.build`;
+        labels mirrored on a lane driven against its lanelet, ``two_way_min_width`` sets the
+        lane model of two-way lanelets),
+        sampled every about ``step`` m and shifted ``offset`` m towards ``sensor_xy`` (2,) (0:
+        the centre lines); ``lane`` is the index of each sample's lane line."""
         from fgloc.coarse import LaneCentres
+        from fgloc.registration.fine import lane_labels, target_lanelets
 
-        used = set(np.unique(target.lanelet_id).tolist())
-        lanelets = [ll for ll in scn.lanelets.lanelets if ll.id in used]
-        lanes = [LaneCentres.build([ll], step) for ll in lanelets]
-        xy = np.vstack([lc.xy for lc in lanes])
-        normal = np.vstack([lc.normal for lc in lanes])
-        label = np.concatenate([np.full(len(lc.xy), target.lanelet_labels[ll.id], np.int64)
-                                for lc, ll in zip(lanes, lanelets)])
-        side = np.sign(np.einsum("ij,ij->i", np.asarray(sensor_xy) - xy, normal))
-        lane = np.repeat(np.arange(len(lanes)), [len(lc.xy) for lc in lanes])
-        return cls.of(xy + (offset * side)[:, None] * normal, normal, label, lane)
+        lanelets = target_lanelets(scn, target)
+        lanes = LaneCentres.build(lanelets, step, two_way_min_width)
+        side = np.sign(np.einsum("ij,ij->i", np.asarray(sensor_xy) - lanes.xy, lanes.normal))
+        return cls.of(lanes.xy + (offset * side)[:, None] * lanes.normal, lanes.normal,
+                      lane_labels(target, lanelets, lanes), lanes.lane)
 
     @classmethod
     def of(cls, xy: np.ndarray, normal: np.ndarray, label: np.ndarray,
@@ -765,7 +765,10 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
     (``start.mode_fits``: filter-sicp's registrations of the coarse modes) is refined from its
     registration against lines seen from its sensor position, and the fits are compared as in
     :mod:`fgloc.registration.modes` (``status``, ``modes``, a covering covariance when
-    ambiguous). Raises ValueError when ``smoothed`` holds other tracks than ``tracks``."""
+    ambiguous); a mode's evidence is the better of its two fits' costs (the joint's and the
+    start's: the joint optimizes another objective and may end where the shared cost is
+    higher, which must not count against the mode). Raises ValueError when ``smoothed``
+    holds other tracks than ``tracks``."""
     from fgloc.registration.fine import (
         coarse_tilt_covariance,
         mode_targets,
@@ -798,18 +801,22 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
                 start.tracks.T_frame_to_L, start.T_local, None, np.zeros(0), 1.0,
                 start.converged, np.eye(3), start.z_std)]:
             mode_sensor = transform_points(mode.start, sensor_c[None])[0]
-            lines = LaneLines.build(scn, target, cfg.fine.lane_sample_step, mode_sensor, offset)
+            lines = LaneLines.build(scn, target, cfg.fine.lane_sample_step, mode_sensor, offset,
+                                    min_width(mode.lanes, cfg.map))
             T0 = mode.T_fine if cfg.joint.start == "sicp" else mode.start
             jr = joint_refine(subset, det_xy, sensor_c, lines, T0, cfg, trusted, rates)
             cov = sensor_covariance(jr.covariance, jr.T, sensor_c)
             if tilt is not None and cov is not None:
                 cov = cov + tilt
-            targets = mode_targets(scn, target, cfg, coarse, mode.start)
+            targets = mode_targets(scn, target, cfg, coarse, mode.start, mode.lanes)
             T_local = se2_to_se3(jr.T) @ coarse.T_coarse
             T_local[2, 3] = mode.T_local[2, 3]          # the coarse mode's height
-            fits.append(ModeFit(jr.T, T_local, cov,
-                                track_costs(cloud, targets, jr.T, cfg.coarse.mode_cost_scale),
-                                mode.lane_score, jr.converged, mode.start, mode.z_std))
+            cost = track_costs(cloud, targets, jr.T, cfg.coarse.mode_cost_scale,
+                               cfg.sicp.direction_gate_deg)
+            if mode.track_cost.shape == cost.shape and mode.cost < cost.sum():
+                cost = mode.track_cost      # the mode's evidence: its start fits the data better
+            fits.append(ModeFit(jr.T, T_local, cov, cost, mode.lane_score, jr.converged,
+                                mode.start, mode.z_std, mode.lanes))
             runs.append(jr)
         choice = choose_mode(fits, cfg.coarse)
         jr = runs[next(i for i, f in enumerate(fits) if f is choice.best)]

@@ -9,7 +9,9 @@ placed by the best mode, moved rigidly by the mode's start) and hands its final 
 * **Same data, same cost**: each pose ``T_k`` (C -> L) is scored on the same tracked
   detections (the method's labelled source cloud, frame C) against the same kind of target
   (the lane centre lines of each point's label shifted towards mode k's sensor) with the
-  robust cost ``rho(d) = min(d, c)^2 / c^2`` (``coarse.mode_cost_scale`` c), summed per track.
+  robust cost ``rho(d) = min(d, c)^2 / c^2`` (``coarse.mode_cost_scale`` c), summed per track;
+  a vehicle's point is scored against the lanes of its driving direction
+  (``sicp.direction_gate_deg``).
 * **Choice**: the mode of least total cost.
 * **Told apart?** The points of one vehicle share its errors, so the evidence against mode k
   is counted per track: ``D_j`` = track j's cost under k minus under the best mode, and
@@ -17,6 +19,10 @@ placed by the best mode, moved rigidly by the mode's start) and hands its final 
   tracks' differences are symmetric about 0, i.e. when k fits as well; ``sqrt(n)`` when n
   tracks all prefer the best by the same amount). Mode k is ruled out when
   ``z_k >= coarse.mode_z``; otherwise the result is ``status = "ambiguous"``.
+* **Lane models**: where a two-way street is mapped as one lanelet, the coarse stage gives
+  its modes in both lane models (:mod:`fgloc.map.lane_models`); each is registered against
+  its own model's targets and scored against them, and the two models compete like any two
+  modes (a model is ruled out by the tracks' fit, or the result is ambiguous).
 * **Ambiguous**: the reported pose stays the best mode's, but the covariance covers every mode
   not ruled out: ``mean_k (C_k + e_k e_k^T)``, ``e_k`` the mode's (x, y, yaw) minus the
   reported one and ``C_k`` its own covariance (where the method has one), so the truth at any
@@ -32,6 +38,7 @@ import numpy as np
 
 from fgloc.config import CoarseConfig
 from fgloc.geo import LocalFrame, pose_from_se3, se2_to_se3, transform_points, wrap_angle
+from fgloc.map.lane_models import KEEP_RIGHT
 from fgloc.registration.sicp import ALL, SemanticTargets
 from fgloc.registration.source import SourceCloud
 
@@ -52,6 +59,8 @@ class ModeFit:
     one run). lane_score: the coarse mode's lane-centre score. converged: the registration's.
     start: 3x3 SE(2) C -> L, the coarse mode's start (:attr:`fgloc.coarse.CoarseMode.start`).
     z_std: std. dev. (m) of the height (T_local's z, that of the coarse mode), or None.
+    lanes: the lane model of two-way streets it was registered with
+    (:mod:`fgloc.map.lane_models`).
     """
 
     T_fine: np.ndarray
@@ -62,6 +71,7 @@ class ModeFit:
     converged: bool
     start: np.ndarray
     z_std: float | None = None
+    lanes: str = KEEP_RIGHT
 
     @property
     def cost(self) -> float:
@@ -74,18 +84,28 @@ class ModeFit:
                          np.arctan2(self.T_local[1, 0], self.T_local[0, 0])])
 
 
-def track_costs(src: SourceCloud, targets: SemanticTargets, T: np.ndarray, scale: float
-                ) -> np.ndarray:
+def track_costs(src: SourceCloud, targets: SemanticTargets, T: np.ndarray, scale: float,
+                gate_deg: float = 180.0) -> np.ndarray:
     """Summed robust cost ``min(d, scale)^2 / scale^2`` per track (ordered by track id) of the
     source points moved by T (3x3 C -> L); d is the distance (m) to the nearest target point
-    of the point's label (of any label when the target has none of it)."""
+    of the point's label (of any label when the target has none of it) and, where the source
+    and the target carry driving directions and ``gate_deg`` < 180, of a direction within
+    ``gate_deg`` of the point's (as SICP matches, ``sicp.direction_gate_deg``: a vehicle is
+    scored against the lanes of its direction, so a lane model with more lines per street
+    does not fit the other direction's vehicles better)."""
     xy = transform_points(T, src.xy)
+    directed = (src.direction is not None and targets.direction is not None
+                and gate_deg < 180.0)
+    heading = src.direction @ T[:2, :2].T if directed else None
+    min_cos = float(np.cos(np.deg2rad(gate_deg)))
     d = np.full(len(xy), scale)
     for code in np.unique(src.label):
         sel = src.label == code
-        idx, tree = targets.tree(int(code) if targets.count(int(code)) else ALL)
-        if len(idx):
-            d[sel] = tree.query(xy[sel], distance_upper_bound=scale)[0]
+        key = int(code) if targets.count(int(code)) else ALL
+        if targets.count(key):
+            found = targets.nearest(key, xy[sel], scale,
+                                    None if heading is None else heading[sel], min_cos)[0]
+            d[sel] = np.minimum(found, scale)
     rho = np.minimum(d, scale) ** 2 / scale**2
     _, inv = np.unique(src.track_id, return_inverse=True)
     return np.bincount(inv.reshape(-1), weights=rho)
@@ -159,6 +179,7 @@ class ModeChoice:
                 "cost": fit.cost if len(fit.track_cost) else None, "separation_z": float(self.z[k]),
                 "selected": k == 0, "tied": k in self.tied,
                 "coarse_lane_score": fit.lane_score, "converged": fit.converged,
+                "lanes": fit.lanes,
                 "std": None if cov is None else {
                     "x_m": float(np.sqrt(cov[0, 0])), "y_m": float(np.sqrt(cov[1, 1])),
                     "yaw_deg": float(np.rad2deg(np.sqrt(cov[2, 2])))},
@@ -172,7 +193,10 @@ class ModeChoice:
         c = self.best.sensor
         parts = [f"{np.hypot(*(self.fits[k].sensor[:2] - c[:2])):.1f} m / "
                  f"{np.rad2deg(abs(wrap_angle(self.fits[k].sensor[2] - c[2]))):.1f} deg "
-                 f"(z {self.z[k]:.1f})" for k in self.tied[1:]]
+                 f"(z {self.z[k]:.1f}"
+                 f"{'' if self.fits[k].lanes == self.best.lanes else ', ' + self.fits[k].lanes}"
+                 f"{' lanes' if self.fits[k].lanes != self.best.lanes else ''})"
+                 for k in self.tied[1:]]
         return [f"{method}: ambiguous pose: {len(self.tied)} modes fit the data alike (the "
                 f"reported one and {'; '.join(parts)} away); the covariance covers them all"]
 
@@ -181,7 +205,7 @@ def coarse_choice(coarse: CoarseResult) -> ModeChoice:
     """The coarse stage's modes as they stand (the icp method): the lane-centre scores cannot
     rule a mode out (they are all within ``mode_margin``), so more than one is ambiguous."""
     fits = [ModeFit(m.start, m.placed(se2_to_se3(m.start) @ coarse.T_coarse), None,
-                    np.zeros(0), m.lane_score, coarse.converged, m.start, m.z_std)
+                    np.zeros(0), m.lane_score, coarse.converged, m.start, m.z_std, m.lanes)
             for m in coarse.modes]
     return ModeChoice(fits, np.zeros(len(fits)), list(range(len(fits))))
 

@@ -121,6 +121,29 @@ class SemanticTargets:
             self._trees[code] = (idx, cKDTree(self.xy[idx]))
         return self._trees[code]
 
+    def nearest(self, code: int, xy: np.ndarray, rmax: float, heading: np.ndarray | None = None,
+                min_cos: float = -1.0) -> tuple[np.ndarray, np.ndarray]:
+        """Distance (n,) (m; inf: none) and index (n,) into ``xy``'s target points (only
+        meaningful where the distance is finite) of the nearest target point of label ``code``
+        (ALL: any) within ``rmax`` m of each point ``xy`` (n, 2). With ``heading`` (n, 2) (unit
+        directions in the target frame; needs target directions) only target points whose
+        direction has a cosine above ``min_cos`` with it are candidates: the nearest such among
+        the :data:`_DIRECTED_K` nearest (a point nearer to many samples of wrong-way lanes than
+        to any of its own lane has none)."""
+        idx, tree = self.tree(code)
+        if heading is None:
+            d, j = tree.query(xy, distance_upper_bound=rmax)
+            return d, idx[np.minimum(j, len(idx) - 1)]
+        kk = min(_DIRECTED_K, len(idx))
+        dk, jk = tree.query(xy, k=kk, distance_upper_bound=rmax)
+        dk, jk = dk.reshape(len(xy), kk), jk.reshape(len(xy), kk)
+        found = np.isfinite(dk)
+        jk = idx[np.where(found, jk, 0)]
+        cos = np.einsum("nkj,nj->nk", self.direction[jk], heading)
+        dk = np.where(found & (cos > min_cos), dk, np.inf)
+        first = np.argmin(dk, axis=1)
+        return dk[np.arange(len(xy)), first], jk[np.arange(len(xy)), first]
+
     def moments(self, code: int, cell: float) -> _Moments:
         """Summed-area tables of the moments of label ``code``'s points on a grid of ``cell`` m."""
         key = (code, cell)
@@ -302,10 +325,8 @@ def _groups(source_label: np.ndarray, targets: SemanticTargets, cfg: SicpConfig)
 def _match(moved: np.ndarray, g: _Groups, targets: SemanticTargets, rmax: float,
            heading: np.ndarray | None = None, min_cos: float = -1.0) -> _Matches:
     """Least-cost (d^2 / compatibility) correspondence of every source point within rmax (m).
-    With ``heading`` (n, 2) (unit directions in the target frame) only target points whose
-    direction has a cosine above ``min_cos`` with it are candidates: the nearest such among
-    the :data:`_DIRECTED_K` nearest (a point nearer to many samples of wrong-way lanes than to
-    any of its own lane has no match)."""
+    With ``heading`` (n, 2) (unit directions in the target frame) only target points of a
+    direction within the gate are candidates (:meth:`SemanticTargets.nearest`)."""
     n = moved.shape[0]
     index, group = np.full(n, -1, dtype=np.int64), np.full(n, -1, dtype=np.int64)
     dist, compat, cost = np.full(n, np.inf), np.zeros(n), np.full(n, np.inf)
@@ -313,23 +334,12 @@ def _match(moved: np.ndarray, g: _Groups, targets: SemanticTargets, rmax: float,
     for k, code in enumerate(g.codes):
         c_all = g.compat[g.source_group[src], k]
         q = src[c_all > 0.0]
-        idx, tree = targets.tree(code)
-        if heading is None:
-            d, j = tree.query(moved[q], distance_upper_bound=rmax)
-        else:
-            kk = min(_DIRECTED_K, len(idx))
-            dk, jk = tree.query(moved[q], k=kk, distance_upper_bound=rmax)
-            dk, jk = dk.reshape(len(q), kk), jk.reshape(len(q), kk)
-            found = np.isfinite(dk)
-            jk = np.where(found, jk, 0)
-            cos = np.einsum("nkj,nj->nk", targets.direction[idx[jk]], heading[q])
-            dk = np.where(found & (cos > min_cos), dk, np.inf)
-            first = np.argmin(dk, axis=1)
-            d, j = dk[np.arange(len(q)), first], jk[np.arange(len(q)), first]
+        d, j = targets.nearest(code, moved[q], rmax, None if heading is None else heading[q],
+                               min_cos)
         c = c_all[c_all > 0.0]
         better = np.isfinite(d) & (d * d / c < cost[q])
         q, d, j, c = q[better], d[better], j[better], c[better]
-        index[q], dist[q], compat[q], cost[q], group[q] = idx[j], d, c, d * d / c, k
+        index[q], dist[q], compat[q], cost[q], group[q] = j, d, c, d * d / c, k
     return _Matches(index, dist, compat, group)
 
 
