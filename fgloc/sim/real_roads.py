@@ -75,7 +75,7 @@ def directed_lanelets(lmap: LaneletMap) -> DirectedLanelets:
     by_id = {ll.id: ll for ll in lmap.lanelets}
     inverted = sorted({k for k in (*directed, *(x for v in directed.values() for x in v))
                        if k[1] and k[0] in by_id})
-    offset = 1 + max(abs(i) for i in by_id)
+    offset = 1 + max((abs(i) for i in by_id), default=0)
     ids = {(i, False): i for i in by_id}
     ids.update({key: offset + k for k, key in enumerate(inverted)})
     lanelets = list(lmap.lanelets)
