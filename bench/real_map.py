@@ -1,13 +1,17 @@
 """Every method on junctions of a real Lanelet2 map (issue 22).
 
 For each of the map's largest junctions (``--junctions``, ranked by the number of movements of
-the routing graph) and each seed, ``fgloc.sim.real_map.simulate_on_map`` builds a scenario at
-that junction (``--duration`` s of traffic) and ``fgloc.localize_many`` runs every method on it;
-once per ``[map] labels`` mode (routing graph, Menger curvature); the 2D and yaw errors against
-the simulated truth are printed per run, then the mean and the worst seed per junction and
-method. docs/benchmarks.md's table comes from ``python -m bench.report --only real_map``.
+the routing graph per driving direction), each kind of traffic on two-way lanelets
+(``--two-way-traffic``: ``[real_map] two_way_traffic`` of the simulator, "keep-right" and
+"centre") and each seed, ``fgloc.sim.real_map.simulate_on_map`` builds a scenario at that
+junction (``--duration`` s of traffic) and ``fgloc.localize_many`` runs every method on it; once
+per ``[map] labels`` mode (routing graph, Menger curvature); the 2D and yaw errors against the
+simulated truth are printed per run, then the mean and the worst seed per traffic, labels,
+junction and method. docs/benchmarks.md's table comes from
+``python -m bench.report --only real_map``.
 
     OMP_NUM_THREADS=1 python -m bench.real_map --seeds 1 2 3
+    OMP_NUM_THREADS=1 python -m bench.real_map --seeds 1 --two-way-traffic centre --labels routing
 """
 
 from __future__ import annotations
@@ -24,57 +28,72 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from fgloc.config import Config  # noqa: E402
 from fgloc.evaluation.pose import pose_error  # noqa: E402
 from fgloc.pipeline import localize_many  # noqa: E402
+from fgloc.sim.config import SimConfig  # noqa: E402
 from fgloc.sim.real_map import map_junctions, simulate_on_map  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_MAP = ROOT.parent / "shared" / "data" / "maps" / "lanelet2_mapping_example.osm"
 METHODS = ["icp", "filter-sicp", "smoother-sicp", "joint"]
+#: ``[real_map] two_way_traffic`` settings of the simulator
+TRAFFIC = ["keep-right", "centre"]
 
 
-Errors = dict[tuple[str, int, str], list[tuple[float, float]]]
+#: (traffic, labels, junction index, method) -> (2D m, yaw deg) of every seed
+Errors = dict[tuple[str, str, int, str], list[tuple[float, float]]]
 
 
 def run(map_path: Path, n_junctions: int, seeds: list[int], duration: float,
-        labels: list[str]) -> tuple[list[tuple[float, float]], Errors]:
-    """Junction sites (lat, lon) and per (labels, junction, method) the (2D m, yaw deg) of
-    every seed; every scenario is localized once per ``[map] labels`` mode."""
+        labels: list[str], traffic: list[str] | None = None
+        ) -> tuple[list[tuple[float, float]], Errors]:
+    """Junction sites (lat, lon) and per (traffic, labels, junction, method) the (2D m, yaw
+    deg) of every seed; every scenario (one per traffic kind, junction and seed) is localized
+    once per ``[map] labels`` mode."""
     junctions, _ = map_junctions(map_path)
     sites = [(float(j.centre[0]), float(j.centre[1])) for j in junctions[:n_junctions]]
     errors: Errors = {}
-    for k, site in enumerate(sites):
-        for seed in seeds:
-            scn = simulate_on_map(map_path, seed, site=site, duration=duration).scenario
-            for mode in labels:
-                t0 = time.perf_counter()
-                cfg = Config()
-                cfg.map.labels = mode
-                res = localize_many(scn, METHODS, cfg)
-                line = [f"junction {k + 1} seed {seed} labels {mode}:"]
-                for m, r in res.items():
-                    e = pose_error(r.T_local, scn.truth.sensor_pose)
-                    errors.setdefault((mode, k, m), []).append((e.d2d, e.dyaw_deg))
-                    line.append(f"{m} {e.d2d:.3f} m {e.dyaw_deg:.3f} deg"
-                                + ("" if r.converged else " (not converged)"))
-                print(" ".join(line) + f"  [{time.perf_counter() - t0:.0f} s]", flush=True)
+    for kind in traffic or TRAFFIC:
+        sim_cfg = SimConfig()
+        sim_cfg.real_map.two_way_traffic = kind
+        for k, site in enumerate(sites):
+            for seed in seeds:
+                scn = simulate_on_map(map_path, seed, site=site, duration=duration,
+                                      config=sim_cfg).scenario
+                for mode in labels:
+                    t0 = time.perf_counter()
+                    cfg = Config()
+                    cfg.map.labels = mode
+                    res = localize_many(scn, METHODS, cfg)
+                    line = [f"traffic {kind} junction {k + 1} seed {seed} labels {mode}:"]
+                    for m, r in res.items():
+                        e = pose_error(r.T_local, scn.truth.sensor_pose)
+                        errors.setdefault((kind, mode, k, m), []).append((e.d2d, e.dyaw_deg))
+                        line.append(f"{m} {e.d2d:.3f} m {e.dyaw_deg:.3f} deg"
+                                    + ("" if r.converged else " (not converged)"))
+                    print(" ".join(line) + f"  [{time.perf_counter() - t0:.0f} s]", flush=True)
     return sites, errors
 
 
 def table(sites: list[tuple[float, float]], seeds: list[int], labels: list[str],
           errors: Errors) -> str:
-    rows = ["| junction (lat, lon) | labels | method | 2D mean (m) | 2D worst (m) "
-            "| yaw mean (deg) | yaw worst (deg) |", "|---|---|---|---|---|---|---|"]
+    """Markdown table: per two-way traffic kind and labels mode, every junction's and all runs'
+    mean and worst per method."""
+    rows = ["| two-way traffic | junction (lat, lon) | labels | method | 2D mean (m) "
+            "| 2D worst (m) | yaw mean (deg) | yaw worst (deg) |",
+            "|---|---|---|---|---|---|---|---|"]
 
-    def row(name: str, mode: str, m: str, e: np.ndarray) -> str:
-        return (f"| {name} | {mode} | {m} | {e[:, 0].mean():.3f} | {e[:, 0].max():.3f} | "
-                f"{e[:, 1].mean():.3f} | {e[:, 1].max():.3f} |")
+    def row(kind: str, name: str, mode: str, m: str, e: np.ndarray) -> str:
+        return (f"| {kind} | {name} | {mode} | {m} | {e[:, 0].mean():.3f} | "
+                f"{e[:, 0].max():.3f} | {e[:, 1].mean():.3f} | {e[:, 1].max():.3f} |")
 
-    for mode in labels:
-        for k, (lat, lon) in enumerate(sites):
-            rows += [row(f"{k + 1} ({lat:.5f}, {lon:.5f})", mode, m,
-                         np.array(errors[(mode, k, m)])) for m in METHODS]
-        rows += [row(f"all {len(sites)} x {len(seeds)} runs", mode, m,
-                     np.vstack([errors[(mode, k, m)] for k in range(len(sites))]))
-                 for m in METHODS]
+    kinds = list(dict.fromkeys(kind for kind, *_ in errors))
+    for kind in kinds:
+        for mode in labels:
+            for k, (lat, lon) in enumerate(sites):
+                rows += [row(kind, f"{k + 1} ({lat:.5f}, {lon:.5f})", mode, m,
+                             np.array(errors[(kind, mode, k, m)])) for m in METHODS]
+            rows += [row(kind, f"all {len(sites)} x {len(seeds)} runs", mode, m,
+                         np.vstack([errors[(kind, mode, k, m)] for k in range(len(sites))]))
+                     for m in METHODS]
     return "\n".join(rows)
 
 
@@ -86,8 +105,12 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=60.0)
     ap.add_argument("--labels", choices=["routing", "curvature"], nargs="+",
                     default=["routing", "curvature"], help="[map] labels modes compared")
+    ap.add_argument("--two-way-traffic", choices=TRAFFIC, nargs="+", default=TRAFFIC,
+                    help="where the simulated vehicles drive on two-way lanelets "
+                    "([real_map] two_way_traffic), one row group per kind")
     args = ap.parse_args()
-    sites, errors = run(args.map, args.junctions, args.seeds, args.duration, args.labels)
+    sites, errors = run(args.map, args.junctions, args.seeds, args.duration, args.labels,
+                        args.two_way_traffic)
     print(table(sites, args.seeds, args.labels, errors))
 
 

@@ -246,6 +246,9 @@ class LaneletMap:
     graph among ``lanelets`` (lanelet id -> ids it leads to; empty when the map was not read
     with lanelet2, e.g. in memory). regulatory: regulatory elements per type (counts only).
     rules: how drivability was decided (e.g. "lanelet2 traffic rules de/vehicle").
+    directed_successors: the routing graph per driving direction, (lanelet id, inverted) ->
+    the (id, inverted) it leads to, where inverted = driven against the lanelet's direction
+    (only two-way lanelets are; lanelet2's inverted lanelets); empty when not read from a file.
     """
 
     lanelets: list[Lanelet]
@@ -254,6 +257,8 @@ class LaneletMap:
     successors: dict[int, tuple[int, ...]] = field(default_factory=dict)
     regulatory: dict[str, int] = field(default_factory=dict)
     rules: str = "all lanelets"
+    directed_successors: dict[tuple[int, bool], tuple[tuple[int, bool], ...]] = field(
+        default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.lanelets)

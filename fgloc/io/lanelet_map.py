@@ -59,6 +59,8 @@ PASSABLE_SUBTYPES: dict[str, frozenset[str]] = {
 GROUND_MAX_POINTS = 2_000_000
 #: Ground height callback: (n, 2) xy in L (m) -> (n,) height in L (m).
 GroundFn = Callable[[np.ndarray], np.ndarray]
+#: A driving direction of a lanelet: (lanelet id, inverted = against its bounds' direction).
+Directed = tuple[int, bool]
 
 
 @dataclass
@@ -75,11 +77,13 @@ class _Nodes:
 @dataclass
 class _Raw:
     """What lanelet2 made of the file: per lanelet (id, left ids, right ids, tags, drivable),
-    areas (id, subtype, outline ids), successors among drivable lanelets, regulatory counts."""
+    areas (id, subtype, outline ids), successors among drivable lanelets (in their own
+    direction, and per driving direction), regulatory counts."""
 
     lanelets: list[tuple[int, np.ndarray, np.ndarray, dict[str, str], bool]]
     areas: list[tuple[int, str, np.ndarray]]
     successors: dict[int, tuple[int, ...]]
+    directed_successors: dict[Directed, tuple[Directed, ...]]
     regulatory: dict[str, int]
     rules: str
 
@@ -145,7 +149,8 @@ def read_lanelet_map(
     if not drivable:
         raise InputError(p, f"no lanelet of the map is drivable under {raw.rules} (kinds: "
                          f"{LaneletMap([], ignored).ignored_by_kind()})")
-    out = LaneletMap(drivable, ignored, areas, raw.successors, raw.regulatory, raw.rules)
+    out = LaneletMap(drivable, ignored, areas, raw.successors, raw.regulatory, raw.rules,
+                     directed_successors=raw.directed_successors)
     if ignored:
         log.debug("%s: %d drivable lanelets; ignored %s", p, len(drivable), out.ignored_by_kind())
     return out
@@ -296,22 +301,40 @@ def _traffic_rules(path: Path, settings: MapSettings) -> tuple[object | None, st
     return rules, f"lanelet2 traffic rules {settings.location}/{settings.participant}"
 
 
-def _successors(lmap: object, rules: object | None, drivable: set[int]) -> dict[
-        int, tuple[int, ...]]:
-    """Routing graph among the drivable lanelets in their own direction: lanelet2's
-    ``RoutingGraph.following`` with the rules, else lanelets whose bounds start at the points
-    where another's end (lanelet2's ``follows``)."""
+def _directed_successors(lmap: object, rules: object | None, drivable: set[int]) -> dict[
+        Directed, tuple[Directed, ...]]:
+    """Routing graph among the drivable lanelets per driving direction: lanelet2's
+    ``RoutingGraph.following`` with the rules from every lanelet and, where the rules let a
+    vehicle drive it against its direction (a two-way lanelet), from its inverted lanelet;
+    else lanelets whose bounds (as driven) start at the points where another's end (lanelet2's
+    ``follows``), two-way lanelets (tag ``one_way`` = no) both ways."""
     lanelets = [ll for ll in lmap.laneletLayer if ll.id in drivable]
     if rules is not None:
         graph = lanelet2.routing.RoutingGraph(lmap, rules)
-        succ = {ll.id: [f.id for f in graph.following(ll) if not f.inverted()] for ll in lanelets}
+        succ = {(ll.id, d.inverted()): [(f.id, f.inverted()) for f in graph.following(d)]
+                for ll in lanelets
+                for d in ((ll, ll.invert()) if rules.canPass(ll.invert()) else (ll,))}
     else:
-        starts: dict[tuple[int, int], list[int]] = {}
+        ends: dict[Directed, tuple[tuple[int, int], tuple[int, int]]] = {}
         for ll in lanelets:
-            starts.setdefault((ll.leftBound[0].id, ll.rightBound[0].id), []).append(ll.id)
-        succ = {ll.id: starts.get((ll.leftBound[-1].id, ll.rightBound[-1].id), [])
-                for ll in lanelets}
-    return {k: tuple(sorted(set(v) & drivable)) for k, v in succ.items() if v}
+            left, right = ll.leftBound, ll.rightBound
+            ends[(ll.id, False)] = ((left[0].id, right[0].id), (left[-1].id, right[-1].id))
+            attrs = {k: str(v) for k, v in ll.attributes.items()}
+            if Lanelet(int(ll.id), np.empty((0, 3)), np.empty((0, 3)), attrs).two_way:
+                ends[(ll.id, True)] = ((right[-1].id, left[-1].id), (right[0].id, left[0].id))
+        starts: dict[tuple[int, int], list[Directed]] = {}
+        for key, (start, _) in ends.items():
+            starts.setdefault(start, []).append(key)
+        succ = {key: starts.get(end, []) for key, (_, end) in ends.items()}
+    return {k: tuple(sorted(x for x in set(v) if x[0] in drivable)) for k, v in succ.items()
+            if v}
+
+
+def _successors(directed: dict[Directed, tuple[Directed, ...]]) -> dict[int, tuple[int, ...]]:
+    """The routing graph in the lanelets' own direction (:attr:`LaneletMap.successors`): the
+    directed graph's forward lanelets to forward lanelets."""
+    succ = {k[0]: tuple(i for i, inv in v if not inv) for k, v in directed.items() if not k[1]}
+    return {k: v for k, v in succ.items() if v}
 
 
 def _load_with_lanelet2(
@@ -372,7 +395,8 @@ def _load_with_lanelet2(
         sub = str(reg.attributes["subtype"]) if "subtype" in reg.attributes else "unknown"
         regulatory[sub] = regulatory.get(sub, 0) + 1
     drivable = {lid for lid, *_, ok in lanelets if ok}
-    return _Raw(lanelets, areas, _successors(lmap, rules, drivable),
+    directed = _directed_successors(lmap, rules, drivable)
+    return _Raw(lanelets, areas, _successors(directed), directed,
                 dict(sorted(regulatory.items())), how)
 
 

@@ -231,6 +231,23 @@ class AlsSimConfig:
 
 
 @dataclass
+class RealMapSimConfig:
+    """Traffic on a real Lanelet2 map (``fgloc simulate --map``)."""
+
+    two_way_traffic: str = "keep-right"
+    """Where vehicles drive on a two-way lanelet (``one_way`` = no; the routing graph drives it
+    in both directions): "keep-right" (default; right-hand traffic) the centre of the right
+    half of their driving direction on one at least 5 m wide (a two-way street drawn as one
+    lanelet; the centre line on a narrower one), "centre" the lanelet's centre line in both
+    directions (as a generator that drives lanelet centre lines makes it)."""
+
+    def __post_init__(self) -> None:
+        if self.two_way_traffic not in ("keep-right", "centre"):
+            raise ValueError("two_way_traffic must be 'keep-right' or 'centre', got "
+                             f"{self.two_way_traffic!r}")
+
+
+@dataclass
 class SimConfig:
     """Every knob of the scenario simulator (see each section for units and defaults)."""
 
@@ -240,3 +257,4 @@ class SimConfig:
     radar: RadarSimConfig = field(default_factory=RadarSimConfig)
     traffic: TrafficSimConfig = field(default_factory=TrafficSimConfig)
     als: AlsSimConfig = field(default_factory=AlsSimConfig)
+    real_map: RealMapSimConfig = field(default_factory=RealMapSimConfig)

@@ -2,11 +2,12 @@
 
 The sensor stands on a mast beside a junction of the map's routing graph (the one nearest to
 ``site``, else a random one of the largest), vehicles drive the junction's routes (each
-movement with its lead-in and lead-out along the routing graph), the ALS is made from the
-drivable lanelets' polygons (road surface, class 11), the rest of the ground (class 2; walkways
-raised by a curb height), the map's buildings (class 6) and trees in its vegetation areas
-(class 5) over a gently sloped terrain. The radar model, traffic, ALS synthesis and sensor
-distributions are the synthetic simulator's (:mod:`fgloc.sim`).
+movement with its lead-in and lead-out along the routing graph per driving direction: two-way
+lanelets both ways, on their centre line or keeping right, ``config.real_map``), the ALS is
+made from the drivable lanelets' polygons (road surface, class 11), the rest of the ground
+(class 2; walkways raised by a curb height), the map's buildings (class 6) and trees in its
+vegetation areas (class 5) over a gently sloped terrain. The radar model, traffic, ALS
+synthesis and sensor distributions are the synthetic simulator's (:mod:`fgloc.sim`).
 
 The scenario's map is the real map cropped around the junction (``crop_radius``), its
 ``ele`` tags removed (the heights come from the simulated ALS when the scenario is read back);
@@ -36,6 +37,7 @@ from fgloc.sim.real_roads import (
     Junction,
     Roof,
     build_map_network,
+    directed_lanelets,
     find_junctions,
     junction_routes,
     map_scenery,
@@ -88,7 +90,7 @@ def map_junctions(map_path: str | Path, crs: str = "EPSG:25832") -> tuple[list[J
     frame = LocalFrame.around(e, n, 0.0, crs)
     lmap = read_lanelet_map(map_path, crs, frame)
     out = []
-    for j in find_junctions(lmap):
+    for j in find_junctions(directed_lanelets(lmap).map):
         w = frame.to_world(j.centre[None])[0]
         jlon, jlat = transformer(crs, WGS84).transform(w[0], w[1])
         out.append(Junction(np.array([jlat, jlon]), j.movements))
@@ -239,13 +241,16 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
     centre_h = site_rng.uniform(*cfg.site.ground_height)
     frame0 = LocalFrame.around(je, jn, centre_h, crs)
     lmap0 = _read_text_map(text, crs, frame0)
+    directed = directed_lanelets(lmap0).map
     centre0 = np.array([je, jn]) - np.asarray(frame0.origin[:2])
-    junction = next((j for j in find_junctions(lmap0)
+    junction = next((j for j in find_junctions(directed)
                      if np.linalg.norm(j.centre - centre0) < 30.0), None)
     if junction is None:
         raise RuntimeError(f"the junction at lat {jlat:.6f}, lon {jlon:.6f} fell apart in the crop")
-    routes = junction_routes(lmap0, junction, route_reach)
-    net = build_map_network(lmap0, routes, junction.centre, cfg.als.extent)
+    by_id = {ll.id: ll for ll in directed.lanelets}
+    routes = [[by_id[i] for i in r] for r in junction_routes(directed, junction, route_reach)]
+    net = build_map_network(lmap0, routes, junction.centre, cfg.als.extent,
+                            cfg.real_map.two_way_traffic)
     mount = _place_mast(rng["sensor"], cfg, net, RoadArea(net), lmap0, junction.centre)
 
     slope = site_rng.uniform(*cfg.als.slope)

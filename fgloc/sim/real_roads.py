@@ -4,13 +4,17 @@ The synthetic simulator drives vehicles along lane pieces made of constant-curva
 (:mod:`fgloc.sim.paths`). Here every route of the routing graph through a junction becomes one
 such piece: its lanelets' centre lines are concatenated, smoothed a little (maps draw kinks at
 lanelet joins) and turned into 1 m primitives whose curvature reproduces the polyline's headings,
-so :func:`fgloc.sim.traffic.simulate_traffic` drives them unchanged. Road edges (lanelet bounds
+so :func:`fgloc.sim.traffic.simulate_traffic` drives them unchanged. Routes follow the routing
+graph per driving direction (:attr:`fgloc.scenario.LaneletMap.directed_successors`): a
+two-way lanelet is driven both ways, on its centre line or each direction on its right half
+(``SimConfig.real_map.two_way_traffic``). Road edges (lanelet bounds
 with no drivable lanelet beside them) become curb pieces for the radar's static clutter;
 buildings and vegetation come from the map's areas.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -30,9 +34,12 @@ ROUTE_STEP = 1.0
 SMOOTH_HALF_WINDOW = 2
 #: how far (m) beside a bound the curb test looks for another drivable lanelet
 CURB_PROBE = 1.0
-#: a two-way lanelet (``one_way`` = no) at least this wide (m) is a two-way street: vehicles
-#: drive the centre of its right half (right-hand traffic), else its centre line
+#: a two-way lanelet (``one_way`` = no) at least this wide (m) is a two-way street: with
+#: ``two_way_traffic = "keep-right"`` vehicles drive the centre of its right half (right-hand
+#: traffic), else (and on narrower ones) its centre line
 KEEP_RIGHT_MIN_WIDTH = 5.0
+#: ``two_way_traffic`` setting -> the ``two_way_min_width`` of :func:`fgloc.scenario.lane_lines`
+TWO_WAY_MIN_WIDTH = {"keep-right": KEEP_RIGHT_MIN_WIDTH, "centre": math.inf}
 
 
 @dataclass
@@ -44,9 +51,49 @@ class Junction:
     movements: list[list[int]]
 
 
+@dataclass
+class DirectedLanelets:
+    """The drivable lanelets of a map once per driving direction, as a map of its own.
+
+    ``map.lanelets``: every drivable lanelet in its own direction (its own id) and every one the
+    routing graph drives against its direction (a two-way lanelet) inverted: bounds swapped and
+    reversed (so its right half is the right half of that direction), attributes kept, under a
+    new id (larger than any lanelet id of the map); ``map.successors``: the routing graph per
+    direction (:attr:`LaneletMap.directed_successors`) over these ids. ``source``: id ->
+    (lanelet id of the map, inverted)."""
+
+    map: LaneletMap
+    source: dict[int, tuple[int, bool]]
+
+
+def directed_lanelets(lmap: LaneletMap) -> DirectedLanelets:
+    """The map's lanelets per driving direction (:class:`DirectedLanelets`). A map without
+    :attr:`LaneletMap.directed_successors` (built in memory) is driven in the lanelets' own
+    direction along :attr:`LaneletMap.successors`."""
+    directed = getattr(lmap, "directed_successors", None) or {
+        (a, False): tuple((b, False) for b in succ) for a, succ in lmap.successors.items()}
+    by_id = {ll.id: ll for ll in lmap.lanelets}
+    inverted = sorted({k for k in (*directed, *(x for v in directed.values() for x in v))
+                       if k[1] and k[0] in by_id})
+    offset = 1 + max((abs(i) for i in by_id), default=0)
+    ids = {(i, False): i for i in by_id}
+    ids.update({key: offset + k for k, key in enumerate(inverted)})
+    lanelets = list(lmap.lanelets)
+    for i, _ in inverted:
+        ll = by_id[i]
+        lanelets.append(Lanelet(ids[(i, True)], ll.right[::-1].copy(), ll.left[::-1].copy(),
+                                dict(ll.attributes)))
+    succ = {ids[a]: tuple(ids[b] for b in v if b in ids) for a, v in directed.items()
+            if a in ids}
+    return DirectedLanelets(LaneletMap(lanelets, successors={k: v for k, v in succ.items() if v}),
+                            {v: k for k, v in ids.items()})
+
+
 def find_junctions(lmap: LaneletMap, link_distance: float = 25.0) -> list[Junction]:
     """Junctions of the map: movements whose first lanelets lie within ``link_distance`` m of
-    each other (single linkage) form one; sorted by number of movements (most first)."""
+    each other (single linkage) form one; sorted by number of movements (most first). Give it
+    the map of :func:`directed_lanelets` for the movements in both directions of two-way
+    lanelets."""
     moves = junction_movements(lmap)
     if not moves:
         return []
@@ -98,12 +145,14 @@ def junction_routes(lmap: LaneletMap, junction: Junction, reach: float) -> list[
     return routes
 
 
-def _polyline(lanelets: list[Lanelet], attr: str) -> np.ndarray:
+def _polyline(lanelets: list[Lanelet], attr: str,
+              two_way_min_width: float = KEEP_RIGHT_MIN_WIDTH) -> np.ndarray:
     """(n, 2) concatenation of the lanelets' lanes in their direction (``attr="centre"``: the
-    centre line, the right half's on a two-way street, :func:`fgloc.scenario.lane_lines`) or bounds,
-    resampled every ROUTE_STEP m, kinks at the joins smoothed."""
+    centre line, the right half's on a two-way lanelet at least ``two_way_min_width`` m wide,
+    :func:`fgloc.scenario.lane_lines`) or bounds, resampled every ROUTE_STEP m, kinks at the
+    joins smoothed."""
     if attr == "centre":
-        lines = [c for _, c, back in lane_lines(lanelets, ROUTE_STEP / 2, KEEP_RIGHT_MIN_WIDTH)
+        lines = [c for _, c, back in lane_lines(lanelets, ROUTE_STEP / 2, two_way_min_width)
                  if not back]
     else:
         lines = [getattr(ll, attr)[:, :2] for ll in lanelets]
@@ -137,9 +186,10 @@ def piece_from_polyline(pid: int, xy: np.ndarray, width: float, curb: bool = Fal
     return LanePiece(pid, np.asarray(xy[0], dtype=float), float(phi[0]), prims, width, curb=curb)
 
 
-def _mean_width(lanelets: list[Lanelet]) -> float:
-    """Mean width (m) of the lanes a route drives (half a two-way street's)."""
-    return float(np.mean([ll.width() / (2 if ll.keeps_right(KEEP_RIGHT_MIN_WIDTH) else 1)
+def _mean_width(lanelets: list[Lanelet], two_way_min_width: float) -> float:
+    """Mean width (m) of the lanes a route drives (half a two-way street's when its traffic
+    keeps right, :func:`_polyline`)."""
+    return float(np.mean([ll.width() / (2 if ll.keeps_right(two_way_min_width) else 1)
                           for ll in lanelets]))
 
 
@@ -177,13 +227,14 @@ class MapRoadNetwork(RoadNetwork):
                 np.concatenate([np.full(len(t.s), 0.5 * w) for t, w in traces]))
 
 
-def build_map_network(lmap: LaneletMap, routes: list[list[int]], centre: np.ndarray,
-                      radius: float) -> MapRoadNetwork:
-    """Route pieces for ``routes`` plus curb pieces of the drivable lanelets within ``radius`` m
-    of ``centre`` (2,)."""
-    by_id = {ll.id: ll for ll in lmap.lanelets}
-    pieces = [piece_from_polyline(k, _polyline([by_id[i] for i in r], "centre"),
-                                  _mean_width([by_id[i] for i in r]))
+def build_map_network(lmap: LaneletMap, routes: list[list[Lanelet]], centre: np.ndarray,
+                      radius: float, two_way_traffic: str = "keep-right") -> MapRoadNetwork:
+    """Route pieces for ``routes`` (lanelets in driving order, inverted ones as
+    :func:`directed_lanelets` makes them) driven as ``two_way_traffic`` says
+    (:data:`TWO_WAY_MIN_WIDTH`), plus curb pieces of the drivable lanelets of ``lmap`` within
+    ``radius`` m of ``centre`` (2,)."""
+    width = TWO_WAY_MIN_WIDTH[two_way_traffic]
+    pieces = [piece_from_polyline(k, _polyline(r, "centre", width), _mean_width(r, width))
               for k, r in enumerate(routes)]
     near = [ll for ll in lmap.lanelets
             if np.min(np.linalg.norm(ll.polygon() - centre, axis=1)) <= radius]
