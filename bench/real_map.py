@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
 import numpy as np
@@ -38,52 +39,73 @@ METHODS = ["icp", "filter-sicp", "smoother-sicp", "joint"]
 TRAFFIC = ["keep-right", "centre"]
 
 
-#: (traffic, labels, junction index, method) -> (2D m, yaw deg) of every seed
-Errors = dict[tuple[str, str, int, str], list[tuple[float, float]]]
+#: (traffic, labels, junction index, method) -> (2D m, yaw deg, ambiguous 0/1) of every seed
+Errors = dict[tuple[str, str, int, str], list[tuple[float, float, float]]]
+
+
+def run_one(map_path: Path, kind: str, k: int, site: tuple[float, float], seed: int,
+            duration: float, labels: list[str]) -> list[dict[str, object]]:
+    """One scenario (two-way traffic ``kind``, junction index ``k`` at ``site``, ``seed``),
+    localized by every method once per ``[map] labels`` mode: one row per (labels, method)
+    with the 2D and yaw errors and the result's status."""
+    sim_cfg = SimConfig()
+    sim_cfg.real_map.two_way_traffic = kind
+    scn = simulate_on_map(map_path, seed, site=site, duration=duration, config=sim_cfg).scenario
+    rows: list[dict[str, object]] = []
+    for mode in labels:
+        t0 = time.perf_counter()
+        cfg = Config()
+        cfg.map.labels = mode
+        res = localize_many(scn, METHODS, cfg)
+        line = [f"traffic {kind} junction {k + 1} seed {seed} labels {mode}:"]
+        for m, r in res.items():
+            e = pose_error(r.T_local, scn.truth.sensor_pose)
+            rows.append({"traffic": kind, "labels": mode, "junction": k + 1, "method": m,
+                         "seed": seed, "d2d": e.d2d, "dyaw_deg": e.dyaw_deg,
+                         "status": r.status})
+            line.append(f"{m} {e.d2d:.3f} m {e.dyaw_deg:.3f} deg"
+                        + ("" if r.status == "resolved" else f" ({r.status})")
+                        + ("" if r.converged else " (not converged)"))
+        print(" ".join(line) + f"  [{time.perf_counter() - t0:.0f} s]", flush=True)
+    return rows
 
 
 def run(map_path: Path, n_junctions: int, seeds: list[int], duration: float,
-        labels: list[str], traffic: list[str] | None = None
-        ) -> tuple[list[tuple[float, float]], Errors]:
-    """Junction sites (lat, lon) and per (traffic, labels, junction, method) the (2D m, yaw
-    deg) of every seed; every scenario (one per traffic kind, junction and seed) is localized
-    once per ``[map] labels`` mode."""
+        labels: list[str], traffic: list[str] | None = None,
+        pool_map: Callable[..., Iterable[list[dict[str, object]]]] | None = None
+        ) -> tuple[list[tuple[float, float]], list[dict[str, object]]]:
+    """Junction sites (lat, lon) and the rows of :func:`run_one` for every traffic kind,
+    junction and seed (in that order). ``pool_map(fn, items)`` runs ``fn(*item)`` per item in
+    order (e.g. in worker processes; default: here, one after the other)."""
     junctions, _ = map_junctions(map_path)
     sites = [(float(j.centre[0]), float(j.centre[1])) for j in junctions[:n_junctions]]
+    items = [(map_path, kind, k, site, seed, duration, labels) for kind in traffic or TRAFFIC
+             for k, site in enumerate(sites) for seed in seeds]
+    done = (pool_map or (lambda fn, its: (fn(*it) for it in its)))(run_one, items)
+    return sites, [row for rows in done for row in rows]
+
+
+def errors_of(rows: list[dict[str, object]]) -> Errors:
+    """The rows grouped per (traffic, labels, junction index, method), seeds in order."""
     errors: Errors = {}
-    for kind in traffic or TRAFFIC:
-        sim_cfg = SimConfig()
-        sim_cfg.real_map.two_way_traffic = kind
-        for k, site in enumerate(sites):
-            for seed in seeds:
-                scn = simulate_on_map(map_path, seed, site=site, duration=duration,
-                                      config=sim_cfg).scenario
-                for mode in labels:
-                    t0 = time.perf_counter()
-                    cfg = Config()
-                    cfg.map.labels = mode
-                    res = localize_many(scn, METHODS, cfg)
-                    line = [f"traffic {kind} junction {k + 1} seed {seed} labels {mode}:"]
-                    for m, r in res.items():
-                        e = pose_error(r.T_local, scn.truth.sensor_pose)
-                        errors.setdefault((kind, mode, k, m), []).append((e.d2d, e.dyaw_deg))
-                        line.append(f"{m} {e.d2d:.3f} m {e.dyaw_deg:.3f} deg"
-                                    + ("" if r.converged else " (not converged)"))
-                    print(" ".join(line) + f"  [{time.perf_counter() - t0:.0f} s]", flush=True)
-    return sites, errors
+    for r in rows:
+        errors.setdefault((r["traffic"], r["labels"], int(r["junction"]) - 1, r["method"]),
+                          []).append((r["d2d"], r["dyaw_deg"], float(r["status"] != "resolved")))
+    return errors
 
 
 def table(sites: list[tuple[float, float]], seeds: list[int], labels: list[str],
           errors: Errors) -> str:
     """Markdown table: per two-way traffic kind and labels mode, every junction's and all runs'
-    mean and worst per method."""
+    mean and worst per method, and how many of the runs were ambiguous."""
     rows = ["| two-way traffic | junction (lat, lon) | labels | method | 2D mean (m) "
-            "| 2D worst (m) | yaw mean (deg) | yaw worst (deg) |",
-            "|---|---|---|---|---|---|---|---|"]
+            "| 2D worst (m) | yaw mean (deg) | yaw worst (deg) | ambiguous |",
+            "|---|---|---|---|---|---|---|---|---|"]
 
     def row(kind: str, name: str, mode: str, m: str, e: np.ndarray) -> str:
         return (f"| {kind} | {name} | {mode} | {m} | {e[:, 0].mean():.3f} | "
-                f"{e[:, 0].max():.3f} | {e[:, 1].mean():.3f} | {e[:, 1].max():.3f} |")
+                f"{e[:, 0].max():.3f} | {e[:, 1].mean():.3f} | {e[:, 1].max():.3f} | "
+                f"{int(e[:, 2].sum()) if e.shape[1] > 2 else 0}/{len(e)} |")
 
     kinds = list(dict.fromkeys(kind for kind, *_ in errors))
     for kind in kinds:
@@ -109,9 +131,9 @@ def main() -> None:
                     help="where the simulated vehicles drive on two-way lanelets "
                     "([real_map] two_way_traffic), one row group per kind")
     args = ap.parse_args()
-    sites, errors = run(args.map, args.junctions, args.seeds, args.duration, args.labels,
-                        args.two_way_traffic)
-    print(table(sites, args.seeds, args.labels, errors))
+    sites, rows = run(args.map, args.junctions, args.seeds, args.duration, args.labels,
+                      args.two_way_traffic)
+    print(table(sites, args.seeds, args.labels, errors_of(rows)))
 
 
 if __name__ == "__main__":

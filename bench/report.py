@@ -112,17 +112,17 @@ def produce_sparse(cases: list[str], rates: list[float], seeds: list[int], durat
 
 
 def produce_real_map(junctions: int, seeds: list[int], duration: float,
-                     labels: list[str], traffic: list[str] | None = None) -> Produced:
+                     labels: list[str], traffic: list[str] | None = None,
+                     jobs: int = 1) -> Produced:
     """bench/real_map.py: every method at the largest junctions of the Lanelet2 example map,
-    on each kind of two-way traffic (``traffic``, default both)."""
+    on each kind of two-way traffic (``traffic``, default both); the scenarios in ``jobs``
+    processes."""
     from bench import real_map as rm
 
     traffic = traffic or rm.TRAFFIC
-    sites, errors = rm.run(rm.DEFAULT_MAP, junctions, seeds, duration, labels, traffic)
-    rows = [{"traffic": kind, "labels": mode, "junction": k + 1, "method": m, "seed": s,
-             "d2d": e[0], "dyaw_deg": e[1]} for (kind, mode, k, m), errs in errors.items()
-            for s, e in zip(seeds, errs)]
-    return Produced(rows, rm.table(sites, seeds, labels, errors).splitlines(),
+    sites, rows = rm.run(rm.DEFAULT_MAP, junctions, seeds, duration, labels, traffic,
+                         lambda fn, items: _ordered_map(fn, items, jobs))
+    return Produced(rows, rm.table(sites, seeds, labels, rm.errors_of(rows)).splitlines(),
                     f"`{rm.DEFAULT_MAP.name}`, its {junctions} largest junctions, seeds {seeds}, "
                     f"{duration:g} s, labels {', '.join(labels)}, two-way traffic "
                     f"{', '.join(traffic)}")
@@ -234,13 +234,15 @@ TABLES: list[Table] = [
           "its largest junctions of the routing graph; vehicles drive its two-way lanelets "
           "(two-way streets drawn as one lanelet) both ways, keeping to the right half of "
           "their direction (keep-right) or on the centre line (centre), one row group each; "
-          "every method, mean and worst seed per junction; each scenario localized with the "
+          "every method, mean and worst seed per junction and the runs whose result was "
+          "ambiguous (the pose given is the best mode's; [map] two_way_lanes = auto: the "
+          "lane models of two-way streets are modes); each scenario localized with the "
           "routing-graph labels (the default) and with Menger-curvature labels only.",
           produce_real_map,
           {"junctions": 3, "seeds": [1, 2, 3], "duration": 60.0,
            "labels": ["routing", "curvature"], "traffic": ["keep-right", "centre"]},
           {"junctions": 1, "seeds": [1], "duration": 30.0, "labels": ["routing"],
-           "traffic": ["keep-right", "centre"]}),
+           "traffic": ["keep-right", "centre"]}, parallel=True),
     Table("straight", "Straight road without a junction", "bench/accuracy.py",
           "On a straight road nothing observes the position along the road: every method "
           "is off along it. The table shows how far, and whether a method that reports a "

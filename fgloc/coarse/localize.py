@@ -349,9 +349,9 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
     """Coarse pose of the sensor (S -> L) from the accumulated dynamic detections.
 
     ``map_cfg`` (default :class:`MapConfig`) sets the lane models of two-way streets
-    (:func:`fgloc.map.lane_models.lane_models`): with two, the modes of each are kept (within
-    ``mode_margin`` of that model's best, at most ``max_modes`` each) and the best of all is
-    refined.
+    (:func:`fgloc.map.lane_models.lane_models`): with two, the modes of each are found (at most
+    ``max_modes`` each), those within ``mode_margin`` of the best of all are kept and the best
+    is refined.
 
     Raises :class:`LocalizationError` for an empty target cloud or fewer than ``cfg.min_points``
     filtered dynamic points, :class:`InputError` for an approximate position outside the ALS. A
@@ -408,6 +408,8 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
             score, pose = _lane_fit((fit @ ref.r_tilt.T)[:, :2], lanes, ref.pose2d, cfg)
             kept.append((score, pose, model))
     kept.sort(key=lambda item: -item[0])
+    # a lane model is a mode like any other: within mode_margin of the best of all, or dropped
+    kept = [k for k in kept if k[0] >= cfg.mode_margin * kept[0][0]]
     if kept[0][2] != first or _distinct(ref.pose2d, kept[:1], cfg):
         # another pose (or the other lane model) fits the lanes best
         ref = _refine(fit, road, models[kept[0][2]], kept[0][1], z0, scn.sensor.vfov_deg, cfg,
