@@ -349,8 +349,9 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
     """Coarse pose of the sensor (S -> L) from the accumulated dynamic detections.
 
     ``map_cfg`` (default :class:`MapConfig`) sets the lane models of two-way streets
-    (:func:`fgloc.map.lane_models.lane_models`): with two, the modes of each are found (at most
-    ``max_modes`` each), those within ``mode_margin`` of the best of all are kept and the best
+    (:func:`fgloc.map.lane_models.lane_models`): with two, each is refined from the road
+    search's best start and its modes are found about its own refined pose (at most
+    ``max_modes`` each); those within ``mode_margin`` of the best of all are kept and the best
     is refined.
 
     Raises :class:`LocalizationError` for an empty target cloud or fewer than ``cfg.min_points``
@@ -380,7 +381,6 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
     map_cfg = map_cfg or MapConfig()
     models = {m: LaneCentres.build(lanelets, cfg.lane_sample_step, min_width(m, map_cfg))
               for m in lane_models(lanelets, map_cfg)}
-    first = next(iter(models))
     centre = approx_position_local(scn)
     height = scn.sensor.approx_height
     z0 = _start_height(road, centre, cfg.default_height if height is None else height)
@@ -397,10 +397,11 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
                                  np.asarray(scn.als.classification), centre,
                                  scn.sensor.max_range + pad,
                                  np.vstack([lc.xy for lc in models.values()]), cfg)
-    ref = _refine(fit, road, models[first], refined[0][1], z0, scn.sensor.vfov_deg, cfg,
-                  statics)
+    refs = {model: _refine(fit, road, lanes, refined[0][1], z0, scn.sensor.vfov_deg, cfg,
+                           statics) for model, lanes in models.items()}
     kept: list[tuple[float, np.ndarray, str]] = []
     for model, lanes in models.items():
+        ref = refs[model]
         if cfg.max_modes > 1:
             kept += [(score, pose, model) for score, pose in lane_modes(refined, ref, fit, lanes,
                                                                         cfg)]
@@ -410,8 +411,8 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
     kept.sort(key=lambda item: -item[0])
     # a lane model is a mode like any other: within mode_margin of the best of all, or dropped
     kept = [k for k in kept if k[0] >= cfg.mode_margin * kept[0][0]]
-    if kept[0][2] != first or _distinct(ref.pose2d, kept[:1], cfg):
-        # another pose (or the other lane model) fits the lanes best
+    ref = refs[kept[0][2]]
+    if _distinct(ref.pose2d, kept[:1], cfg):      # another pose fits the lanes best
         ref = _refine(fit, road, models[kept[0][2]], kept[0][1], z0, scn.sensor.vfov_deg, cfg,
                       statics)
         kept[0] = (kept[0][0], ref.pose2d, kept[0][2])
