@@ -1,0 +1,89 @@
+"""Lane models of two-way streets drawn as one lanelet (``[map] two_way_lanes``,
+:mod:`fgloc.map.lane_models`), end to end on a crop of the Lanelet2 example map around a
+junction of two-way streets (tests/data/lanelet2_example_twoway_crop.osm, BSD-3-Clause,
+copyright 2018 FZI, see tests/data/LICENSE-lanelet2_mapping_example): the simulator drives its
+two-way lanelets keeping right or on the centre line (``[real_map] two_way_traffic``), and
+``auto`` must find the model of the traffic without being told; a fixed wrong model is metres
+off (why ``auto`` exists)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from fgloc.config import Config, MapConfig
+from fgloc.evaluation.pose import pose_error
+from fgloc.map.lane_models import CENTRE, KEEP_RIGHT, MODELS, lane_models
+from fgloc.pipeline import localize_many
+from fgloc.sim.config import SimConfig
+from fgloc.sim.real_map import simulate_on_map
+
+CROP = Path(__file__).parent / "data" / "lanelet2_example_twoway_crop.osm"
+SITE = (49.01089, 8.42329)
+
+
+def _scenario(traffic: str, seed: int):
+    sim = SimConfig()
+    sim.real_map.two_way_traffic = traffic
+    return simulate_on_map(CROP, seed, site=SITE, duration=40.0, config=sim).scenario
+
+
+def _filter_sicp(scn, lanes: str):
+    cfg = Config()
+    cfg.map.two_way_lanes = lanes
+    res = localize_many(scn, ["filter-sicp"], cfg)["filter-sicp"]
+    chosen = next(m["lanes"] for m in res.modes if m["selected"])
+    tied = {m["lanes"] for m in res.modes if m["tied"]}
+    return res, chosen, tied, pose_error(res.T_local, scn.truth.sensor_pose).d2d
+
+
+@pytest.mark.parametrize("traffic", [KEEP_RIGHT, CENTRE])
+def test_auto_finds_the_lane_model_of_the_traffic(traffic: str) -> None:
+    """One scenario per kind of traffic (seed 1): ``auto`` selects the traffic's model and
+    ends metres closer to the truth than the other model fixed."""
+    scn = _scenario(traffic, 1)
+    assert lane_models(scn.lanelets.lanelets, MapConfig()) == MODELS
+    _, chosen, _, err = _filter_sicp(scn, "auto")
+    _, _, _, err_wrong = _filter_sicp(scn, KEEP_RIGHT if traffic == CENTRE else CENTRE)
+    assert chosen == traffic
+    assert err_wrong > 2.0 and err < err_wrong - 1.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("traffic", [KEEP_RIGHT, CENTRE])
+def test_auto_over_seeds(traffic: str) -> None:
+    """Seeds 1-5 on the crop (100 m, 40 s: a small, hard setting). Keep-right traffic: ``auto``
+    resolves to the keep-right model, as accurate as that model fixed. Centre-line traffic
+    (the keep-right model, two lines per street, fits the coarse stage's untracked points a
+    little better and often places the tracks): the centre model is among the tied modes in
+    at least 4 of 5 seeds, and ``auto`` is on average more than 1 m closer to the truth than
+    the keep-right model fixed (measured at writing: 0.90 against 2.27 m; centre fixed 0.35)."""
+    chosen_right, errs, errs_wrong = 0, [], []
+    for seed in range(1, 6):
+        scn = _scenario(traffic, seed)
+        res, chosen, tied, err = _filter_sicp(scn, "auto")
+        right = _filter_sicp(scn, traffic)
+        wrong = _filter_sicp(scn, KEEP_RIGHT if traffic == CENTRE else CENTRE)
+        errs.append(err)
+        errs_wrong.append(wrong[3])
+        if traffic == KEEP_RIGHT:
+            assert res.status == "resolved" and chosen == KEEP_RIGHT
+            assert err == pytest.approx(right[3], abs=0.01)   # (static returns: both models)
+        chosen_right += traffic in tied
+    assert chosen_right >= 4
+    assert sum(errs_wrong) / 5 > sum(errs) / 5 + 1.0
+
+
+def test_a_map_without_wide_two_way_lanelets_has_one_model() -> None:
+    from fgloc.geo import LocalFrame, transformer
+    from fgloc.io.lanelet_map import read_lanelet_map
+
+    crs = "EPSG:25832"
+    e, n = transformer("EPSG:4326", crs).transform(SITE[1], SITE[0])
+    lmap = read_lanelet_map(Path(__file__).parent / "data" / "lanelet2_example_crop.osm", crs,
+                            LocalFrame.around(e, n, 0.0, crs))
+    assert lane_models(lmap.lanelets, MapConfig()) == (KEEP_RIGHT,)
+    wide = read_lanelet_map(CROP, crs, LocalFrame.around(e, n, 0.0, crs))
+    assert lane_models(wide.lanelets, MapConfig(two_way_lanes=CENTRE)) == (CENTRE,)
+    assert lane_models(wide.lanelets, MapConfig(two_way_min_width=50.0)) == (KEEP_RIGHT,)
