@@ -51,6 +51,7 @@ from fgloc.tracking.measure import (
     measurement_vector,
     predict_measurements,
 )
+from fgloc.tracking.retrodict import retrodict_length
 from fgloc.tracks import (
     N_KIN,
     N_STATE,
@@ -739,7 +740,8 @@ class Tracker:
 
     def _to_track(self, rec: _Record) -> Track:
         n = rec.last_update_step + 1
-        states = np.asarray(rec.states[:n])
+        states = retrodict_length(np.asarray(rec.states[:n]), self.fov.sensor,
+                                  self.cfg.retrodict_window)
         return Track(
             id=rec.id,
             t=np.asarray(rec.t[:n]),

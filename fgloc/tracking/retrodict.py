@@ -1,0 +1,61 @@
+"""Length retrodiction of a finished track (frame C): a vehicle's length is constant, so the
+length the filter knows at the track's end also holds at its start.
+
+While a vehicle is seen head-on or from behind its length is unobservable: the filter keeps the
+car-sized prior (or the long-vehicle hypothesis) and places the centre half that length behind
+the seen face. A truck approaching from far away is thus tracked with a contour metres too
+short and a centre metres too far towards the sensor until its side comes into view. Once
+the track ends, the longest it was seen (the largest running median of its contour length,
+so a few steps' overshoot does not count) is carried back to every step with a shorter
+contour: the contour gets that length, and at the steps where the sensor was beyond one end
+of the vehicle (that face was the one seen) the centre moves away from the sensor by half the
+change, keeping the seen face where it was measured. Steps where the sensor was beside the
+vehicle (both ends measured by the side's extent) keep their centre. Contours are never
+shortened: the detections lie on or inside the vehicle, so a contour is short where its
+returns were sparse (far out, partly occluded, leaving the view), rarely too long.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
+
+from factors.gp import rectangle_radius
+from fgloc.tracks import N_KIN, YAW, X, Y, contour_angles
+
+
+def contour_length_width(states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) length and width (m) of the star-convex contours of state rows (n, N_STATE): the
+    radii along the heading (front + rear) and across it (left + right)."""
+    f = states[:, N_KIN:]
+    q = f.shape[1] // 4
+    return f[:, 0] + f[:, 2 * q], f[:, q] + f[:, 3 * q]
+
+
+def retrodict_length(states: np.ndarray, sensor: np.ndarray, window: int) -> np.ndarray:
+    """States (n, N_STATE) of one track with its longest seen length carried back.
+
+    The track's length (m) is the largest median contour length over ``window`` consecutive
+    rows (all rows when fewer). Each shorter row's contour is lengthened to it (the rectangle
+    offset ``rectangle_radius(L_track, W) - rectangle_radius(L, W)`` added to its radii, so
+    the GP's shape detail stays); such a row whose sensor position ``sensor`` (2,) lies beyond
+    one of its ends (|longitudinal offset| > L / 2) has its centre moved by half the added
+    length along the heading, away from the sensor. Returns a new array; ``window`` <= 0
+    returns a copy unchanged.
+    """
+    out = np.array(states, dtype=float, copy=True)
+    if window <= 0 or not len(out):
+        return out
+    length, width = contour_length_width(out)
+    w = min(window, len(out))
+    longest = float(np.max(np.median(sliding_window_view(length, w), axis=1)))
+    grow = np.maximum(longest - length, 0.0)
+    h = np.column_stack([np.cos(out[:, YAW]), np.sin(out[:, YAW])])
+    s_lo = np.sum((np.asarray(sensor, dtype=float) - out[:, [X, Y]]) * h, axis=1)
+    end_seen = np.abs(s_lo) > 0.5 * length
+    shift = np.where(end_seen, -np.sign(s_lo) * 0.5 * grow, 0.0)
+    out[:, [X, Y]] += shift[:, None] * h
+    ang = contour_angles()[None, :]
+    L, W = length[:, None], width[:, None]
+    out[:, N_KIN:] += rectangle_radius(ang, L + grow[:, None], W) - rectangle_radius(ang, L, W)
+    return out
