@@ -125,13 +125,17 @@ class TrackingConfig:
     detections reach farther (the seen end stays put)."""
     retrodict_window: int = 20
     """Length retrodiction of a finished track (:mod:`fgloc.tracking.retrodict`): a vehicle's
-    length is constant, so the longest it was seen -- the largest median of its contour length
-    over this many consecutive steps -- is carried back to every step with a shorter contour,
-    the centre of a step that saw an end of the vehicle moved away from the sensor by half the
-    added length (the seen face stays). A truck seen head-on from far away is otherwise
-    reported car-sized with its centre metres towards the sensor until its side comes into
-    view. The output tracks' earlier steps then use later detections (not causal); their
-    stored covariances are the filter's. 0 = off (the filter's states as they were)."""
+    length is constant, so the longest it was measured -- the largest median of its contour
+    length over this many consecutive steps among those whose length std. dev. is at most
+    ``retrodict_max_sd`` -- is carried back to every step with a shorter contour, the centre
+    of a step that saw an end of the vehicle moved away from the sensor by half the added
+    length (the seen face stays). A truck seen head-on from far away is otherwise reported
+    car-sized with its centre metres towards the sensor until its side comes into view. The
+    output tracks' earlier steps then use later detections (not causal); their stored
+    covariances are the filter's. 0 = off (the filter's states as they were)."""
+    retrodict_max_sd: float = 0.35
+    """... (m; about one extent row's ``sigma_extent``: the length is measured, not the prior
+    or a transient of the first updates)."""
     tau: float = 0.05
     """Contour forgetting rate (1/s): f' = mu + exp(-tau dt) (f - mu), Q = (1-exp(-2 tau dt)) K."""
 

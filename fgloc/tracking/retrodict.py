@@ -5,14 +5,16 @@ While a vehicle is seen head-on or from behind its length is unobservable: the f
 car-sized prior (or the long-vehicle hypothesis) and places the centre half that length behind
 the seen face. A truck approaching from far away is thus tracked with a contour metres too
 short and a centre metres too far towards the sensor until its side comes into view. Once
-the track ends, the longest it was seen (the largest running median of its contour length,
-so a few steps' overshoot does not count) is carried back to every step with a shorter
-contour: the contour gets that length, and at the steps where the sensor was beyond one end
-of the vehicle (that face was the one seen) the centre moves away from the sensor by half the
-change, keeping the seen face where it was measured. Steps where the sensor was beside the
-vehicle (both ends measured by the side's extent) keep their centre. Contours are never
-shortened: the detections lie on or inside the vehicle, so a contour is short where its
-returns were sparse (far out, partly occluded, leaving the view), rarely too long.
+the track ends, the longest it was measured (the largest running median of its contour
+length over the steps whose length std. dev. is small: not the car-sized prior, not the
+overshoot of a new track's first updates or of a few steps) is carried back to every step
+with a shorter contour: the contour gets that length, and at the steps where the sensor was
+beyond one end of the vehicle (that face was the one seen) the centre moves away from the
+sensor by half the change, keeping the seen face where it was measured. Steps where the
+sensor was beside the vehicle (both ends measured by the side's extent) keep their centre.
+Contours are never shortened: the detections lie on or inside the vehicle, so a contour is
+short where its returns were sparse (far out, partly occluded, leaving the view), rarely too
+long.
 """
 
 from __future__ import annotations
@@ -32,23 +34,34 @@ def contour_length_width(states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return f[:, 0] + f[:, 2 * q], f[:, q] + f[:, 3 * q]
 
 
-def retrodict_length(states: np.ndarray, sensor: np.ndarray, window: int) -> np.ndarray:
-    """States (n, N_STATE) of one track with its longest seen length carried back.
+def length_variance(P: np.ndarray) -> np.ndarray:
+    """Variance (m^2) of the contour length (front + rear radius) of state covariances
+    (..., N_STATE, N_STATE)."""
+    i, j = N_KIN, N_KIN + (np.shape(P)[-1] - N_KIN) // 2
+    return P[..., i, i] + P[..., j, j] + 2.0 * P[..., i, j]
+
+
+def retrodict_length(states: np.ndarray, length_sd: np.ndarray, sensor: np.ndarray,
+                     window: int, max_sd: float) -> np.ndarray:
+    """States (n, N_STATE) of one track with its longest measured length carried back.
 
     The track's length (m) is the largest median contour length over ``window`` consecutive
-    rows (all rows when fewer). Each shorter row's contour is lengthened to it (the rectangle
-    offset ``rectangle_radius(L_track, W) - rectangle_radius(L, W)`` added to its radii, so
-    the GP's shape detail stays); such a row whose sensor position ``sensor`` (2,) lies beyond
-    one of its ends (|longitudinal offset| > L / 2) has its centre moved by half the added
-    length along the heading, away from the sensor. Returns a new array; ``window`` <= 0
-    returns a copy unchanged.
+    rows (all when fewer) among the rows whose length std. dev. ``length_sd`` (n,) (m) is at
+    most ``max_sd``; without such rows the states are returned unchanged. Each shorter row's
+    contour is lengthened to it (the rectangle offset ``rectangle_radius(L_track, W) -
+    rectangle_radius(L, W)`` added to its radii, so the GP's shape detail stays); such a row
+    whose sensor position ``sensor`` (2,) lies beyond one of its ends (|longitudinal offset| >
+    L / 2) has its centre moved by half the added length along the heading, away from the
+    sensor. Returns a new array; ``window`` <= 0 returns a copy unchanged.
     """
     out = np.array(states, dtype=float, copy=True)
-    if window <= 0 or not len(out):
+    measured = np.asarray(length_sd) <= max_sd
+    if window <= 0 or not measured.any():
         return out
     length, width = contour_length_width(out)
-    w = min(window, len(out))
-    longest = float(np.max(np.median(sliding_window_view(length, w), axis=1)))
+    seen = length[measured]
+    w = min(window, len(seen))
+    longest = float(np.max(np.median(sliding_window_view(seen, w), axis=1)))
     grow = np.maximum(longest - length, 0.0)
     h = np.column_stack([np.cos(out[:, YAW]), np.sin(out[:, YAW])])
     s_lo = np.sum((np.asarray(sensor, dtype=float) - out[:, [X, Y]]) * h, axis=1)
