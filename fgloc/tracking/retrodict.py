@@ -8,10 +8,11 @@ short and a centre metres too far towards the sensor until its side comes into v
 the track ends, the longest it was measured (the largest running median of its contour
 length over the steps whose length std. dev. is small: not the car-sized prior, not the
 overshoot of a new track's first updates or of a few steps) is carried back to every step
-with a shorter contour: the contour gets that length, and at the steps where the sensor was
-beyond one end of the vehicle (that face was the one seen) the centre moves away from the
-sensor by half the change, keeping the seen face where it was measured. Steps where the
-sensor was beside the vehicle (both ends measured by the side's extent) keep their centre.
+with a shorter contour: the contour gets that length, and at the steps where only an end of
+the vehicle was seen (the sensor beyond its front or rear, its long side not seen at a
+useful incidence) the centre moves away from the sensor by half the change, keeping the
+seen face where it was measured. Steps that saw a long side (their length measured by the
+side's extent) grow about their centre.
 Contours are never shortened: the detections lie on or inside the vehicle, so a contour is
 short where its returns were sparse (far out, partly occluded, leaving the view), rarely too
 long.
@@ -42,7 +43,7 @@ def length_variance(P: np.ndarray) -> np.ndarray:
 
 
 def retrodict_length(states: np.ndarray, length_sd: np.ndarray, sensor: np.ndarray,
-                     window: int, max_sd: float) -> np.ndarray:
+                     window: int, max_sd: float, min_incidence: float) -> np.ndarray:
     """States (n, N_STATE) of one track with its longest measured length carried back.
 
     The track's length (m) is the largest median contour length over ``window`` consecutive
@@ -51,8 +52,11 @@ def retrodict_length(states: np.ndarray, length_sd: np.ndarray, sensor: np.ndarr
     contour is lengthened to it (the rectangle offset ``rectangle_radius(L_track, W) -
     rectangle_radius(L, W)`` added to its radii, so the GP's shape detail stays); such a row
     whose sensor position ``sensor`` (2,) lies beyond one of its ends (|longitudinal offset| >
-    L / 2) has its centre moved by half the added length along the heading, away from the
-    sensor. Returns a new array; ``window`` <= 0 returns a copy unchanged.
+    L / 2) and which did not see a long side (sin of the angle between the line of sight and
+    the side facing the sensor below ``min_incidence``: its length unobservable) has its
+    centre moved by half the added length along the heading, away from the sensor; the other
+    rows grow about their centre. Returns a new array; ``window`` <= 0 returns a copy
+    unchanged.
     """
     out = np.array(states, dtype=float, copy=True)
     measured = np.asarray(length_sd) <= max_sd
@@ -64,9 +68,15 @@ def retrodict_length(states: np.ndarray, length_sd: np.ndarray, sensor: np.ndarr
     longest = float(np.max(np.median(sliding_window_view(seen, w), axis=1)))
     grow = np.maximum(longest - length, 0.0)
     h = np.column_stack([np.cos(out[:, YAW]), np.sin(out[:, YAW])])
-    s_lo = np.sum((np.asarray(sensor, dtype=float) - out[:, [X, Y]]) * h, axis=1)
-    end_seen = np.abs(s_lo) > 0.5 * length
-    shift = np.where(end_seen, -np.sign(s_lo) * 0.5 * grow, 0.0)
+    lat = np.column_stack([-h[:, 1], h[:, 0]])
+    rel = np.asarray(sensor, dtype=float) - out[:, [X, Y]]
+    s_lo, s_la = np.sum(rel * h, axis=1), np.sum(rel * lat, axis=1)
+    # the long side facing the sensor, seen at a useful incidence, measured the length
+    los = rel - lat * (np.sign(s_la) * 0.5 * width)[:, None]
+    inc = np.abs(np.sum(los * lat, axis=1)) / np.maximum(np.linalg.norm(los, axis=1), 1e-6)
+    side_seen = (np.abs(s_la) > 0.5 * width) & (inc >= min_incidence)
+    end_only = (np.abs(s_lo) > 0.5 * length) & ~side_seen
+    shift = np.where(end_only, -np.sign(s_lo) * 0.5 * grow, 0.0)
     out[:, [X, Y]] += shift[:, None] * h
     ang = contour_angles()[None, :]
     L, W = length[:, None], width[:, None]
