@@ -8,11 +8,11 @@ short and a centre metres too far towards the sensor until its side comes into v
 the track ends, the longest it was measured (the largest running median of its contour
 length over the steps whose length std. dev. is small: not the car-sized prior, not the
 overshoot of a new track's first updates or of a few steps) is carried back to every step
-with a shorter contour: the contour gets that length, and at the steps where only an end of
-the vehicle was seen (the sensor beyond its front or rear, its long side not seen at a
-useful incidence) the centre moves away from the sensor by half the change, keeping the
-seen face where it was measured. Steps that saw a long side (their length measured by the
-side's extent) grow about their centre.
+with a shorter contour: the contour gets that length, and the centre moves away from the
+sensor along the heading by half the change times |cos| of the angle between the heading
+and the line of sight: seen end-on (a truck approaching from far away) the end facing the
+sensor stays where it was measured and all the length goes to the far, unseen end; seen
+broadside both ends were seen alike and the contour grows about its centre.
 Contours are never shortened: the detections lie on or inside the vehicle, so a contour is
 short where its returns were sparse (far out, partly occluded, leaving the view), rarely too
 long.
@@ -43,20 +43,18 @@ def length_variance(P: np.ndarray) -> np.ndarray:
 
 
 def retrodict_length(states: np.ndarray, length_sd: np.ndarray, sensor: np.ndarray,
-                     window: int, max_sd: float, min_incidence: float) -> np.ndarray:
+                     window: int, max_sd: float) -> np.ndarray:
     """States (n, N_STATE) of one track with its longest measured length carried back.
 
     The track's length (m) is the largest median contour length over ``window`` consecutive
     rows (all when fewer) among the rows whose length std. dev. ``length_sd`` (n,) (m) is at
     most ``max_sd``; without such rows the states are returned unchanged. Each shorter row's
     contour is lengthened to it (the rectangle offset ``rectangle_radius(L_track, W) -
-    rectangle_radius(L, W)`` added to its radii, so the GP's shape detail stays); such a row
-    whose sensor position ``sensor`` (2,) lies beyond one of its ends (|longitudinal offset| >
-    L / 2) and which did not see a long side (sin of the angle between the line of sight and
-    the side facing the sensor below ``min_incidence``: its length unobservable) has its
-    centre moved by half the added length along the heading, away from the sensor; the other
-    rows grow about their centre. Returns a new array; ``window`` <= 0 returns a copy
-    unchanged.
+    rectangle_radius(L, W)`` added to its radii, so the GP's shape detail stays); such a
+    row's centre moves along the heading, away from the sensor position ``sensor`` (2,), by
+    half the added length times |cos| of the angle between the heading and the line of sight
+    (the end facing the sensor stays put when seen end-on). Returns a new array; ``window``
+    <= 0 returns a copy unchanged.
     """
     out = np.array(states, dtype=float, copy=True)
     measured = np.asarray(length_sd) <= max_sd
@@ -68,15 +66,12 @@ def retrodict_length(states: np.ndarray, length_sd: np.ndarray, sensor: np.ndarr
     longest = float(np.max(np.median(sliding_window_view(seen, w), axis=1)))
     grow = np.maximum(longest - length, 0.0)
     h = np.column_stack([np.cos(out[:, YAW]), np.sin(out[:, YAW])])
-    lat = np.column_stack([-h[:, 1], h[:, 0]])
     rel = np.asarray(sensor, dtype=float) - out[:, [X, Y]]
-    s_lo, s_la = np.sum(rel * h, axis=1), np.sum(rel * lat, axis=1)
-    # the long side facing the sensor, seen at a useful incidence, measured the length
-    los = rel - lat * (np.sign(s_la) * 0.5 * width)[:, None]
-    inc = np.abs(np.sum(los * lat, axis=1)) / np.maximum(np.linalg.norm(los, axis=1), 1e-6)
-    side_seen = (np.abs(s_la) > 0.5 * width) & (inc >= min_incidence)
-    end_only = (np.abs(s_lo) > 0.5 * length) & ~side_seen
-    shift = np.where(end_only, -np.sign(s_lo) * 0.5 * grow, 0.0)
+    s_lo = np.sum(rel * h, axis=1)
+    # share of the added length at the far end: |cos| of the angle between the heading and
+    # the line of sight (1 end-on, 0 broadside, where both ends are seen alike)
+    end_on = np.abs(s_lo) / np.maximum(np.linalg.norm(rel, axis=1), 1e-6)
+    shift = -np.sign(s_lo) * 0.5 * grow * end_on
     out[:, [X, Y]] += shift[:, None] * h
     ang = contour_angles()[None, :]
     L, W = length[:, None], width[:, None]

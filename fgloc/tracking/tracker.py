@@ -747,7 +747,7 @@ class Tracker:
         n = rec.last_update_step + 1
         states = retrodict_length(np.asarray(rec.states[:n]), np.sqrt(rec.len_var[:n]),
                                   self.fov.sensor, self.cfg.retrodict_window,
-                                  self.cfg.retrodict_max_sd, self.cfg.extent_min_incidence)
+                                  self.cfg.retrodict_max_sd)
         return Track(
             id=rec.id,
             t=np.asarray(rec.t[:n]),
