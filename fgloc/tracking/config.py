@@ -123,6 +123,20 @@ class TrackingConfig:
     span_gain: float = 0.3
     """... by this share of the shortfall per update, towards the end beyond which its
     detections reach farther (the seen end stays put)."""
+    retrodict_window: int = 20
+    """Length retrodiction of a finished track (:mod:`fgloc.tracking.retrodict`): a vehicle's
+    length is constant, so the longest it was measured -- the largest median of its contour
+    length over this many consecutive steps among those whose length std. dev. is at most
+    ``retrodict_max_sd`` -- is carried back to every step with a shorter contour, its centre
+    moved away from the sensor by half the added length times |cos| of the angle between the
+    heading and the line of sight (seen end-on the face seen stays, broadside the contour
+    grows about its centre). A truck seen head-on from far away is otherwise reported
+    car-sized with its centre metres towards the sensor until its side comes into view. The
+    output tracks' earlier steps then use later detections (not causal); their stored
+    covariances are the filter's. 0 = off (the filter's states as they were)."""
+    retrodict_max_sd: float = 0.35
+    """... (m; about one extent row's ``sigma_extent``: the length is measured, not the prior
+    or a transient of the first updates)."""
     tau: float = 0.05
     """Contour forgetting rate (1/s): f' = mu + exp(-tau dt) (f - mu), Q = (1-exp(-2 tau dt)) K."""
 

@@ -51,6 +51,7 @@ from fgloc.tracking.measure import (
     measurement_vector,
     predict_measurements,
 )
+from fgloc.tracking.retrodict import length_variance, retrodict_length
 from fgloc.tracks import (
     N_KIN,
     N_STATE,
@@ -107,6 +108,8 @@ class _Record:
     t: list[float] = field(default_factory=list)
     states: list[np.ndarray] = field(default_factory=list)
     covs: list[np.ndarray] = field(default_factory=list)
+    #: variance (m^2) of the contour's length (front + rear radius) per step
+    len_var: list[float] = field(default_factory=list)
     det_index: list[np.ndarray] = field(default_factory=list)
     det_step: list[np.ndarray] = field(default_factory=list)
 
@@ -613,9 +616,11 @@ class Tracker:
         store = self.cfg.store_covariances
         xs = self.x.copy()                          # one copy per frame, rows per track
         Ps = self.P.copy() if store else None
+        len_var = length_variance(self.P)
         for i, rec in enumerate(self.recs):
             rec.t.append(t)
             rec.states.append(xs[i])
+            rec.len_var.append(float(len_var[i]))
             if Ps is not None:
                 rec.covs.append(Ps[i])
         for i in updated:
@@ -676,6 +681,7 @@ class Tracker:
         self.next_id += 1
         rec.t.append(self.t)
         rec.states.append(x0.copy())
+        rec.len_var.append(float(length_variance(P0)))
         if cfg.store_covariances:
             rec.covs.append(P0.copy())
         rec.det_index.append(det.index[k])
@@ -739,7 +745,9 @@ class Tracker:
 
     def _to_track(self, rec: _Record) -> Track:
         n = rec.last_update_step + 1
-        states = np.asarray(rec.states[:n])
+        states = retrodict_length(np.asarray(rec.states[:n]), np.sqrt(rec.len_var[:n]),
+                                  self.fov.sensor, self.cfg.retrodict_window,
+                                  self.cfg.retrodict_max_sd)
         return Track(
             id=rec.id,
             t=np.asarray(rec.t[:n]),
