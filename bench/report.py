@@ -210,7 +210,10 @@ TABLES: list[Table] = [
           "joint) under simulator settings the defaults do not make: platoons, trucks, low "
           "returns, far and sparse returns, an oblique junction, light traffic and all at "
           "once. Cells: mean over the seeds / worst seed. cover 2 = tracks covering two "
-          "vehicles at once; truck figures over the tracks following a truck (> 8 m).",
+          "vehicles at once; truck figures over the tracks following a truck (> 8 m). "
+          "flagged = runs whose result says it is not sure (status ambiguous, or a weakly "
+          "observed direction with its covariance): their errors are honest misses, the "
+          "unflagged column is what a user would take as a pose.",
           produce_robustness,
           {"settings": ["default", "platoons", "trucks", "low-returns", "far-sparse", "oblique",
                         "10-per-min", "combined"], "seeds": [1, 2, 3, 4, 5], "duration": 60.0},
