@@ -13,12 +13,17 @@ import pytest
 from fgloc.cli import main
 
 
+def simulated(tmp_path_factory, duration: float, vehicles: int) -> Path:
+    """The intersection, seed 6, of ``duration`` s with ``vehicles`` vehicles, via the CLI."""
+    out = tmp_path_factory.mktemp("smooth") / "x"
+    assert main(["-q", "simulate", "--case", "intersection", "--seed", "6", "--duration",
+                 f"{duration:g}", "--vehicles", str(vehicles), "--out", str(out)]) == 0
+    return out
+
+
 @pytest.fixture(scope="module")
 def scenario_dir(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("smooth") / "x"
-    assert main(["-q", "simulate", "--case", "intersection", "--seed", "6", "--duration", "12",
-                 "--vehicles", "3", "--out", str(out)]) == 0
-    return out
+    return simulated(tmp_path_factory, 12, 3)
 
 
 def read_tracks(path: Path) -> dict[tuple[str, str], np.ndarray]:
@@ -65,10 +70,7 @@ def test_bad_smoothing_config_is_an_input_error(scenario_dir, tmp_path, capsys):
 
 @pytest.fixture(scope="module")
 def busier_scenario_dir(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("smooth8") / "x"
-    assert main(["-q", "simulate", "--case", "intersection", "--seed", "6", "--duration", "30",
-                 "--vehicles", "8", "--out", str(out)]) == 0
-    return out
+    return simulated(tmp_path_factory, 30, 8)
 
 
 @pytest.mark.slow
