@@ -7,12 +7,8 @@ from __future__ import annotations
 import numpy as np
 
 from factors.gp import rectangle_radius
-from fgloc.tracking.retrodict import (
-    contour_length_width,
-    length_variance,
-    retrodict_length,
-)
-from fgloc.tracks import N_KIN, N_STATE, YAW, X, Y, contour_angles
+from fgloc.tracking.retrodict import length_variance, retrodict_length
+from fgloc.tracks import N_KIN, N_STATE, YAW, X, Y, contour_angles, contour_length_width
 
 TRUE_LENGTH, TRUE_WIDTH = 12.0, 2.5
 SENSOR = np.array([0.0, 5.0])

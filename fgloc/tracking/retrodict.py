@@ -24,15 +24,7 @@ import numpy as np
 from numpy.lib.stride_tricks import sliding_window_view
 
 from factors.gp import rectangle_radius
-from fgloc.tracks import N_KIN, YAW, X, Y, contour_angles
-
-
-def contour_length_width(states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(n,) length and width (m) of the star-convex contours of state rows (n, N_STATE): the
-    radii along the heading (front + rear) and across it (left + right)."""
-    f = states[:, N_KIN:]
-    q = f.shape[1] // 4
-    return f[:, 0] + f[:, 2 * q], f[:, q] + f[:, 3 * q]
+from fgloc.tracks import N_KIN, YAW, X, Y, contour_angles, contour_length_width
 
 
 def length_variance(P: np.ndarray) -> np.ndarray:

@@ -64,6 +64,7 @@ from fgloc.tracks import (
     X,
     Y,
     contour_angles,
+    contour_length_width,
 )
 
 MODELS = ("sensor-aware", "plain")
@@ -251,10 +252,8 @@ class Tracker:
     def _large(self) -> np.ndarray:
         """(T,) tracks whose contour is large (truck-like): length >= large_length or
         width >= large_width (from the basis radii on the axes)."""
-        f = self.x[:, N_KIN:]
-        half = self.gp.n // 2
-        return ((f[:, 0] + f[:, half] >= self.cfg.large_length)
-                | (f[:, half // 2] + f[:, half + half // 2] >= self.cfg.large_width))
+        length, width = contour_length_width(self.x)
+        return (length >= self.cfg.large_length) | (width >= self.cfg.large_width)
 
     def _associate(self, det: _Frame) -> tuple[np.ndarray, np.ndarray]:
         """Owner track index per detection (-1: none) and its radial excess (m) about that
@@ -503,10 +502,8 @@ class Tracker:
         if not len(updated) or cfg.long_length <= 0.0:
             return
         x = self.x[updated]
-        f = x[:, N_KIN:]
-        n = self.gp.n
-        q = n // 4
-        length, width = f[:, 0] + f[:, 2 * q], f[:, q] + f[:, 3 * q]
+        q = self.gp.n // 4
+        length, width = contour_length_width(x)
         iw = N_KIN + np.array([q, 3 * q])
         sd_w = np.sqrt(np.maximum(self.P[updated][:, iw][:, :, iw].sum(axis=(1, 2)), 0.0))
         h = unit(x[:, YAW])
