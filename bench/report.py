@@ -72,12 +72,9 @@ def produce_robustness(settings: list[str], seeds: list[int], duration: float,
     runs = []
     items = [(setting, seed, duration) for setting in settings for seed in seeds]
     for r in _ordered_map(_robustness_run, items, jobs):
-        print(f"robustness {r.setting:<11} {r.seed:>2} {r.case:<12} " + " ".join(
-            f"{k}={v:.3f}" for k, v in r.figures.items()), flush=True)
+        print(f"robustness {r.line()}", flush=True)
         runs.append(r)
-    rows = [{"setting": r.setting, "seed": r.seed, "case": r.case, "vehicles": r.vehicles,
-             **r.figures} for r in runs]
-    return Produced(rows, rb.table(runs, settings),
+    return Produced([r.row() for r in runs], rb.table(runs, settings),
                     f"settings {', '.join(settings)}; seeds {seeds} (odd: intersection, even: "
                     f"T-junction), {duration:g} s scenarios")
 

@@ -94,6 +94,16 @@ class RunResult:
     vehicles: int
     figures: dict[str, float] = field(default_factory=dict)
 
+    def row(self) -> dict:
+        """The run as a JSON row: setting, seed, case, vehicles and every figure."""
+        return {"setting": self.setting, "seed": self.seed, "case": self.case,
+                "vehicles": self.vehicles, **self.figures}
+
+    def line(self) -> str:
+        """One progress line: setting, seed, case and every figure."""
+        return f"{self.setting:<11} {self.seed:>2} {self.case:<12} " + " ".join(
+            f"{k}={v:.3f}" for k, v in self.figures.items())
+
 
 def sim_config(setting: str) -> SimConfig:
     return from_dict(SimConfig, SETTINGS[setting], None)
@@ -278,18 +288,15 @@ def main() -> int:
         for seed in args.seeds:
             r = run_one(setting, seed, args.duration, cfg, not args.no_localization)
             results.append(r)
-            print(f"{setting:<11} {seed:>2} {r.case:<12} " + " ".join(
-                f"{k}={v:.3f}" for k, v in r.figures.items()), flush=True)
+            print(r.line(), flush=True)
             if args.json:
-                Path(args.json).write_text(json.dumps(
-                    [{"setting": x.setting, "seed": x.seed, "case": x.case,
-                      "vehicles": x.vehicles, **x.figures} for x in results], indent=1))
+                Path(args.json).write_text(json.dumps([x.row() for x in results], indent=1))
     elapsed = time.perf_counter() - t0
-    command = "OMP_NUM_THREADS=1 python -m bench.robustness" + (" --quick" if args.quick else "")
+    quick = " --quick" if args.quick else ""
+    command = "OMP_NUM_THREADS=1 python -m bench.robustness" + quick
     extra = [a for a in sys.argv[1:] if a not in ("--quick",)]
     if extra:
         command += " " + " ".join(extra)
-    quick = " --quick" if args.quick else ""
     head = [f"### Robustness matrix (`python -m bench.robustness{quick}`)",
             "", f"Command: `{command}`", "",
             f"{provenance()}, {args.duration:g} s scenarios, seeds {args.seeds} (odd: "
