@@ -93,6 +93,29 @@ def test_unmeasured_lengths_are_not_carried_back() -> None:
                                states)
 
 
+def test_a_hypothesised_length_is_carried_back_only_when_nothing_was_measured() -> None:
+    # a 5.5 m van that tripped the long-vehicle hypothesis (10 m, its pseudo-measurement
+    # shrinking the std. dev.) for 20 steps and then showed its side: the measured 5.5 m stays
+    xs = np.linspace(150.0, 30.0, 60)
+    lengths = np.where((np.arange(60) >= 10) & (np.arange(60) < 30), 10.0, 5.5)
+    prior = lengths == 10.0
+    states = _states(xs, lengths)
+    after = retrodict_length(states, np.full(60, 0.2), SENSOR, window=20, max_sd=0.35,
+                             prior=prior)
+    length, _ = contour_length_width(after)
+    np.testing.assert_allclose(length[~prior], 5.5, atol=1e-9)      # not lengthened to 10 m
+    np.testing.assert_allclose(length[prior], 10.0, atol=1e-9)      # never shortened
+    # without the flags the hypothesis was carried back to the whole track
+    unflagged = contour_length_width(retrodict_length(states, np.full(60, 0.2), SENSOR, 20,
+                                                      0.35))[0]
+    np.testing.assert_allclose(unflagged, 10.0, atol=1e-9)
+    # a truck whose side is never seen: the hypothesis is all there is and is carried back
+    lengths = np.where(np.arange(60) < 20, 4.6, 10.0)
+    after = retrodict_length(_states(xs, lengths), np.where(lengths > 5, 0.2, 1.5), SENSOR,
+                             window=20, max_sd=0.35, prior=lengths > 5)
+    np.testing.assert_allclose(contour_length_width(after)[0], 10.0, atol=1e-9)
+
+
 def test_length_variance_of_front_plus_rear() -> None:
     rng = np.random.default_rng(3)
     A = rng.normal(size=(N_STATE, N_STATE))

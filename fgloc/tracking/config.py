@@ -123,6 +123,20 @@ class TrackingConfig:
     span_gain: float = 0.3
     """... by this share of the shortfall per update, towards the end beyond which its
     detections reach farther (the seen end stays put)."""
+    occupancy_gap: float = 1.0
+    """Occupied length while an end of the vehicle faces the sensor (0 = off): the distances
+    behind the seen end of a track's detections and of the free Doppler-consistent ones
+    beside it beyond its ends (up to ``chain_reach``), pooled over ``span_history`` updates,
+    are a lower bound of its length up to their first gap wider than this (m) -- a truck's
+    side seen at grazing incidence fills over the frames, a following vehicle leaves an
+    empty band; a contour shorter than it by more than ``span_margin`` grows like the span
+    bound's, away from the seen end ..."""
+    occupancy_min_points: int = 5
+    """... (the bound is the distance that this many pooled detections reach or exceed) ..."""
+    occupancy_max_incidence: float = 0.35
+    """... in the updates where sin(angle between the line of sight and the heading) is at most
+    this (about 20 deg: end-on, the long side at grazing incidence, where the lengthwise
+    position is the radar's precise range)."""
     retrodict_window: int = 20
     """Length retrodiction of a finished track (:mod:`fgloc.tracking.retrodict`): a vehicle's
     length is constant, so the longest it was measured -- the largest median of its contour
