@@ -35,7 +35,8 @@ def length_variance(P: np.ndarray) -> np.ndarray:
 
 
 def retrodict_length(states: np.ndarray, length_sd: np.ndarray, sensor: np.ndarray,
-                     window: int, max_sd: float, prior: np.ndarray | None = None) -> np.ndarray:
+                     window: int, max_sd: float, prior: np.ndarray | None = None,
+                     occupied: np.ndarray | None = None) -> np.ndarray:
     """States (n, N_STATE) of one track with its longest measured length carried back.
 
     The track's length (m) is the largest median contour length over ``window`` consecutive
@@ -44,7 +45,10 @@ def retrodict_length(states: np.ndarray, length_sd: np.ndarray, sensor: np.ndarr
     ``prior`` (n,) (their length held by the long-vehicle prior: a hypothesis, and its
     repeated pseudo-measurement shrinks the std. dev. below ``max_sd``) count only when no
     other row qualifies (a truck whose side is never seen keeps the hypothesis' length; a
-    van that tripped it and later showed its side keeps its measured one). Each shorter row's
+    van that tripped it and later showed its side keeps its measured one). Rows flagged in
+    ``occupied`` (n,) count as measured whatever their std. dev.: their length is reached by
+    the occupied length of the detections pooled behind the seen end (the tracker's
+    ``occupancy_gap``; seen end-on the filter's own length stays unobservable). Each shorter row's
     contour is lengthened to it (the rectangle offset ``rectangle_radius(L_track, W) -
     rectangle_radius(L, W)`` added to its radii, so the GP's shape detail stays); such a
     row's centre moves along the heading, away from the sensor position ``sensor`` (2,), by
@@ -54,6 +58,8 @@ def retrodict_length(states: np.ndarray, length_sd: np.ndarray, sensor: np.ndarr
     """
     out = np.array(states, dtype=float, copy=True)
     measured = np.asarray(length_sd) <= max_sd
+    if occupied is not None:
+        measured |= np.asarray(occupied, dtype=bool)
     if prior is not None and np.any(measured & ~prior):
         measured &= ~np.asarray(prior, dtype=bool)
     if window <= 0 or not measured.any():

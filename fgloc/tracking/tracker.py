@@ -118,6 +118,9 @@ class _Record:
     len_var: list[float] = field(default_factory=list)
     #: per step: the length held by the long-vehicle prior (promoted, side not seen yet)
     held: list[bool] = field(default_factory=list)
+    #: per step: the contour's length reached by a truck-sized occupied length that reaches
+    #: farther than the spans of its own detections (measured end-on)
+    occupied: list[bool] = field(default_factory=list)
     det_index: list[np.ndarray] = field(default_factory=list)
     det_step: list[np.ndarray] = field(default_factory=list)
 
@@ -608,7 +611,10 @@ class Tracker:
                 short = rec.span_length - length
                 beyond_front, beyond_rear = lo.max() - f[0], -lo.min() - f[2 * q]
                 direction = h if beyond_front >= beyond_rear else -h
-            if short_occ > short:
+            # the occupied length takes over only where it reaches farther than the spans of
+            # the track's own detections (its corridor holds more of the vehicle)
+            if short_occ > short and (rec.occupied_length
+                                      > rec.span_length + cfg.span_margin):
                 short, direction = short_occ, -end * h
             if short <= cfg.span_margin:
                 continue
@@ -645,7 +651,7 @@ class Tracker:
         if not end or abs(rel[0] * h[1] - rel[1] * h[0]) > (
                 cfg.occupancy_max_incidence * float(np.linalg.norm(rel))):
             return 0
-        lo = (det.z[(owner == i) | (self._corridor[i] & (owner == -1))] - c) @ h
+        lo = (det.z[(owner == i) | (self._corridor[i] & (owner != -2))] - c) @ h
         rec.occupancy.append((end, front - lo if end > 0 else lo + rear))
         del rec.occupancy[:-cfg.span_history]
         d = np.concatenate([[0.0]] + [v for e, v in rec.occupancy if e == end])
@@ -672,11 +678,16 @@ class Tracker:
         xs = self.x.copy()                          # one copy per frame, rows per track
         Ps = self.P.copy() if store else None
         len_var = length_variance(self.P)
+        length = contour_length_width(xs)[0]
         for i, rec in enumerate(self.recs):
             rec.t.append(t)
             rec.states.append(xs[i])
             rec.len_var.append(float(len_var[i]))
             rec.held.append(rec.long and rec.side_hits < self.cfg.long_side_updates)
+            occ = rec.occupied_length
+            rec.occupied.append(occ >= self.cfg.large_length
+                                and rec.span_length + self.cfg.span_margin < occ
+                                <= length[i] + self.cfg.span_margin)
             if Ps is not None:
                 rec.covs.append(Ps[i])
         for i in updated:
@@ -739,6 +750,7 @@ class Tracker:
         rec.states.append(x0.copy())
         rec.len_var.append(float(length_variance(P0)))
         rec.held.append(False)
+        rec.occupied.append(False)
         if cfg.store_covariances:
             rec.covs.append(P0.copy())
         rec.det_index.append(det.index[k])
@@ -804,7 +816,8 @@ class Tracker:
         n = rec.last_update_step + 1
         states = retrodict_length(np.asarray(rec.states[:n]), np.sqrt(rec.len_var[:n]),
                                   self.fov.sensor, self.cfg.retrodict_window,
-                                  self.cfg.retrodict_max_sd, np.asarray(rec.held[:n]))
+                                  self.cfg.retrodict_max_sd, np.asarray(rec.held[:n]),
+                                  np.asarray(rec.occupied[:n]))
         return Track(
             id=rec.id,
             t=np.asarray(rec.t[:n]),
