@@ -125,8 +125,9 @@ class TrackingConfig:
     detections reach farther (the seen end stays put)."""
     occupancy_gap: float = 1.0
     """Occupied length while an end of the vehicle faces the sensor (0 = off): the distances
-    behind the seen end of a track's detections and of the free Doppler-consistent ones
-    beside it beyond its ends (up to ``chain_reach``), pooled over ``span_history`` updates,
+    behind the seen end of a track's detections and of the Doppler-consistent ones beside it
+    beyond its ends (up to ``chain_reach``; free or held by another track), pooled over
+    ``span_history`` updates,
     are a lower bound of its length up to their first gap wider than this (m) -- a truck's
     side seen at grazing incidence fills over the frames, a following vehicle leaves an
     empty band; a contour shorter than it by more than ``span_margin`` grows like the span

@@ -48,8 +48,8 @@ def retrodict_length(states: np.ndarray, length_sd: np.ndarray, sensor: np.ndarr
     van that tripped it and later showed its side keeps its measured one). Rows flagged in
     ``occupied`` (n,) count as measured whatever their std. dev.: their length is reached by
     the occupied length of the detections pooled behind the seen end (the tracker's
-    ``occupancy_gap``; seen end-on the filter's own length stays unobservable). Each shorter row's
-    contour is lengthened to it (the rectangle offset ``rectangle_radius(L_track, W) -
+    ``occupancy_gap``; seen end-on the filter's own length stays unobservable). Each shorter
+    row's contour is lengthened to it (the rectangle offset ``rectangle_radius(L_track, W) -
     rectangle_radius(L, W)`` added to its radii, so the GP's shape detail stays); such a
     row's centre moves along the heading, away from the sensor position ``sensor`` (2,), by
     half the added length times |cos| of the angle between the heading and the line of sight

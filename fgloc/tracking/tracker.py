@@ -107,7 +107,7 @@ class _Record:
     #: lower bound (m) of the vehicle's length from ``spans`` (0: none yet)
     span_length: float = 0.0
     #: per recent end-on update: (end seen: +1 front / -1 rear, distances (m) behind that end
-    #: of its detections and of the free ones in its lengthwise corridor)
+    #: of its detections and of the others in its lengthwise corridor)
     occupancy: list[tuple[int, np.ndarray]] = field(default_factory=list)
     #: lower bound (m) of the vehicle's length from ``occupancy`` (0: none yet)
     occupied_length: float = 0.0
@@ -299,8 +299,8 @@ class Tracker:
             far[ti, di] |= bad
             reach[ti[bad], di[bad]] = False
         ex[far] = np.inf
-        #: (T, D) detections beside a track beyond its ends (Doppler-consistent), for
-        #: :meth:`_occupied_length`
+        #: (T, D) detections beside a track beyond its gate lengthwise, up to chain_reach
+        #: (Doppler-consistent), for :meth:`_occupied_length`
         self._corridor = reach
         owner = np.argmin(ex, axis=0)
         best = ex[owner, np.arange(len(z))]
@@ -628,16 +628,17 @@ class Tracker:
         sensor beyond its front or rear: the length is unobservable in one frame, a truck's
         long side shows at grazing incidence with a few returns, most of them outside the
         gate of a car-sized contour). The distances (m) behind the seen end of its detections
-        and of the free Doppler-consistent detections in its lengthwise corridor (beside the
-        contour, up to ``chain_reach`` beyond its ends) are kept for ``span_history`` end-on
-        updates; pooled, they fill the vehicle's side densely, and the occupied length is
-        where the sorted distances first leave a gap wider than ``occupancy_gap`` (a
-        following vehicle leaves an empty band that no frame fills), less its last
-        ``occupancy_min_points`` detections (``rec.occupied_length``: reached by that many;
-        0 without). End-on: the sensor beyond the front or rear and sin(angle between the
-        line of sight and the heading) at most ``occupancy_max_incidence`` (there the
-        lengthwise position is the precise range). Returns the end seen (+1 front, -1 rear)
-        or 0 (not end-on, or off)."""
+        and of the Doppler-consistent detections in its lengthwise corridor (beside the
+        contour, up to ``chain_reach`` beyond its ends; free or held by another track, e.g.
+        a second track on a truck's other end; not those in the blind range) are kept for
+        ``span_history`` end-on updates; pooled, they fill the vehicle's side densely, and
+        the occupied length is where the sorted distances first leave a gap wider than
+        ``occupancy_gap`` (a following vehicle leaves an empty band that no frame fills),
+        less its last ``occupancy_min_points`` detections (``rec.occupied_length``: reached
+        by that many; 0 without). End-on: the sensor beyond the front or rear and sin(angle
+        between the line of sight and the heading) at most ``occupancy_max_incidence``
+        (there the lengthwise position is the precise range). Returns the end seen (+1
+        front, -1 rear) or 0 (not end-on, or off)."""
         cfg = self.cfg
         if cfg.occupancy_gap <= 0.0 or self._corridor is None:
             return 0
