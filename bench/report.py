@@ -72,12 +72,9 @@ def produce_robustness(settings: list[str], seeds: list[int], duration: float,
     runs = []
     items = [(setting, seed, duration) for setting in settings for seed in seeds]
     for r in _ordered_map(_robustness_run, items, jobs):
-        print(f"robustness {r.setting:<11} {r.seed:>2} {r.case:<12} " + " ".join(
-            f"{k}={v:.3f}" for k, v in r.figures.items()), flush=True)
+        print(f"robustness {r.line()}", flush=True)
         runs.append(r)
-    rows = [{"setting": r.setting, "seed": r.seed, "case": r.case, "vehicles": r.vehicles,
-             **r.figures} for r in runs]
-    return Produced(rows, rb.table(runs, settings),
+    return Produced([r.row() for r in runs], rb.table(runs, settings),
                     f"settings {', '.join(settings)}; seeds {seeds} (odd: intersection, even: "
                     f"T-junction), {duration:g} s scenarios")
 
@@ -213,7 +210,10 @@ TABLES: list[Table] = [
           "joint) under simulator settings the defaults do not make: platoons, trucks, low "
           "returns, far and sparse returns, an oblique junction, light traffic and all at "
           "once. Cells: mean over the seeds / worst seed. cover 2 = tracks covering two "
-          "vehicles at once; truck figures over the tracks following a truck (> 8 m).",
+          "vehicles at once; truck figures over the tracks following a truck (> 8 m). "
+          "flagged = runs whose result says it is not sure (status ambiguous, or a weakly "
+          "observed direction with its covariance): their errors are honest misses, the "
+          "unflagged column is what a user would take as a pose.",
           produce_robustness,
           {"settings": ["default", "platoons", "trucks", "low-returns", "far-sparse", "oblique",
                         "10-per-min", "combined"], "seeds": [1, 2, 3, 4, 5], "duration": 60.0},

@@ -15,8 +15,9 @@ heading - true length| of the tracks following a truck, m) and centre bias towar
 (m, > 0: towards it), per-track centre RMS (the paper's average RMS), yaw error and IoU of the
 filter and the batch smoother (:func:`fgloc.evaluation.tracking.evaluate_tracks`, visibility
 from the true pose and the FOV), and the 2D / yaw error of filter-sicp and joint
-(:func:`fgloc.localize_many`). The table gives per setting the mean over the seeds and the
-worst seed.
+(:func:`fgloc.localize_many`), whether each flagged itself (ambiguous or a weakly observed
+direction) and the 2D error of the runs that did not. The table gives per setting the mean
+over the seeds and the worst seed (the number of flagged runs).
 
     OMP_NUM_THREADS=1 python -m bench.robustness            # seeds 1-5, the full matrix
     OMP_NUM_THREADS=1 python -m bench.robustness --quick    # seeds 1-2, 30 s, a smoke set
@@ -37,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from bench.accuracy import weak_flag
 from bench.report_section import provenance
 from fgloc import localize_many, track
 from fgloc.config import Config, from_dict, load_config
@@ -91,6 +93,16 @@ class RunResult:
     case: str
     vehicles: int
     figures: dict[str, float] = field(default_factory=dict)
+
+    def row(self) -> dict:
+        """The run as a JSON row: setting, seed, case, vehicles and every figure."""
+        return {"setting": self.setting, "seed": self.seed, "case": self.case,
+                "vehicles": self.vehicles, **self.figures}
+
+    def line(self) -> str:
+        """One progress line: setting, seed, case and every figure."""
+        return f"{self.setting:<11} {self.seed:>2} {self.case:<12} " + " ".join(
+            f"{k}={v:.3f}" for k, v in self.figures.items())
 
 
 def sim_config(setting: str) -> SimConfig:
@@ -197,6 +209,9 @@ def run_one(setting: str, seed: int, duration: float, cfg: Config,
         for meth, r in localize_many(scn, list(METHODS), cfg).items():
             e = pose_error(r.T_local, scn.truth.sensor_pose)
             f[f"{meth}.2d"], f[f"{meth}.yaw"] = e.d2d, e.dyaw_deg
+            flagged = r.status == "ambiguous" or bool(weak_flag(r))
+            f[f"{meth}.flagged"] = float(flagged)
+            f[f"{meth}.2d_unflagged"] = math.nan if flagged else e.d2d
     return out
 
 
@@ -215,9 +230,17 @@ COLUMNS: list[tuple[str, str, Callable, str]] = [
     ("batch IoU", "batch.iou", min, "{:.3f}"),
     ("filter-sicp 2D m", "filter-sicp.2d", max, "{:.3f}"),
     ("filter-sicp yaw deg", "filter-sicp.yaw", max, "{:.3f}"),
+    ("filter-sicp flagged", "filter-sicp.flagged", sum, "{:.0f}"),
+    ("filter-sicp 2D unflagged m", "filter-sicp.2d_unflagged", max, "{:.3f}"),
     ("joint 2D m", "joint.2d", max, "{:.3f}"),
     ("joint yaw deg", "joint.yaw", max, "{:.3f}"),
+    ("joint flagged", "joint.flagged", sum, "{:.0f}"),
+    ("joint 2D unflagged m", "joint.2d_unflagged", max, "{:.3f}"),
 ]
+"""Columns: (header, figure, aggregate of the worst seed -- ``sum``: the cell is the count
+over the seeds alone --, format). flagged = runs whose result says it is not sure: status
+ambiguous or a weakly observed direction (``weak_flag``); unflagged = the 2D error of the
+others."""
 
 
 def table(results: list[RunResult], settings: list[str]) -> list[str]:
@@ -233,8 +256,11 @@ def table(results: list[RunResult], settings: list[str]) -> list[str]:
         for _, key, worst, fmt in cols:
             v = np.array([r.figures.get(key, math.nan) for r in rs], dtype=float)
             v = v[np.isfinite(v)]
-            cells.append("-" if v.size == 0 else
-                         f"{fmt.format(np.mean(v))} / {fmt.format(worst(v))}")
+            if worst is sum:
+                cells.append("-" if v.size == 0 else fmt.format(np.sum(v)))
+            else:
+                cells.append("-" if v.size == 0 else
+                             f"{fmt.format(np.mean(v))} / {fmt.format(worst(v))}")
         n_veh = np.mean([r.vehicles for r in rs])
         lines.append(f"| {s} | {len(rs)} | {n_veh:.0f} | " + " | ".join(cells) + " |")
     return lines
@@ -262,18 +288,15 @@ def main() -> int:
         for seed in args.seeds:
             r = run_one(setting, seed, args.duration, cfg, not args.no_localization)
             results.append(r)
-            print(f"{setting:<11} {seed:>2} {r.case:<12} " + " ".join(
-                f"{k}={v:.3f}" for k, v in r.figures.items()), flush=True)
+            print(r.line(), flush=True)
             if args.json:
-                Path(args.json).write_text(json.dumps(
-                    [{"setting": x.setting, "seed": x.seed, "case": x.case,
-                      "vehicles": x.vehicles, **x.figures} for x in results], indent=1))
+                Path(args.json).write_text(json.dumps([x.row() for x in results], indent=1))
     elapsed = time.perf_counter() - t0
-    command = "OMP_NUM_THREADS=1 python -m bench.robustness" + (" --quick" if args.quick else "")
+    quick = " --quick" if args.quick else ""
+    command = "OMP_NUM_THREADS=1 python -m bench.robustness" + quick
     extra = [a for a in sys.argv[1:] if a not in ("--quick",)]
     if extra:
         command += " " + " ".join(extra)
-    quick = " --quick" if args.quick else ""
     head = [f"### Robustness matrix (`python -m bench.robustness{quick}`)",
             "", f"Command: `{command}`", "",
             f"{provenance()}, {args.duration:g} s scenarios, seeds {args.seeds} (odd: "

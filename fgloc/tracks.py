@@ -17,13 +17,21 @@ from fgloc.geo import se2_params
 
 __all__ = [
     "A", "N_CONTOUR", "N_KIN", "N_STATE", "V", "X", "Y", "YAW", "YAWRATE",
-    "Track", "TrackSet", "contour_angles",
+    "Track", "TrackSet", "contour_angles", "contour_length_width",
 ]
 
 
 def contour_angles(n: int = N_CONTOUR) -> np.ndarray:
     """(n,) contour basis angles ``2*pi*i/n`` (rad) in the vehicle frame."""
     return 2.0 * np.pi * np.arange(n) / n
+
+
+def contour_length_width(states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(n,) length and width (m) of the star-convex contours of state rows (n, N_STATE): the
+    radii along the heading (front + rear) and across it (left + right)."""
+    f = states[:, N_KIN:]
+    q = f.shape[1] // 4
+    return f[:, 0] + f[:, 2 * q], f[:, q] + f[:, 3 * q]
 
 
 @dataclass

@@ -3,6 +3,7 @@ its accuracy, and the batch smoother against the filter on a simulated car (know
 
 from __future__ import annotations
 
+import copy
 import dataclasses
 
 import gtsam
@@ -164,7 +165,10 @@ def one_truck(case: str, seed: int) -> None:
     sim.traffic = dataclasses.replace(sim.traffic, class_mix=(0.0, 0.0, 1.0))
     scn = simulate(case, seed, duration=15.0, vehicles=1, config=sim)
     cfg = Config()
-    car = Config()
+    # the causal filter's tracks: its length retrodiction (fgloc.tracking.retrodict) fixes the
+    # head-on truck's centre in the filter's own output, which this test does not isolate
+    cfg.tracking.retrodict_window = 0
+    car = copy.deepcopy(cfg)
     car.smoothing.long_vehicle_length = 0.0
     run = track(scn, cfg, oracle_pose=True)
     sets = [run.tracks] + [smooth_tracks(scn, run.tracks, run.T_placement, name, c)

@@ -13,12 +13,17 @@ import pytest
 from fgloc.cli import main
 
 
+def simulated(tmp_path_factory, duration: float, vehicles: int) -> Path:
+    """The intersection, seed 6, of ``duration`` s with ``vehicles`` vehicles, via the CLI."""
+    out = tmp_path_factory.mktemp("smooth") / "x"
+    assert main(["-q", "simulate", "--case", "intersection", "--seed", "6", "--duration",
+                 f"{duration:g}", "--vehicles", str(vehicles), "--out", str(out)]) == 0
+    return out
+
+
 @pytest.fixture(scope="module")
 def scenario_dir(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("smooth") / "x"
-    assert main(["-q", "simulate", "--case", "intersection", "--seed", "6", "--duration", "12",
-                 "--vehicles", "3", "--out", str(out)]) == 0
-    return out
+    return simulated(tmp_path_factory, 12, 3)
 
 
 def read_tracks(path: Path) -> dict[tuple[str, str], np.ndarray]:
@@ -63,22 +68,29 @@ def test_bad_smoothing_config_is_an_input_error(scenario_dir, tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.fixture(scope="module")
+def busier_scenario_dir(tmp_path_factory) -> Path:
+    return simulated(tmp_path_factory, 30, 8)
+
+
 @pytest.mark.slow
-def test_localize_smoother_sicp(scenario_dir, tmp_path, capsys):
-    # 12 s, 3 vehicles: too little traffic for a good pose (filter-sicp is ~4 m off here);
-    # the smoothed tracks must localize as well as the filter's from the same coarse pose
+def test_localize_smoother_sicp(busier_scenario_dir, tmp_path, capsys):
+    # 30 s, 8 vehicles, resolved (12 s with 3 left both methods unconverged, 0.8 / 1.9 m off:
+    # a test of noise); the smoothed tracks must localize as well as the filter's from the
+    # same coarse pose (smoother-sicp 0.16 m, filter-sicp 0.18 m here at 27b679c)
     pose = {}
     for method in ("filter-sicp", "smoother-sicp"):
         out = tmp_path / method
-        assert main(["-q", "localize", str(scenario_dir), "--method", method,
+        assert main(["-q", "localize", str(busier_scenario_dir), "--method", method,
                      "--out", str(out)]) == 0
         assert json.loads((out / "result.json").read_text())["method"] == method
         capsys.readouterr()
-        assert main(["evaluate", str(out), str(scenario_dir / "ground_truth.json"),
+        assert main(["evaluate", str(out), str(busier_scenario_dir / "ground_truth.json"),
                      "--json"]) == 0
         pose[method] = json.loads(capsys.readouterr().out)["pose"]
-    assert pose["smoother-sicp"]["d2d"] < pose["filter-sicp"]["d2d"] + 0.5
-    assert pose["smoother-sicp"]["dyaw_deg"] < pose["filter-sicp"]["dyaw_deg"] + 0.5
+    assert pose["smoother-sicp"]["d2d"] < 0.3
+    assert pose["smoother-sicp"]["d2d"] < pose["filter-sicp"]["d2d"] + 0.1
+    assert pose["smoother-sicp"]["dyaw_deg"] < pose["filter-sicp"]["dyaw_deg"] + 0.1
 
 
 @pytest.mark.slow

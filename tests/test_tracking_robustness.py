@@ -58,21 +58,79 @@ def _side_lengths(tracks, sensor: np.ndarray) -> np.ndarray:
     return np.concatenate(out) if out else np.zeros(0)
 
 
-#: known failures (issue 20, not met): seed 2 comes out just short of 10.5 m, seed 5 reports a
-#: duplicate track on the truck's far end, seed 6's contour grows to 14.2 m
+#: known failures (issue 20, not met): seed 5 reports a duplicate track on the truck's far end,
+#: seed 6's contour grows to 14.2 m (seed 2, just short of 10.5 m before, passes since the
+#: length retrodiction of fgloc.tracking.retrodict)
+KNOWN_TRUCK_FAILURES = (5, 6)
 TRUCK_SEEDS = [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason="known failure"))
-               if s in (2, 5, 6) else s for s in range(1, 9)]
+               if s in KNOWN_TRUCK_FAILURES else s for s in range(1, 9)]
+
+
+TRUCK_12M = {"traffic": {"class_mix": [0.0, 0.0, 1.0], "truck_length": [12.0, 12.0]},
+             "road": {"lanes_per_direction": [1]}}
 
 
 @pytest.mark.parametrize("seed", TRUCK_SEEDS)
 def test_truck_seen_along_one_side_gets_its_length(seed: int) -> None:
-    table = {"traffic": {"class_mix": [0.0, 0.0, 1.0], "truck_length": [12.0, 12.0]},
-             "road": {"lanes_per_direction": [1]}}
-    res, tracks, m = _run(table, seed, 25.0, 1)
+    res, tracks, m = _run(TRUCK_12M, seed, 25.0, 1)
     assert m.n_matched == 1 and m.false_tracks == 0
     lengths = _side_lengths(tracks, res.scenario.truth.sensor_pose[:2, 3])
     assert len(lengths) > 20
     assert 10.5 <= np.median(lengths) <= 13.5, np.median(lengths)
+
+
+@pytest.mark.parametrize("seed", TRUCK_SEEDS)
+def test_truck_seen_head_on_is_not_pulled_towards_the_sensor(seed: int) -> None:
+    """While the sensor is beyond the truck's front or rear (its length unobservable; most of
+    the straight road), the track's contour is at least 10.5 m long and its centre within
+    0.7 m of the truth towards the sensor on average (the filter alone: a car-sized contour
+    for the first seconds, centre ~4 m towards the sensor, 1.0-1.5 m on average)."""
+    res, tracks, m = _run(TRUCK_12M, seed, 25.0, 1)
+    assert m.n_matched == 1 and m.false_tracks == 0
+    gt = res.scenario.truth.tracks[0]
+    sensor = res.scenario.truth.sensor_pose[:2, 3]
+    (tr,) = tracks.in_local().tracks
+    s = gt.states
+    k = (tr.t >= s[0, 0]) & (tr.t <= s[-1, 0])
+    xy = np.column_stack([np.interp(tr.t[k], s[:, 0], s[:, i]) for i in (1, 2)])
+    yaw = np.interp(tr.t[k], s[:, 0], np.unwrap(s[:, 3]))
+    rel = sensor - xy
+    end_seen = np.abs(rel[:, 0] * np.cos(yaw) + rel[:, 1] * np.sin(yaw)) > gt.length / 2
+    assert end_seen.sum() > 50
+    to_sensor = rel / np.linalg.norm(rel, axis=1, keepdims=True)
+    bias = np.sum((tr.states[k, :2] - xy) * to_sensor, axis=1)[end_seen]
+    poly = contour_polygons(tr.states[k][end_seen])
+    h = np.column_stack([np.cos(tr.states[k, YAW]), np.sin(tr.states[k, YAW])])[end_seen]
+    length = np.ptp(np.einsum("kmd,kd->km", poly, h), axis=1)
+    assert length.min() >= 10.5, length.min()
+    assert abs(float(np.mean(bias))) <= 0.7, np.mean(bias)
+
+
+#: the robustness matrix's far-sparse returns (bench/robustness.py): 25 per vehicle and frame
+#: at 20 m falling to about 4 at 150 m
+SPARSE = {"returns_at_reference": 25.0, "reference_range": 20.0, "returns_exponent": 0.91,
+          "range_half_detection": 0.95}
+#: known failures (not met): seed 3's track stays 6.3 m long, seed 6 adds a false track
+KNOWN_SPARSE_TRUCK_FAILURES = (3, 6)
+SPARSE_TRUCK_SEEDS = [pytest.param(s, marks=pytest.mark.xfail(strict=True, reason="known"))
+                      if s in KNOWN_SPARSE_TRUCK_FAILURES else s for s in range(1, 9)]
+
+
+@pytest.mark.parametrize("seed", SPARSE_TRUCK_SEEDS)
+def test_truck_seen_end_on_with_sparse_returns_gets_its_length(seed: int) -> None:
+    """A 12 m truck with sparse returns, seen end-on for most of the road: its long side
+    shows at grazing incidence with a few returns per frame, mostly beyond a car-sized
+    contour's gate; pooled over the updates behind the seen end they give its length
+    (``tracking.occupancy_gap``). Without that (occupancy_gap = 0) 6 of seeds 1-8 had no
+    track within 3 m of the truck (contours 4.6-7 m, centres ~3.5 m towards the sensor)."""
+    res, tracks, m = _run({**TRUCK_12M, "radar": SPARSE}, seed, 25.0, 1)
+    assert m.n_matched == 1 and m.false_tracks == 0 and m.fragments == 0
+    (tr,) = tracks.in_local().tracks
+    h = np.column_stack([np.cos(tr.states[:, YAW]), np.sin(tr.states[:, YAW])])
+    length = np.ptp(np.einsum("kmd,kd->km", contour_polygons(tr.states), h), axis=1)
+    assert 10.5 <= np.median(length) <= 13.5, np.median(length)
+    # 0.33-0.88 m on the passing seeds (without it: no track within 3 m)
+    assert m.centre_rms_track_mean <= 1.0, m.centre_rms_track_mean
 
 
 @pytest.mark.parametrize("seed", [1, 3, 5, 7, 8])

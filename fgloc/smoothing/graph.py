@@ -73,6 +73,7 @@ from fgloc.tracks import (
     TrackSet,
     V,
     contour_angles,
+    contour_length_width,
 )
 
 #: added to the diagonal of a prior covariance taken from the filter (state units squared)
@@ -283,8 +284,7 @@ class TrackModels:
     def _reached(self, track: Track) -> np.ndarray:
         """(n,) steps at which ``track``'s filtered contour (front + rear radius) is at least
         ``long_vehicle_length`` (m) long."""
-        length = track.states[:, N_KIN] + track.states[:, N_KIN + N_CONTOUR // 2]
-        return length >= self.car.smoothing.long_vehicle_length
+        return contour_length_width(track.states)[0] >= self.car.smoothing.long_vehicle_length
 
     def is_long(self, track: Track) -> bool:
         """Whether ``track``'s filtered contour reaches ``long_vehicle_length`` and stays that

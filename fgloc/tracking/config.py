@@ -123,6 +123,35 @@ class TrackingConfig:
     span_gain: float = 0.3
     """... by this share of the shortfall per update, towards the end beyond which its
     detections reach farther (the seen end stays put)."""
+    occupancy_gap: float = 1.0
+    """Occupied length while an end of the vehicle faces the sensor (0 = off): the distances
+    behind the seen end of a track's detections and of the Doppler-consistent ones beside it
+    beyond its ends (up to ``chain_reach``; free or held by another track), pooled over
+    ``span_history`` updates,
+    are a lower bound of its length up to their first gap wider than this (m) -- a truck's
+    side seen at grazing incidence fills over the frames, a following vehicle leaves an
+    empty band; a contour shorter than it by more than ``span_margin`` grows like the span
+    bound's, away from the seen end ..."""
+    occupancy_min_points: int = 5
+    """... (the bound is the distance that this many pooled detections reach or exceed) ..."""
+    occupancy_max_incidence: float = 0.35
+    """... in the updates where sin(angle between the line of sight and the heading) is at most
+    this (about 20 deg: end-on, the long side at grazing incidence, where the lengthwise
+    position is the radar's precise range)."""
+    retrodict_window: int = 20
+    """Length retrodiction of a finished track (:mod:`fgloc.tracking.retrodict`): a vehicle's
+    length is constant, so the longest it was measured -- the largest median of its contour
+    length over this many consecutive steps among those whose length std. dev. is at most
+    ``retrodict_max_sd`` -- is carried back to every step with a shorter contour, its centre
+    moved away from the sensor by half the added length times |cos| of the angle between the
+    heading and the line of sight (seen end-on the face seen stays, broadside the contour
+    grows about its centre). A truck seen head-on from far away is otherwise reported
+    car-sized with its centre metres towards the sensor until its side comes into view. The
+    output tracks' earlier steps then use later detections (not causal); their stored
+    covariances are the filter's. 0 = off (the filter's states as they were)."""
+    retrodict_max_sd: float = 0.35
+    """... (m; about one extent row's ``sigma_extent``: the length is measured, not the prior
+    or a transient of the first updates)."""
     tau: float = 0.05
     """Contour forgetting rate (1/s): f' = mu + exp(-tau dt) (f - mu), Q = (1-exp(-2 tau dt)) K."""
 

@@ -51,6 +51,7 @@ from fgloc.tracking.measure import (
     measurement_vector,
     predict_measurements,
 )
+from fgloc.tracking.retrodict import length_variance, retrodict_length
 from fgloc.tracks import (
     N_KIN,
     N_STATE,
@@ -63,6 +64,7 @@ from fgloc.tracks import (
     X,
     Y,
     contour_angles,
+    contour_length_width,
 )
 
 MODELS = ("sensor-aware", "plain")
@@ -104,9 +106,21 @@ class _Record:
     spans: list[float] = field(default_factory=list)
     #: lower bound (m) of the vehicle's length from ``spans`` (0: none yet)
     span_length: float = 0.0
+    #: per recent end-on update: (end seen: +1 front / -1 rear, distances (m) behind that end
+    #: of its detections and of the others in its lengthwise corridor)
+    occupancy: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    #: lower bound (m) of the vehicle's length from ``occupancy`` (0: none yet)
+    occupied_length: float = 0.0
     t: list[float] = field(default_factory=list)
     states: list[np.ndarray] = field(default_factory=list)
     covs: list[np.ndarray] = field(default_factory=list)
+    #: variance (m^2) of the contour's length (front + rear radius) per step
+    len_var: list[float] = field(default_factory=list)
+    #: per step: the length held by the long-vehicle prior (promoted, side not seen yet)
+    held: list[bool] = field(default_factory=list)
+    #: per step: the contour's length reached by a truck-sized occupied length that reaches
+    #: farther than the spans of its own detections (measured end-on)
+    occupied: list[bool] = field(default_factory=list)
     det_index: list[np.ndarray] = field(default_factory=list)
     det_step: list[np.ndarray] = field(default_factory=list)
 
@@ -161,6 +175,7 @@ class Tracker:
         self.done: list[Track] = []
         self.next_id = 0
         self.frame = -1
+        self._corridor: np.ndarray | None = None
         self.t = 0.0
 
     # ---------------------------------------------------------------------------------------
@@ -248,10 +263,8 @@ class Tracker:
     def _large(self) -> np.ndarray:
         """(T,) tracks whose contour is large (truck-like): length >= large_length or
         width >= large_width (from the basis radii on the axes)."""
-        f = self.x[:, N_KIN:]
-        half = self.gp.n // 2
-        return ((f[:, 0] + f[:, half] >= self.cfg.large_length)
-                | (f[:, half // 2] + f[:, half + half // 2] >= self.cfg.large_width))
+        length, width = contour_length_width(self.x)
+        return (length >= self.cfg.large_length) | (width >= self.cfg.large_width)
 
     def _associate(self, det: _Frame) -> tuple[np.ndarray, np.ndarray]:
         """Owner track index per detection (-1: none) and its radial excess (m) about that
@@ -264,6 +277,7 @@ class Tracker:
         range rate at that point by more than gate_doppler + 3 sigma_v (m/s) is outside the
         gate too: vehicles passing each other in opposite directions stay apart."""
         z = det.z
+        self._corridor = None
         if not len(self.recs) or not len(z):
             return np.full(len(z), -1, dtype=np.int64), np.zeros(len(z))
         cfg = self.cfg
@@ -285,6 +299,9 @@ class Tracker:
             far[ti, di] |= bad
             reach[ti[bad], di[bad]] = False
         ex[far] = np.inf
+        #: (T, D) detections beside a track beyond its gate lengthwise, up to chain_reach
+        #: (Doppler-consistent), for :meth:`_occupied_length`
+        self._corridor = reach
         owner = np.argmin(ex, axis=0)
         best = ex[owner, np.arange(len(z))]
         owner = np.where(np.isfinite(best), owner, -1)
@@ -500,10 +517,8 @@ class Tracker:
         if not len(updated) or cfg.long_length <= 0.0:
             return
         x = self.x[updated]
-        f = x[:, N_KIN:]
-        n = self.gp.n
-        q = n // 4
-        length, width = f[:, 0] + f[:, 2 * q], f[:, q] + f[:, 3 * q]
+        q = self.gp.n // 4
+        length, width = contour_length_width(x)
         iw = N_KIN + np.array([q, 3 * q])
         sd_w = np.sqrt(np.maximum(self.P[updated][:, iw][:, :, iw].sum(axis=(1, 2)), 0.0))
         h = unit(x[:, YAW])
@@ -553,7 +568,9 @@ class Tracker:
         Pa = P @ a                                                      # (T, n)
         s = Pa @ a + cfg.long_sigma_length**2                           # (T,)
         K = Pa / s[:, None]
-        target = np.maximum(cfg.long_length, [self.recs[i].span_length for i in tracks])
+        target = np.maximum(cfg.long_length, [max(self.recs[i].span_length,
+                                                   self.recs[i].occupied_length)
+                                               for i in tracks])
         self.x[tracks] += K * (target - self.x[tracks] @ a)[:, None]
         self.P[tracks] = P - K[:, :, None] * Pa[:, None, :]
 
@@ -563,8 +580,9 @@ class Tracker:
         keep the ``span_quantile`` of the recent ones as ``span_length`` and grow a contour
         shorter than it by more than ``span_margin`` by ``span_gain`` of the shortfall,
         towards the end beyond which the detections reach farther (centre moved by half the
-        growth, radii to the rectangle of the new length). Sensor-aware model only (the
-        plain model has no extent rows to hold the seen end)."""
+        growth, radii to the rectangle of the new length). The occupied length of
+        :meth:`_occupied_length` grows a contour the same way, away from the end seen.
+        Sensor-aware model only (the plain model has no extent rows to hold the seen end)."""
         cfg = self.cfg
         if cfg.span_history <= 0 or not len(updated) or cfg.measurement_model != "sensor-aware":
             return
@@ -572,31 +590,78 @@ class Tracker:
         q = self.gp.n // 4
         sig_az = np.deg2rad(cfg.sigma_azimuth_deg)
         for i in updated:
-            z = det.z[owner == i]
-            if len(z) < cfg.extent_min_points:
-                continue
             rec, x = self.recs[i], self.x[i]
             h = unit(np.asarray(x[YAW]))
-            lo = (z - x[[X, Y]]) @ h
-            los = z - sensor
-            r = np.maximum(np.linalg.norm(los, axis=1), 1e-6)
-            cos_a = np.abs(los @ h) / r
-            noise = float(np.median(np.hypot(cfg.sigma_range * cos_a, sig_az * r
-                                             * np.sqrt(np.maximum(1.0 - cos_a**2, 0.0)))))
-            rec.spans.append(float(np.ptp(lo)) - 2.0 * noise)
-            del rec.spans[:-cfg.span_history]
-            rec.span_length = float(np.quantile(rec.spans, cfg.span_quantile))
             f = x[N_KIN:]
             length, width = f[0] + f[2 * q], f[q] + f[3 * q]
-            short = rec.span_length - length
+            end = self._occupied_length(rec, det, owner, i)
+            short_occ = rec.occupied_length - length if end else -np.inf
+            z = det.z[owner == i]
+            short = -np.inf
+            if len(z) >= cfg.extent_min_points:
+                lo = (z - x[[X, Y]]) @ h
+                los = z - sensor
+                r = np.maximum(np.linalg.norm(los, axis=1), 1e-6)
+                cos_a = np.abs(los @ h) / r
+                noise = float(np.median(np.hypot(cfg.sigma_range * cos_a, sig_az * r
+                                                 * np.sqrt(np.maximum(1.0 - cos_a**2, 0.0)))))
+                rec.spans.append(float(np.ptp(lo)) - 2.0 * noise)
+                del rec.spans[:-cfg.span_history]
+                rec.span_length = float(np.quantile(rec.spans, cfg.span_quantile))
+                short = rec.span_length - length
+                beyond_front, beyond_rear = lo.max() - f[0], -lo.min() - f[2 * q]
+                direction = h if beyond_front >= beyond_rear else -h
+            # the occupied length takes over only where it reaches farther than the spans of
+            # the track's own detections (its corridor holds more of the vehicle)
+            if short_occ > short and (rec.occupied_length
+                                      > rec.span_length + cfg.span_margin):
+                short, direction = short_occ, -end * h
             if short <= cfg.span_margin:
                 continue
             grow = cfg.span_gain * short
-            beyond_front, beyond_rear = lo.max() - f[0], -lo.min() - f[2 * q]
-            direction = h if beyond_front >= beyond_rear else -h
             self.x[i, [X, Y]] += 0.5 * grow * direction
             self.x[i, N_KIN:] += (rectangle_radius(self.gp.angles, length + grow, width)
                                   - rectangle_radius(self.gp.angles, length, width))
+
+    def _occupied_length(self, rec: _Record, det: _Frame, owner: np.ndarray, i: int) -> int:
+        """Occupied length of track i while one end of its vehicle faces the sensor (the
+        sensor beyond its front or rear: the length is unobservable in one frame, a truck's
+        long side shows at grazing incidence with a few returns, most of them outside the
+        gate of a car-sized contour). The distances (m) behind the seen end of its detections
+        and of the Doppler-consistent detections in its lengthwise corridor (beside the
+        contour, up to ``chain_reach`` beyond its ends; free or held by another track, e.g.
+        a second track on a truck's other end; not those in the blind range) are kept for
+        ``span_history`` end-on updates; pooled, they fill the vehicle's side densely, and
+        the occupied length is where the sorted distances first leave a gap wider than
+        ``occupancy_gap`` (a following vehicle leaves an empty band that no frame fills),
+        less its last ``occupancy_min_points`` detections (``rec.occupied_length``: reached
+        by that many; 0 without). End-on: the sensor beyond the front or rear and sin(angle
+        between the line of sight and the heading) at most ``occupancy_max_incidence``
+        (there the lengthwise position is the precise range). Returns the end seen (+1
+        front, -1 rear) or 0 (not end-on, or off)."""
+        cfg = self.cfg
+        if cfg.occupancy_gap <= 0.0 or self._corridor is None:
+            return 0
+        x = self.x[i]
+        c, h = x[[X, Y]], unit(np.asarray(x[YAW]))
+        front, rear = x[N_KIN], x[N_KIN + self.gp.n // 2]
+        rel = self.fov.sensor - c
+        s_lo = float(rel @ h)
+        end = 1 if s_lo > front else (-1 if s_lo < -rear else 0)
+        # sin of the angle between the line of sight and the heading (the side's incidence)
+        if not end or abs(rel[0] * h[1] - rel[1] * h[0]) > (
+                cfg.occupancy_max_incidence * float(np.linalg.norm(rel))):
+            return 0
+        lo = (det.z[(owner == i) | (self._corridor[i] & (owner != -2))] - c) @ h
+        rec.occupancy.append((end, front - lo if end > 0 else lo + rear))
+        del rec.occupancy[:-cfg.span_history]
+        d = np.concatenate([[0.0]] + [v for e, v in rec.occupancy if e == end])
+        d = np.sort(d[d >= 0.0])
+        gap = np.flatnonzero(np.diff(d) > cfg.occupancy_gap)
+        occupied = d[: gap[0] + 1] if len(gap) else d
+        k = cfg.occupancy_min_points
+        rec.occupied_length = float(occupied[-k]) if len(occupied) > k else 0.0
+        return end
 
     def _plausible(self, x: np.ndarray) -> np.ndarray:
         """States (T, n) clipped to road-vehicle limits: 0 <= v <= max_speed, |a| <= max_accel,
@@ -613,9 +678,17 @@ class Tracker:
         store = self.cfg.store_covariances
         xs = self.x.copy()                          # one copy per frame, rows per track
         Ps = self.P.copy() if store else None
+        len_var = length_variance(self.P)
+        length = contour_length_width(xs)[0]
         for i, rec in enumerate(self.recs):
             rec.t.append(t)
             rec.states.append(xs[i])
+            rec.len_var.append(float(len_var[i]))
+            rec.held.append(rec.long and rec.side_hits < self.cfg.long_side_updates)
+            occ = rec.occupied_length
+            rec.occupied.append(occ >= self.cfg.large_length
+                                and rec.span_length + self.cfg.span_margin < occ
+                                <= length[i] + self.cfg.span_margin)
             if Ps is not None:
                 rec.covs.append(Ps[i])
         for i in updated:
@@ -676,6 +749,9 @@ class Tracker:
         self.next_id += 1
         rec.t.append(self.t)
         rec.states.append(x0.copy())
+        rec.len_var.append(float(length_variance(P0)))
+        rec.held.append(False)
+        rec.occupied.append(False)
         if cfg.store_covariances:
             rec.covs.append(P0.copy())
         rec.det_index.append(det.index[k])
@@ -739,7 +815,10 @@ class Tracker:
 
     def _to_track(self, rec: _Record) -> Track:
         n = rec.last_update_step + 1
-        states = np.asarray(rec.states[:n])
+        states = retrodict_length(np.asarray(rec.states[:n]), np.sqrt(rec.len_var[:n]),
+                                  self.fov.sensor, self.cfg.retrodict_window,
+                                  self.cfg.retrodict_max_sd, np.asarray(rec.held[:n]),
+                                  np.asarray(rec.occupied[:n]))
         return Track(
             id=rec.id,
             t=np.asarray(rec.t[:n]),
