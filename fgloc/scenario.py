@@ -171,7 +171,8 @@ def lane_lines(lanelets: list[Lanelet], step: float,
     (the "centre" lane model of :mod:`fgloc.map.lane_models`). A lanelet of the list that starts
     (ends) where a right-half lane ends (starts) -- a junction lanelet leading into or out of a
     two-way street -- bends its line linearly over its length from (to) that lane's end, so the
-    lane model has no jump there.
+    lane model has no jump there; the backward line of a narrower two-way lanelet bends into
+    the lanes of its own direction the same way.
     """
     halves = [ll.keeps_right(two_way_min_width) for ll in lanelets]
     ends: list[tuple[np.ndarray, np.ndarray]] = []   # (first point, last point) of every lane
@@ -186,12 +187,17 @@ def lane_lines(lanelets: list[Lanelet], step: float,
         if half:
             out += [(ll, ll.line_at(0.25, n), False), (ll, ll.line_at(0.75, n)[::-1], True)]
             continue
-        start = _share_on(ll.left[0, :2], ll.right[0, :2], [e[1] for e in ends])
-        end = _share_on(ll.left[-1, :2], ll.right[-1, :2], [e[0] for e in ends])
-        line = ll.line_at(np.linspace(start, end, n), n)
-        out.append((ll, line, False))
+        starts, stops = [e[0] for e in ends], [e[1] for e in ends]
+        # forward: from a lane that ends on the start bound, into one that starts on the end
+        # bound; backward (a two-way lanelet): from a lane ending on the end bound into one
+        # starting on the start bound (the other direction's lanes of the streets around)
+        first = _share_on(ll.left[0, :2], ll.right[0, :2], stops)
+        last = _share_on(ll.left[-1, :2], ll.right[-1, :2], starts)
+        out.append((ll, ll.line_at(np.linspace(first, last, n), n), False))
         if ll.two_way:
-            out.append((ll, line[::-1], True))
+            first = _share_on(ll.left[0, :2], ll.right[0, :2], starts)
+            last = _share_on(ll.left[-1, :2], ll.right[-1, :2], stops)
+            out.append((ll, ll.line_at(np.linspace(first, last, n), n)[::-1], True))
     return out
 
 

@@ -244,3 +244,28 @@ def test_the_tracks_choose_the_lane_model_of_their_traffic(traffic: str) -> None
     assert np.hypot(*err.mean(axis=0)) < 0.05
     other = next(f for f in fits if f.lanes != traffic)
     assert np.hypot(*(transform_points(other.T_fine, src.xy) - truth).mean(axis=0)) > 0.5
+
+
+def test_narrow_two_way_lanelet_bends_each_direction_into_its_own_lane() -> None:
+    """A narrow two-way lanelet (3 m, both ways on its centre line) ending on the start bound of
+    a wide two-way street (7 m, keep right): its forward line bends into the street's forward
+    lane (right half, y = -1.75), its backward line comes out of the street's backward lane
+    (left half, y = +1.75) -- where the simulator's inverted lanelets drive them."""
+    street = _street(2, (20.0, 0.0), 0.0, 40.0, 7.0, "no")
+    z = np.zeros((3, 1))
+    x = np.array([[0.0], [10.0], [20.0]])
+    # 3 m wide, widening to the street's whole start bound over its last 10 m (mean < 5 m)
+    link = Lanelet(1, np.hstack([x, [[1.5], [1.5], [3.5]], z]),
+                   np.hstack([x, [[-1.5], [-1.5], [-3.5]], z]), {"one_way": "no"})
+    assert not link.keeps_right()
+    lines = {(ll.id, back): c for ll, c, back in lane_lines([link, street], 1.0)}
+    fwd, back = lines[(1, False)], lines[(1, True)]
+    np.testing.assert_allclose(fwd[0], [0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(fwd[-1], lines[(2, False)][0], atol=1e-9)
+    np.testing.assert_allclose(back[0], lines[(2, True)][-1], atol=1e-9)
+    np.testing.assert_allclose(back[0], [20.0, 1.75], atol=1e-9)
+    np.testing.assert_allclose(back[-1], [0.0, 0.0], atol=1e-9)
+    assert back[-1, 0] < back[0, 0]                 # driven against the lanelet's direction
+    # the centre model: no halves, no bends, the centre line both ways
+    centre = {(ll.id, b): c for ll, c, b in lane_lines([link, street], 1.0, np.inf)}
+    np.testing.assert_allclose(centre[(1, True)][:, 1], 0.0, atol=1e-9)
