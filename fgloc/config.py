@@ -17,6 +17,7 @@ from typing import Any, TypeVar
 from fgloc.errors import InputError
 from fgloc.registration.config import FineConfig, SicpConfig
 from fgloc.registration.joint_config import JointConfig
+from fgloc.scenario import TWO_WAY_MIN_WIDTH
 from fgloc.smoothing.config import SmoothingConfig
 from fgloc.tracking.config import TrackingConfig
 
@@ -57,7 +58,7 @@ class MapConfig:
     its right half (lanelets at least ``two_way_min_width`` m wide), "centre" = the centre line
     both ways, "auto" = both as modes of the pose, chosen on the tracks' fit (or reported
     ambiguous) like the coarse stage's other modes."""
-    two_way_min_width: float = 5.0
+    two_way_min_width: float = TWO_WAY_MIN_WIDTH
     """Width (m) from which a two-way lanelet holds one lane per direction ("keep-right")."""
 
     def __post_init__(self) -> None:

@@ -7,6 +7,7 @@ coordinates, which are float32 in ``L`` (millimetre resolution over several kilo
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -144,8 +145,8 @@ class Lanelet:
 
     @property
     def two_way(self) -> bool:
-        """Both directions may drive it (tag ``one_way`` = no / false)."""
-        return self.attributes.get("one_way", "yes").strip().lower() in ("no", "false")
+        """Both directions may drive it (:func:`is_two_way` of its tags)."""
+        return is_two_way(self.attributes)
 
     def width(self) -> float:
         """Mean distance (m) between the arc-length-resampled bounds."""
@@ -155,6 +156,11 @@ class Lanelet:
     def keeps_right(self, two_way_min_width: float = TWO_WAY_MIN_WIDTH) -> bool:
         """A two-way lanelet wide enough for one lane per direction."""
         return self.two_way and self.width() >= two_way_min_width
+
+
+def is_two_way(tags: Mapping[str, str]) -> bool:
+    """Whether a lanelet's tags let both directions drive it (``one_way`` = no / false)."""
+    return tags.get("one_way", "yes").strip().lower() in ("no", "false")
 
 
 def lane_lines(lanelets: list[Lanelet], step: float,
@@ -181,13 +187,13 @@ def lane_lines(lanelets: list[Lanelet], step: float,
             for share in (0.25, 0.75):
                 line = ll.line_at(share, 2)
                 ends.append((line[0], line[-1]) if share == 0.25 else (line[-1], line[0]))
+    starts, stops = [e[0] for e in ends], [e[1] for e in ends]
     out = []
     for ll, half in zip(lanelets, halves):
         n = ll.samples(step)
         if half:
             out += [(ll, ll.line_at(0.25, n), False), (ll, ll.line_at(0.75, n)[::-1], True)]
             continue
-        starts, stops = [e[0] for e in ends], [e[1] for e in ends]
         # forward: from a lane that ends on the start bound, into one that starts on the end
         # bound; backward (a two-way lanelet): from a lane ending on the end bound into one
         # starting on the start bound (the other direction's lanes of the streets around)

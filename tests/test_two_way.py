@@ -229,8 +229,9 @@ def test_the_tracks_choose_the_lane_model_of_their_traffic(traffic: str) -> None
     fits = []
     for model in MODELS:
         cfg.map.two_way_lanes = model
+        width = min_width(model, cfg.map.two_way_min_width)
         targets = SemanticTargets.build(*lane_centre_points(
-            scn, target, cfg.fine.lane_sample_step, two_way_min_width=min_width(model, cfg.map)))
+            scn, target, cfg.fine.lane_sample_step, two_way_min_width=width))
         res = sicp(src.xy, src.label, targets, None, np.eye(3), fine_sicp_config(cfg),
                    source_direction=src.direction)
         T_local = np.eye(4)

@@ -65,7 +65,7 @@ from fgloc.config import CoarseConfig, Config, MapConfig
 from fgloc.errors import LocalizationError
 from fgloc.geo import pose_from_se3, rot_from_ypr, rot_z, se2, se3, wrap_angle, ypr_from_rot
 from fgloc.map import TargetCloud, approx_position_local, build_target_cloud, check_inside_als
-from fgloc.map.lane_models import KEEP_RIGHT, lane_models, min_width
+from fgloc.map.lane_models import KEEP_RIGHT, lane_models, min_width, other_model_note
 from fgloc.progress import Timer
 from fgloc.scenario import Scenario
 
@@ -254,8 +254,7 @@ def mode_warning(modes: list[CoarseMode]) -> list[str]:
     best = modes[0]
     parts = [f"{np.hypot(*(m.pose2d[:2] - best.pose2d[:2])):.1f} m / "
              f"{np.rad2deg(abs(wrap_angle(m.pose2d[2] - best.pose2d[2]))):.1f} deg "
-             f"({m.lane_score:.3f} vs {best.lane_score:.3f}"
-             f"{'' if m.lanes == best.lanes else ', ' + m.lanes + ' lanes'})"
+             f"({m.lane_score:.3f} vs {best.lane_score:.3f}{other_model_note(m.lanes, best.lanes)})"
              for m in modes[1:]]
     return [f"coarse: {len(modes)} poses fit the lanes almost as well: the best and "
             f"{'; '.join(parts)} away; the later stages compare them (give "
@@ -376,10 +375,10 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
     t = time.perf_counter()
     pad = 2.0 * (cfg.position_search_radius + cfg.score_tau)
     road = RoadModel.build(target, cfg.raster_cell, pad, cfg.score_tau)
-    used = set(np.unique(target.lanelet_id).tolist())
-    lanelets = [ll for ll in scn.lanelets.lanelets if ll.id in used]
+    lanelets = target.lanelets(scn.lanelets)
     map_cfg = map_cfg or MapConfig()
-    models = {m: LaneCentres.build(lanelets, cfg.lane_sample_step, min_width(m, map_cfg))
+    models = {m: LaneCentres.build(lanelets, cfg.lane_sample_step,
+                                   min_width(m, map_cfg.two_way_min_width))
               for m in lane_models(lanelets, map_cfg)}
     centre = approx_position_local(scn)
     height = scn.sensor.approx_height

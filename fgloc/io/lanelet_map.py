@@ -27,7 +27,7 @@ from scipy.spatial import cKDTree
 from fgloc.errors import InputError
 from fgloc.geo import LocalFrame, horizontal_crs, natural_utm_zone, transformer, utm_zone
 from fgloc.io.atomic import write_text_atomic
-from fgloc.scenario import AlsCloud, Lanelet, LaneletMap, MapArea, MapSettings
+from fgloc.scenario import AlsCloud, Lanelet, LaneletMap, MapArea, MapSettings, is_two_way
 
 log = logging.getLogger(__name__)
 
@@ -319,8 +319,7 @@ def _directed_successors(lmap: object, rules: object | None, drivable: set[int])
         for ll in lanelets:
             left, right = ll.leftBound, ll.rightBound
             ends[(ll.id, False)] = ((left[0].id, right[0].id), (left[-1].id, right[-1].id))
-            attrs = {k: str(v) for k, v in ll.attributes.items()}
-            if Lanelet(int(ll.id), np.empty((0, 3)), np.empty((0, 3)), attrs).two_way:
+            if is_two_way({k: str(v) for k, v in ll.attributes.items()}):
                 ends[(ll.id, True)] = ((right[-1].id, left[-1].id), (right[0].id, left[0].id))
         starts: dict[tuple[int, int], list[Directed]] = {}
         for key, (start, _) in ends.items():

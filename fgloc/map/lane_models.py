@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 
 from fgloc.config import MapConfig
-from fgloc.scenario import Lanelet
+from fgloc.scenario import TWO_WAY_MIN_WIDTH, Lanelet
 
 KEEP_RIGHT = "keep-right"
 CENTRE = "centre"
@@ -29,12 +29,19 @@ CENTRE = "centre"
 MODELS: tuple[str, ...] = (KEEP_RIGHT, CENTRE)
 
 
-def min_width(model: str, cfg: MapConfig) -> float:
+def min_width(model: str, keep_right_width: float = TWO_WAY_MIN_WIDTH) -> float:
     """The ``two_way_min_width`` (m) of :func:`fgloc.scenario.lane_lines` that gives ``model``:
-    ``[map] two_way_min_width`` for "keep-right", infinity for "centre"."""
+    ``keep_right_width`` (the localization passes ``[map] two_way_min_width``) for
+    "keep-right", infinity for "centre"."""
     if model not in MODELS:
         raise ValueError(f"unknown lane model {model!r}; expected one of {', '.join(MODELS)}")
-    return cfg.two_way_min_width if model == KEEP_RIGHT else math.inf
+    return keep_right_width if model == KEEP_RIGHT else math.inf
+
+
+def other_model_note(model: str, reference: str) -> str:
+    """``", <model> lanes"`` when ``model`` differs from ``reference`` (for warnings naming
+    modes against the best one), else empty."""
+    return "" if model == reference else f", {model} lanes"
 
 
 def lane_models(lanelets: list[Lanelet], cfg: MapConfig) -> tuple[str, ...]:

@@ -62,6 +62,11 @@ class TargetCloud:
     def __len__(self) -> int:
         return int(self.xyz.shape[0])
 
+    def lanelets(self, lanelet_map: LaneletMap) -> list[Lanelet]:
+        """The lanelets of ``lanelet_map`` that hold points of this cloud, in map order."""
+        used = set(np.unique(self.lanelet_id).tolist())
+        return [ll for ll in lanelet_map.lanelets if ll.id in used]
+
     def of_label(self, code: int) -> np.ndarray:
         """(M, 3) points carrying label ``code``."""
         return self.xyz[self.label == code]

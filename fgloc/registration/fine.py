@@ -58,17 +58,11 @@ def lane_centre_points(
     (:func:`fgloc.map.lane_models.min_width`)."""
     from fgloc.coarse import LaneCentres
 
-    lanelets = target_lanelets(scn, target)
+    lanelets = target.lanelets(scn.lanelets)
     lanes = LaneCentres.build(lanelets, step, two_way_min_width)
     xy = lanes.xy if towards is None else lanes.towards(towards, offset).xy
     direction = np.column_stack([lanes.normal[:, 1], -lanes.normal[:, 0]])
     return xy, lane_labels(target, lanelets, lanes), direction
-
-
-def target_lanelets(scn: Scenario, target: TargetCloud) -> list[Lanelet]:
-    """The lanelets of the scenario's map that hold points of ``target``, in map order."""
-    used = set(np.unique(target.lanelet_id).tolist())
-    return [ll for ll in scn.lanelets.lanelets if ll.id in used]
 
 
 def lane_labels(target: TargetCloud, lanelets: list[Lanelet], lanes: LaneCentres) -> np.ndarray:
@@ -90,7 +84,7 @@ def fine_targets(
     kind, step = cfg.fine.target, cfg.fine.lane_sample_step
     if kind == "road-points":
         return SemanticTargets.build(target.xyz[:, :2], target.label)
-    width = min_width(lanes, cfg.map)
+    width = min_width(lanes, cfg.map.two_way_min_width)
     if kind == "lane-centres":
         return SemanticTargets.build(*lane_centre_points(scn, target, step,
                                                          two_way_min_width=width))

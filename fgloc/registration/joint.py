@@ -134,9 +134,9 @@ class LaneLines:
         sampled every about ``step`` m and shifted ``offset`` m towards ``sensor_xy`` (2,) (0:
         the centre lines); ``lane`` is the index of each sample's lane line."""
         from fgloc.coarse import LaneCentres
-        from fgloc.registration.fine import lane_labels, target_lanelets
+        from fgloc.registration.fine import lane_labels
 
-        lanelets = target_lanelets(scn, target)
+        lanelets = target.lanelets(scn.lanelets)
         lanes = LaneCentres.build(lanelets, step, two_way_min_width)
         side = np.sign(np.einsum("ij,ij->i", np.asarray(sensor_xy) - lanes.xy, lanes.normal))
         return cls.of(lanes.xy + (offset * side)[:, None] * lanes.normal, lanes.normal,
@@ -802,7 +802,7 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
                 start.converged, np.eye(3), start.z_std)]:
             mode_sensor = transform_points(mode.start, sensor_c[None])[0]
             lines = LaneLines.build(scn, target, cfg.fine.lane_sample_step, mode_sensor, offset,
-                                    min_width(mode.lanes, cfg.map))
+                                    min_width(mode.lanes, cfg.map.two_way_min_width))
             T0 = mode.T_fine if cfg.joint.start == "sicp" else mode.start
             jr = joint_refine(subset, det_xy, sensor_c, lines, T0, cfg, trusted, rates)
             cov = sensor_covariance(jr.covariance, jr.T, sensor_c)

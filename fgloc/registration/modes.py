@@ -38,7 +38,7 @@ import numpy as np
 
 from fgloc.config import CoarseConfig
 from fgloc.geo import LocalFrame, pose_from_se3, se2_to_se3, transform_points, wrap_angle
-from fgloc.map.lane_models import KEEP_RIGHT
+from fgloc.map.lane_models import KEEP_RIGHT, other_model_note
 from fgloc.registration.sicp import ALL, SemanticTargets
 from fgloc.registration.source import SourceCloud
 
@@ -103,9 +103,8 @@ def track_costs(src: SourceCloud, targets: SemanticTargets, T: np.ndarray, scale
         sel = src.label == code
         key = int(code) if targets.count(int(code)) else ALL
         if targets.count(key):
-            found = targets.nearest(key, xy[sel], scale,
-                                    None if heading is None else heading[sel], min_cos)[0]
-            d[sel] = np.minimum(found, scale)
+            d[sel] = targets.nearest(key, xy[sel], scale,
+                                     None if heading is None else heading[sel], min_cos)[0]
     rho = np.minimum(d, scale) ** 2 / scale**2
     _, inv = np.unique(src.track_id, return_inverse=True)
     return np.bincount(inv.reshape(-1), weights=rho)
@@ -193,9 +192,7 @@ class ModeChoice:
         c = self.best.sensor
         parts = [f"{np.hypot(*(self.fits[k].sensor[:2] - c[:2])):.1f} m / "
                  f"{np.rad2deg(abs(wrap_angle(self.fits[k].sensor[2] - c[2]))):.1f} deg "
-                 f"(z {self.z[k]:.1f}"
-                 f"{'' if self.fits[k].lanes == self.best.lanes else ', ' + self.fits[k].lanes}"
-                 f"{' lanes' if self.fits[k].lanes != self.best.lanes else ''})"
+                 f"(z {self.z[k]:.1f}{other_model_note(self.fits[k].lanes, self.best.lanes)})"
                  for k in self.tied[1:]]
         return [f"{method}: ambiguous pose: {len(self.tied)} modes fit the data alike (the "
                 f"reported one and {'; '.join(parts)} away); the covariance covers them all"]

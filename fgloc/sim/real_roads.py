@@ -14,7 +14,6 @@ buildings and vegetation come from the map's areas.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -22,7 +21,15 @@ from scipy.cluster.hierarchy import fcluster, linkage
 
 from fgloc.labels import junction_movements
 from fgloc.map import crop_to_lanelets, points_in_polygon
-from fgloc.scenario import Lanelet, LaneletMap, MapArea, lane_lines, resample_polyline
+from fgloc.map.lane_models import min_width
+from fgloc.scenario import (
+    TWO_WAY_MIN_WIDTH,
+    Lanelet,
+    LaneletMap,
+    MapArea,
+    lane_lines,
+    resample_polyline,
+)
 from fgloc.sim.config import AlsSimConfig
 from fgloc.sim.paths import Prim
 from fgloc.sim.roads import LanePiece, RoadNetwork
@@ -34,12 +41,6 @@ ROUTE_STEP = 1.0
 SMOOTH_HALF_WINDOW = 2
 #: how far (m) beside a bound the curb test looks for another drivable lanelet
 CURB_PROBE = 1.0
-#: a two-way lanelet (``one_way`` = no) at least this wide (m) is a two-way street: with
-#: ``two_way_traffic = "keep-right"`` vehicles drive the centre of its right half (right-hand
-#: traffic), else (and on narrower ones) its centre line
-KEEP_RIGHT_MIN_WIDTH = 5.0
-#: ``two_way_traffic`` setting -> the ``two_way_min_width`` of :func:`fgloc.scenario.lane_lines`
-TWO_WAY_MIN_WIDTH = {"keep-right": KEEP_RIGHT_MIN_WIDTH, "centre": math.inf}
 
 
 @dataclass
@@ -70,7 +71,7 @@ def directed_lanelets(lmap: LaneletMap) -> DirectedLanelets:
     """The map's lanelets per driving direction (:class:`DirectedLanelets`). A map without
     :attr:`LaneletMap.directed_successors` (built in memory) is driven in the lanelets' own
     direction along :attr:`LaneletMap.successors`."""
-    directed = getattr(lmap, "directed_successors", None) or {
+    directed = lmap.directed_successors or {
         (a, False): tuple((b, False) for b in succ) for a, succ in lmap.successors.items()}
     by_id = {ll.id: ll for ll in lmap.lanelets}
     inverted = sorted({k for k in (*directed, *(x for v in directed.values() for x in v))
@@ -146,7 +147,7 @@ def junction_routes(lmap: LaneletMap, junction: Junction, reach: float) -> list[
 
 
 def _polyline(lanelets: list[Lanelet], attr: str,
-              two_way_min_width: float = KEEP_RIGHT_MIN_WIDTH) -> np.ndarray:
+              two_way_min_width: float = TWO_WAY_MIN_WIDTH) -> np.ndarray:
     """(n, 2) concatenation of the lanelets' lanes in their direction (``attr="centre"``: the
     centre line, the right half's on a two-way lanelet at least ``two_way_min_width`` m wide,
     :func:`fgloc.scenario.lane_lines`) or bounds, resampled every ROUTE_STEP m, kinks at the
@@ -231,9 +232,10 @@ def build_map_network(lmap: LaneletMap, routes: list[list[Lanelet]], centre: np.
                       radius: float, two_way_traffic: str = "keep-right") -> MapRoadNetwork:
     """Route pieces for ``routes`` (lanelets in driving order, inverted ones as
     :func:`directed_lanelets` makes them) driven as ``two_way_traffic`` says
-    (:data:`TWO_WAY_MIN_WIDTH`), plus curb pieces of the drivable lanelets of ``lmap`` within
-    ``radius`` m of ``centre`` (2,)."""
-    width = TWO_WAY_MIN_WIDTH[two_way_traffic]
+    (:func:`fgloc.map.lane_models.min_width`: a two-way lanelet at least
+    :data:`fgloc.scenario.TWO_WAY_MIN_WIDTH` wide keeps right), plus curb pieces of the
+    drivable lanelets of ``lmap`` within ``radius`` m of ``centre`` (2,)."""
+    width = min_width(two_way_traffic)
     pieces = [piece_from_polyline(k, _polyline(r, "centre", width), _mean_width(r, width))
               for k, r in enumerate(routes)]
     near = [ll for ll in lmap.lanelets
