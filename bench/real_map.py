@@ -105,7 +105,7 @@ def table(sites: list[tuple[float, float]], seeds: list[int], labels: list[str],
     def row(kind: str, name: str, mode: str, m: str, e: np.ndarray) -> str:
         return (f"| {kind} | {name} | {mode} | {m} | {e[:, 0].mean():.3f} | "
                 f"{e[:, 0].max():.3f} | {e[:, 1].mean():.3f} | {e[:, 1].max():.3f} | "
-                f"{int(e[:, 2].sum()) if e.shape[1] > 2 else 0}/{len(e)} |")
+                f"{int(e[:, 2].sum())}/{len(e)} |")
 
     kinds = list(dict.fromkeys(kind for kind, *_ in errors))
     for kind in kinds:

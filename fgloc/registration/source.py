@@ -115,11 +115,12 @@ def voxel_per_label(
     xy: np.ndarray, label: np.ndarray, voxel: float, values: np.ndarray | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Average points (N, 2) per occupied (label, voxel) cell of a grid of edge ``voxel`` m
-    anchored at the origin. Returns the (M, 2) centroids (with ``values`` (N, 2): the cells'
-    means of those instead), their (M,) labels and the (M,) index of the first input point of
-    each cell."""
+    anchored at the origin. Returns the (M, 2) centroids (with ``values`` (N, D): the cells'
+    (M, D) means of those instead), their (M,) labels and the (M,) index of the first input
+    point of each cell."""
     if xy.shape[0] == 0:
-        return np.zeros((0, 2)), label[:0], np.zeros(0, dtype=np.int64)
+        width = 2 if values is None else values.shape[1]
+        return np.zeros((0, width)), label[:0], np.zeros(0, dtype=np.int64)
     cell = np.floor(xy / voxel).astype(np.int64)
     cell -= cell.min(axis=0)
     span = cell.max(axis=0) + 1
@@ -128,7 +129,7 @@ def voxel_per_label(
     inv = inv.reshape(-1)
     n = np.bincount(inv).astype(float)
     v = xy if values is None else values
-    cent = np.column_stack([np.bincount(inv, weights=v[:, k]) / n for k in range(2)])
+    cent = np.column_stack([np.bincount(inv, weights=v[:, k]) / n for k in range(v.shape[1])])
     return cent, label[first], first
 
 
@@ -156,9 +157,9 @@ def build_source_cloud(
         [np.full(len(p[1]), tracks.tracks[i].id, dtype=np.int64) for i, p in zip(used, parts)]
         + [np.zeros(0, np.int64)]
     )
-    cent, lab, first = voxel_per_label(xy, label, voxel)
     unit = np.column_stack([np.cos(heading), np.sin(heading)])
-    direction, _, _ = voxel_per_label(xy, label, voxel, unit)
+    means, lab, first = voxel_per_label(xy, label, voxel, np.hstack([xy, unit]))
+    cent, direction = means[:, :2], means[:, 2:]
     norm = np.linalg.norm(direction, axis=1, keepdims=True)
     direction = np.where(norm > 1e-6, direction / np.maximum(norm, 1e-12), unit[first])
     return SourceCloud(cent, lab, track_id[first], fine.source, int(used.size), len(tracks),
