@@ -708,6 +708,9 @@ class Tracker:
             return
         lab = cluster_labels(det.z[idx], cfg.cluster_eps, cfg.cluster_min_points)
         sensor = self.fov.sensor
+        # free detections in the range withheld from births (next to the blind range)
+        withheld = idx[np.linalg.norm(det.z[idx] - sensor, axis=1)
+                       < self.fov.min_range + cfg.birth_blind_margin]
         for c in range(int(lab.max(initial=-1)) + 1):
             k = idx[lab == c]
             z, dop, rng = det.z[k], det.doppler[k], det.rng[k]
@@ -726,16 +729,49 @@ class Tracker:
             if yaw is None:
                 yaw = float(np.arctan2(los[1], los[0]) + (0.0 if md > 0 else np.pi))
                 yaw_sigma = LOS_YAW_SIGMA
-            self._birth(det, k, z, dop, rng, yaw, yaw_sigma, zone)
+            near = withheld[~np.isin(withheld, k)]
+            cut = self._near_end_cut(z, md, yaw, det.z[near], det.doppler[near])
+            self._birth(det, k, z, dop, rng, yaw, yaw_sigma, zone, cut)
+
+    def _near_end_cut(self, z: np.ndarray, doppler: float, yaw: float, near_z: np.ndarray,
+                      near_doppler: np.ndarray) -> bool:
+        """Whether a new track's cluster z (k, 2) (mean Doppler ``doppler``, m/s; heading
+        prior ``yaw``, rad) may continue towards the sensor into the range withheld from
+        births: seen end-on (the sensor beyond one of its ends along the heading), a free
+        detection closer than ``min_range + birth_blind_margin`` (``near_z`` (m, 2), Doppler
+        ``near_doppler`` (m,)) of the same Doppler sign lies in its lengthwise corridor (its
+        lateral extent grown by ``cluster_eps``) beyond its sensor-side end, within
+        ``mean_length + chain_reach`` (m; the longest the association grows a track to) of its
+        far end. A sparse vehicle leaving the blind range splits into clusters; the one
+        nearest the sensor is withheld and the far one's sensor-side end is not the
+        vehicle's."""
+        if not len(near_z):
+            return False
+        cfg = self.cfg
+        h = unit(np.asarray(yaw))
+        axes = np.stack([h, [-h[1], h[0]]])
+        q, qn, s = z @ axes.T, near_z @ axes.T, axes @ self.fov.sensor
+        lo, hi = q.min(axis=0), q.max(axis=0)
+        if lo[0] <= s[0] <= hi[0]:
+            return False
+        # lengthwise coordinate growing towards the sensor: the cluster spans [u0, u1]
+        toward = 1.0 if s[0] > hi[0] else -1.0
+        u, (u0, u1) = toward * qn[:, 0], sorted((toward * lo[0], toward * hi[0]))
+        inside = ((qn[:, 1] >= lo[1] - cfg.cluster_eps) & (qn[:, 1] <= hi[1] + cfg.cluster_eps)
+                  & (np.sign(near_doppler) == np.sign(doppler)))
+        return bool(np.any(inside & (u > u1) & (u - u0 <= cfg.mean_length + cfg.chain_reach)))
 
     def _birth(self, det: _Frame, k: np.ndarray, z: np.ndarray, dop: np.ndarray,
-               rng: np.ndarray, yaw: float, yaw_sigma: float, zone: int | None) -> None:
-        """A tentative track from the detections k (indices into the frame) z, dop, rng."""
+               rng: np.ndarray, yaw: float, yaw_sigma: float, zone: int | None,
+               near_end_cut: bool = False) -> None:
+        """A tentative track from the detections k (indices into the frame) z, dop, rng;
+        ``near_end_cut``: see :func:`fgloc.tracking.birth.initial_kinematics`."""
         cfg = self.cfg
         sensor = self.fov.sensor
         noise = max(cfg.sigma_range, np.deg2rad(cfg.sigma_azimuth_deg) * float(rng.mean()))
         centre, yaw, v, size = initial_kinematics(z, dop, rng, yaw, sensor, cfg.mean_length,
-                                                  cfg.mean_width, cfg.default_speed, noise)
+                                                  cfg.mean_width, cfg.default_speed, noise,
+                                                  near_end_cut)
         x0 = np.zeros(N_STATE)
         x0[[X, Y]] = centre
         x0[V], x0[YAW] = v, yaw

@@ -1,0 +1,72 @@
+"""A new track's first centre when the vehicle's near part is withheld from births (the range
+next to the blind range under the mast, ``[tracking] birth_blind_margin``), against a known
+vehicle: a car (a truck) driving away from the sensor out of that range, with sparse returns,
+splits into a cluster on its rear face (withheld) and a few returns at the front of its side."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fgloc.tracking.birth import BirthZones, FieldOfView, LaneHeadings
+from fgloc.tracking.config import TrackingConfig
+from fgloc.tracking.tracker import Tracker, _Frame
+
+SENSOR_HEIGHT = 6.0
+
+
+def _fov() -> FieldOfView:
+    """A sensor 6 m up at the origin looking along +x, 40 deg down: near blind range ~6 m."""
+    T = np.eye(4)
+    c, s = np.cos(np.deg2rad(40.0)), np.sin(np.deg2rad(40.0))
+    T[:3, :3] = [[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]]
+    T[2, 3] = SENSOR_HEIGHT
+    return FieldOfView.of(T, 120.0, 200.0, 30.0, TrackingConfig().reflection_height)
+
+
+def _first_frame(centre_x: float, length: float, rear: bool, rng: np.random.Generator
+                 ) -> tuple[_Frame, float]:
+    """Detections of a vehicle (length m, 1.8 m wide) centred at (centre_x, 0) driving away
+    along +x at 8 m/s: 12 on its rear face when ``rear`` and 4 on its right side within
+    1.2 m of its front; returns the frame and the true front (m)."""
+    front = centre_x + length / 2
+    side = np.column_stack([front - rng.uniform(0.0, 1.2, 4), np.full(4, -0.9)])
+    pts = [side]
+    if rear:
+        pts.append(np.column_stack([np.full(12, centre_x - length / 2),
+                                    rng.uniform(-0.9, 0.9, 12)]))
+    z = np.vstack(pts) + rng.normal(0.0, 0.05, (sum(len(p) for p in pts), 2))
+    rng3 = np.hypot(np.hypot(z[:, 0], z[:, 1]), SENSOR_HEIGHT - 0.8)
+    doppler = 8.0 * z[:, 0] / rng3
+    return _Frame(z, rng3, doppler, np.arange(len(z))), front
+
+
+@pytest.mark.parametrize("length", [4.5, 11.0])
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_birth_next_to_the_withheld_range_takes_the_seen_front(length: float,
+                                                               seed: int) -> None:
+    cfg = TrackingConfig()
+    fov = _fov()
+    edge = fov.min_range + cfg.birth_blind_margin          # births only beyond this range
+    rng = np.random.default_rng(seed)
+    # the rear face 1-2 m inside the withheld range, the front cluster beyond it
+    centre = edge - rng.uniform(1.0, 2.0) + length / 2
+    frame, front = _first_frame(centre, length, True, rng)
+    tracker = Tracker(cfg, fov, BirthZones.explicit([[centre, 0.0, 30.0, 0.0]]),
+                      LaneHeadings.of([]))
+    tracker.step(0.0, frame)
+    assert len(tracker.recs) == 1                          # the front cluster only
+    x = tracker.x[0]
+    # the box's far end at the front's detections: the centre half the (prior) length
+    # behind the front, not the prior length ahead of the cluster's near end (that put it
+    # 2.5-6.6 m ahead of the truth on the robustness matrix's far-sparse setting)
+    half = 0.5 * cfg.mean_length
+    assert abs(x[0] - (front - half)) < 0.6, (x[0], front - half)
+    # the same front cluster with nothing withheld behind it (a vehicle whose rear face is
+    # where its detections begin): the near end anchors the box as before
+    frame, _ = _first_frame(centre, length, False, rng)
+    alone = Tracker(cfg, fov, BirthZones.explicit([[centre, 0.0, 30.0, 0.0]]),
+                    LaneHeadings.of([]))
+    alone.step(0.0, frame)
+    near_end = float(frame.z[:, 0].min())
+    assert abs(alone.x[0, 0] - (near_end + half)) < 0.6
