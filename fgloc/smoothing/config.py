@@ -55,12 +55,11 @@ class SmoothingConfig:
     The joint registration keeps the car model for every track (its point rows take one
     contour model). 0 = off."""
     length_floor_sigma: float = 0.3
-    """Batch: the shortest filtered contour of a long-vehicle track (the length the tracker
-    measured over its history -- occupied length end-on, visible span of the side -- and
-    carried back to every step) is a floor under the smoothed length: a step whose contour
-    (front + rear radius) is shorter by d (m) adds 0.5 (d / length_floor_sigma)^2 to the cost
-    (:mod:`fgloc.smoothing.length_floor`; seen end-on the smoother's rows would shorten a
-    truck to its grazing side returns). 0 = off."""
+    """Batch: the occupied length the tracker measured behind a truck's seen end
+    (``Track.length_floor``; ``[tracking] occupancy_gap``) is a floor under the smoothed
+    length: a step whose contour (front + rear radius) is shorter by d (m) adds
+    0.5 (d / length_floor_sigma)^2 to the cost (:mod:`fgloc.smoothing.length_floor`; seen
+    end-on the smoother's rows would shorten the truck to its grazing side returns). 0 = off."""
     use_doppler: bool = True
     """Add range-rate rows to each measurement factor (the tracker's Doppler measurement,
     ``tracking.sigma_doppler``): they observe speed, heading and yaw rate, which the contour

@@ -59,7 +59,7 @@ from factors.track_system import sqrt_information
 from fgloc.geo import wrap_angle
 from fgloc.scenario import Scenario
 from fgloc.smoothing.config import SmoothingConfig
-from fgloc.smoothing.length_floor import FlooredTracks, length_floor_factor, track_length_floor
+from fgloc.smoothing.length_floor import FlooredTracks, length_floor_factor
 from fgloc.tracking.birth import FieldOfView
 from fgloc.tracking.config import TrackingConfig
 from fgloc.tracking.tracker import kappa_labels
@@ -254,12 +254,10 @@ class TrackModel:
         return P + _PRIOR_JITTER * np.eye(N_STATE)
 
     def length_floor(self, track: Track) -> float:
-        """Floor (m) under ``track``'s smoothed contour length: for the long model with
-        ``length_floor_sigma`` > 0 the shortest filtered length
-        (:func:`fgloc.smoothing.length_floor.track_length_floor`), else 0 (none)."""
-        if not self.long or self.smoothing.length_floor_sigma <= 0:
-            return 0.0
-        return track_length_floor(track)
+        """Floor (m) under ``track``'s smoothed contour length: the tracker's
+        ``track.length_floor`` (its occupied length) with ``length_floor_sigma`` > 0, else 0
+        (none; :mod:`fgloc.smoothing.length_floor`)."""
+        return float(track.length_floor) if self.smoothing.length_floor_sigma > 0 else 0.0
 
     def prior(self, key: int, track: Track, step: int = 0) -> gtsam.PriorFactorVector:
         """Prior on ``key``: :meth:`prior_mean` and :meth:`prior_covariance`."""

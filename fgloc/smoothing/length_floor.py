@@ -1,22 +1,18 @@
-"""The filter's length of a long vehicle as a floor under the batch smoother's length.
+"""The occupied length the tracker measured as a floor under the batch smoother's length.
 
 Seen end-on (a truck driving towards or away from the sensor) a vehicle's length is
 unobservable in any one frame: the smoother's measurement rows see the near face and a few
 grazing returns of the side, and its contour shrinks towards what they cover. The tracker
-measures that length over the track's history instead -- the occupied length of the
-detections pooled behind the seen end (``[tracking] occupancy_gap``), the visible span of the
-side (``span_history``) -- and carries the longest it measured back to every step of the
-finished track (:mod:`fgloc.tracking.retrodict`), so the shortest contour of a filtered track
-is a length the tracker measured (or its long-vehicle hypothesis), never the car-sized prior
-of a track that later grew.
+measures the length over the track's history instead: the occupied length of the detections
+pooled behind the seen end (``[tracking] occupancy_gap``; a lower bound: where those
+detections first leave a gap, less the last few), which it reports as ``Track.length_floor``
+(the largest that set the contour's length, 0 without).
 
-For the tracks of the long-vehicle model (:meth:`fgloc.smoothing.graph.TrackModels.is_long`)
-the batch smoother adds one one-sided row per (track, step): the contour length ``r_0 +
-r_{n/2}`` (front + rear radius, m) below that floor by ``d`` costs ``0.5 (d / sigma)^2``, above
-it nothing (``[smoothing] length_floor_sigma``). The smoother may still lengthen the vehicle
-(a side seen later), but it no longer shortens it below what the tracker measured. Cars keep
-their free length (their filter contour may be too long: two vehicles of a platoon
-momentarily in one contour, the noise of far returns).
+The batch smoother adds one one-sided row per (track, step) of a track with such a floor:
+the contour length ``r_0 + r_{n/2}`` (front + rear radius, m) below the floor by ``d`` costs
+``0.5 (d / sigma)^2``, above it nothing (``[smoothing] length_floor_sigma``). The smoother may
+still lengthen the vehicle (a side seen later) or shorten a contour the filter let grow beyond
+the vehicle, but not below what the tracker measured behind its seen end.
 """
 
 from __future__ import annotations
@@ -27,16 +23,10 @@ import gtsam
 import numpy as np
 
 from factors.track_system import NormalEquations, StackedTracks
-from fgloc.tracks import N_CONTOUR, N_KIN, N_STATE, Track, contour_length_width
+from fgloc.tracks import N_CONTOUR, N_KIN, N_STATE
 
 #: state indices of the front and rear radius (their sum is the contour's length)
 _FRONT, _REAR = N_KIN, N_KIN + N_CONTOUR // 2
-
-
-def track_length_floor(track: Track) -> float:
-    """The shortest contour length (m, front + rear radius) of ``track``'s filtered states
-    (0 for an empty track)."""
-    return float(contour_length_width(track.states)[0].min()) if len(track) else 0.0
 
 
 def floor_rows(x: np.ndarray, floor: np.ndarray, sigma: float

@@ -118,9 +118,10 @@ class _Record:
     len_var: list[float] = field(default_factory=list)
     #: per step: the length held by the long-vehicle prior (promoted, side not seen yet)
     held: list[bool] = field(default_factory=list)
-    #: per step: the contour's length reached by a truck-sized occupied length that reaches
-    #: farther than the spans of its own detections (measured end-on)
-    occupied: list[bool] = field(default_factory=list)
+    #: per step: the occupied length (m) where the contour's length is reached by a
+    #: truck-sized occupied length that reaches farther than the spans of its own detections
+    #: (measured end-on), else 0
+    occupied: list[float] = field(default_factory=list)
     det_index: list[np.ndarray] = field(default_factory=list)
     det_step: list[np.ndarray] = field(default_factory=list)
 
@@ -686,9 +687,10 @@ class Tracker:
             rec.len_var.append(float(len_var[i]))
             rec.held.append(rec.long and rec.side_hits < self.cfg.long_side_updates)
             occ = rec.occupied_length
-            rec.occupied.append(occ >= self.cfg.large_length
-                                and rec.span_length + self.cfg.span_margin < occ
-                                <= length[i] + self.cfg.span_margin)
+            reached = (occ >= self.cfg.large_length
+                       and rec.span_length + self.cfg.span_margin < occ
+                       <= length[i] + self.cfg.span_margin)
+            rec.occupied.append(occ if reached else 0.0)
             if Ps is not None:
                 rec.covs.append(Ps[i])
         for i in updated:
@@ -787,7 +789,7 @@ class Tracker:
         rec.states.append(x0.copy())
         rec.len_var.append(float(length_variance(P0)))
         rec.held.append(False)
-        rec.occupied.append(False)
+        rec.occupied.append(0.0)
         if cfg.store_covariances:
             rec.covs.append(P0.copy())
         rec.det_index.append(det.index[k])
@@ -854,7 +856,7 @@ class Tracker:
         states = retrodict_length(np.asarray(rec.states[:n]), np.sqrt(rec.len_var[:n]),
                                   self.fov.sensor, self.cfg.retrodict_window,
                                   self.cfg.retrodict_max_sd, np.asarray(rec.held[:n]),
-                                  np.asarray(rec.occupied[:n]))
+                                  np.asarray(rec.occupied[:n]) > 0.0)
         return Track(
             id=rec.id,
             t=np.asarray(rec.t[:n]),
@@ -863,6 +865,7 @@ class Tracker:
             covariances=np.asarray(rec.covs[:n]) if self.cfg.store_covariances else None,
             det_index=np.concatenate(rec.det_index).astype(np.int64),
             det_step=np.concatenate(rec.det_step).astype(np.int64),
+            length_floor=max(rec.occupied[:n], default=0.0),
         )
 
 
