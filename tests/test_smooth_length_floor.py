@@ -18,9 +18,10 @@ from fgloc.evaluation.tracking import contour_polygons
 from fgloc.pipeline import track
 from fgloc.sim import SimConfig, simulate_detailed
 from fgloc.smoothing import SmoothingConfig
-from fgloc.smoothing.graph import build_track_graph, stack_tracks
+from fgloc.smoothing.graph import TrackModels, build_track_graph, stack_tracks
 from fgloc.smoothing.length_floor import floor_rows
 from fgloc.smoothing.run import smooth_tracks
+from fgloc.tracking.config import TrackingConfig
 from fgloc.tracks import N_KIN, N_STATE, YAW, contour_angles, contour_length_width
 
 
@@ -97,3 +98,19 @@ def test_batch_keeps_the_length_of_a_truck_seen_end_on(seed: int) -> None:
     free = smooth_tracks(scn, run.tracks, run.T_placement, "batch", off)
     # the cause: without the floor the smoother shortens the truck (to its grazing returns)
     assert _truck_length(free) < _truck_length(batch) - 0.5
+
+
+def test_a_track_with_an_occupied_length_gets_the_long_model() -> None:
+    """Seen end-on from behind, a 10.8 m truck's filter contour may stay 8.3 m (below
+    long_vehicle_length) while the tracker measured 6.9 m occupied behind its seen end
+    (far-sparse intersection seed 5): with the car model the smoother's GP prior pulled it to
+    the floor (6.9 m, centre 2.4 m towards the sensor), with the long model 8.4 m, 1.1 m."""
+    tracks, _, _ = three_tracks(2)
+    tr = tracks.tracks[0]
+    tr.states[:, N_KIN:] = rectangle_radius(contour_angles(), 8.3, 2.0)
+    models = TrackModels.of(TrackingConfig(), SmoothingConfig())
+    assert not models.is_long(tr)
+    tr.length_floor = 6.9
+    assert models.is_long(tr) and models.for_track(tr) is models.long
+    off = TrackModels.of(TrackingConfig(), SmoothingConfig(long_vehicle_length=0.0))
+    assert not off.is_long(tr)

@@ -296,9 +296,13 @@ class TrackModels:
     def is_long(self, track: Track) -> bool:
         """Whether ``track``'s filtered contour reaches ``long_vehicle_length`` and stays that
         long on at least half of the steps from then on (a car whose contour grows for a
-        moment is not a truck)."""
+        moment is not a truck), or the tracker measured an occupied length behind its seen end
+        (``track.length_floor`` > 0: at least ``[tracking] large_length``, truck-sized; seen
+        end-on the filter's contour may stay shorter than ``long_vehicle_length``)."""
         if self.long is None or not len(track):
             return False
+        if track.length_floor > 0:
+            return True
         reached = self._reached(track)
         if not reached.any():
             return False
