@@ -175,9 +175,8 @@ class BirthZones:
 
 def initial_kinematics(z: np.ndarray, doppler: np.ndarray, rng: np.ndarray, yaw: float,
                        sensor: np.ndarray, length: float, width: float,
-                       default_speed: float, noise: float = 0.0,
-                       near_end_cut: bool = False
-                       ) -> tuple[np.ndarray, float, float, np.ndarray]:
+                       default_speed: float,
+                       noise: float = 0.0) -> tuple[np.ndarray, float, float, np.ndarray]:
     """Centre (2,), yaw (rad), speed (m/s) and box size (2,) (length, width; m) of a new track
     from its first cluster.
 
@@ -188,10 +187,7 @@ def initial_kinematics(z: np.ndarray, doppler: np.ndarray, rng: np.ndarray, yaw:
     whose sensor-side edges coincide with the cluster's (a radar sees the near sides only);
     noise (m) is the detections' position std. dev., by which the extent of a few noisy
     detections exceeds the vehicle's on each side (far out, azimuth noise alone spreads a
-    car's detections wider than a truck). ``near_end_cut``: the vehicle may continue beyond
-    the cluster's sensor-side end along the heading (into the range withheld from births:
-    :meth:`fgloc.tracking.tracker.Tracker._near_end_cut`), so lengthwise the box's far end
-    coincides with the cluster's instead.
+    car's detections wider than a truck).
     """
     h = np.array([np.cos(yaw), np.sin(yaw)])
     los = z - sensor
@@ -206,6 +202,5 @@ def initial_kinematics(z: np.ndarray, doppler: np.ndarray, rng: np.ndarray, yaw:
     size = np.maximum([length, width], hi - lo - 2.0 * noise)
     s = axes @ sensor
     near_lo = s < 0.5 * (lo + hi)
-    near_lo[0] ^= near_end_cut
     mid = np.where(near_lo, lo + size / 2, hi - size / 2)
     return mid @ axes, float(wrap_angle(yaw)), min(v, 40.0), size

@@ -710,10 +710,14 @@ class Tracker:
             return
         lab = cluster_labels(det.z[idx], cfg.cluster_eps, cfg.cluster_min_points)
         sensor = self.fov.sensor
-        # free detections in the range withheld from births (next to the blind range)
-        withheld = idx[np.linalg.norm(det.z[idx] - sensor, axis=1)
-                       < self.fov.min_range + cfg.birth_blind_margin]
-        for c in range(int(lab.max(initial=-1)) + 1):
+        dist = np.linalg.norm(det.z[idx] - sensor, axis=1)
+        # detections a birth cluster's vehicle may continue into: free ones in the range
+        # withheld from births (next to the blind range) and those of the clusters nearer the
+        # sensor, taken in order of range (the nearest end of a vehicle is born first)
+        behind = np.zeros(len(det.z), dtype=bool)
+        behind[idx[dist < self.fov.min_range + cfg.birth_blind_margin]] = True
+        n_clusters = int(lab.max(initial=-1)) + 1
+        for c in np.argsort([dist[lab == c].mean() for c in range(n_clusters)]):
             k = idx[lab == c]
             z, dop, rng = det.z[k], det.doppler[k], det.rng[k]
             centroid = z.mean(axis=0)
@@ -731,22 +735,26 @@ class Tracker:
             if yaw is None:
                 yaw = float(np.arctan2(los[1], los[0]) + (0.0 if md > 0 else np.pi))
                 yaw_sigma = LOS_YAW_SIGMA
-            near = withheld[~np.isin(withheld, k)]
-            cut = self._near_end_cut(z, md, yaw, det.z[near], det.doppler[near])
-            self._birth(det, k, z, dop, rng, yaw, yaw_sigma, zone, cut)
+            near = np.flatnonzero(behind)
+            behind[k] = True
+            # the vehicle may go on towards the sensor: born from its nearest part
+            if self._continues_into(z, md, yaw, det.z[near], det.doppler[near]):
+                continue
+            self._birth(det, k, z, dop, rng, yaw, yaw_sigma, zone)
 
-    def _near_end_cut(self, z: np.ndarray, doppler: float, yaw: float, near_z: np.ndarray,
-                      near_doppler: np.ndarray) -> bool:
-        """Whether a new track's cluster z (k, 2) (mean Doppler ``doppler``, m/s; heading
-        prior ``yaw``, rad) may continue towards the sensor into the range withheld from
-        births: seen end-on (the sensor beyond one of its ends along the heading), a free
-        detection closer than ``min_range + birth_blind_margin`` (``near_z`` (m, 2), Doppler
-        ``near_doppler`` (m,)) of the same Doppler sign lies in its lengthwise corridor (its
-        lateral extent grown by ``cluster_eps``) beyond its sensor-side end, within
-        ``mean_length + chain_reach`` (m; the longest the association grows a track to) of its
-        far end. A sparse vehicle leaving the blind range splits into clusters; the one
-        nearest the sensor is withheld and the far one's sensor-side end is not the
-        vehicle's."""
+    def _continues_into(self, z: np.ndarray, doppler: float, yaw: float,
+                        near_z: np.ndarray, near_doppler: np.ndarray) -> bool:
+        """Whether a birth cluster z (k, 2) (mean Doppler ``doppler``, m/s; heading prior
+        ``yaw``, rad) may continue towards the sensor into the detections ``near_z`` (m, 2)
+        (Doppler ``near_doppler`` (m,)): free ones in the range withheld from births (closer
+        than ``min_range + birth_blind_margin``) or of a nearer birth cluster. Seen end-on
+        (the sensor beyond one of its ends along the heading), one of them of the same Doppler
+        sign lies in its lengthwise corridor (its lateral extent grown by ``cluster_eps``)
+        beyond its sensor-side end, within ``mean_length + chain_reach`` (m; the longest the
+        association grows a track to) of its far end. Such a cluster waits: a sparse vehicle
+        leaving the blind range splits into a withheld cluster on its rear and a few returns
+        at its front, and born from those its box's sensor-side end (the cluster's) was metres
+        ahead of the vehicle's (far-sparse: 2.5-6.6 m in the track's first second)."""
         if not len(near_z):
             return False
         cfg = self.cfg
@@ -764,16 +772,13 @@ class Tracker:
         return bool(np.any(inside & (u > u1) & (u - u0 <= cfg.mean_length + cfg.chain_reach)))
 
     def _birth(self, det: _Frame, k: np.ndarray, z: np.ndarray, dop: np.ndarray,
-               rng: np.ndarray, yaw: float, yaw_sigma: float, zone: int | None,
-               near_end_cut: bool = False) -> None:
-        """A tentative track from the detections k (indices into the frame) z, dop, rng;
-        ``near_end_cut``: see :func:`fgloc.tracking.birth.initial_kinematics`."""
+               rng: np.ndarray, yaw: float, yaw_sigma: float, zone: int | None) -> None:
+        """A tentative track from the detections k (indices into the frame) z, dop, rng."""
         cfg = self.cfg
         sensor = self.fov.sensor
         noise = max(cfg.sigma_range, np.deg2rad(cfg.sigma_azimuth_deg) * float(rng.mean()))
         centre, yaw, v, size = initial_kinematics(z, dop, rng, yaw, sensor, cfg.mean_length,
-                                                  cfg.mean_width, cfg.default_speed, noise,
-                                                  near_end_cut)
+                                                  cfg.mean_width, cfg.default_speed, noise)
         x0 = np.zeros(N_STATE)
         x0[[X, Y]] = centre
         x0[V], x0[YAW] = v, yaw
