@@ -711,11 +711,11 @@ class Tracker:
         lab = cluster_labels(det.z[idx], cfg.cluster_eps, cfg.cluster_min_points)
         sensor = self.fov.sensor
         dist = np.linalg.norm(det.z[idx] - sensor, axis=1)
-        # detections a birth cluster's vehicle may continue into: free ones in the range
-        # withheld from births (next to the blind range) and those of the clusters nearer the
-        # sensor, taken in order of range (the nearest end of a vehicle is born first)
-        behind = np.zeros(len(det.z), dtype=bool)
-        behind[idx[dist < self.fov.min_range + cfg.birth_blind_margin]] = True
+        # free detections in the range withheld from births (next to the blind range)
+        withheld = idx[dist < self.fov.min_range + cfg.birth_blind_margin]
+        # clusters in order of range: a vehicle split in two is born first (a lower id: the
+        # stronger under the duplicate rule) from its nearer part, whose sensor-side end is
+        # its own
         n_clusters = int(lab.max(initial=-1)) + 1
         for c in np.argsort([dist[lab == c].mean() for c in range(n_clusters)]):
             k = idx[lab == c]
@@ -735,9 +735,8 @@ class Tracker:
             if yaw is None:
                 yaw = float(np.arctan2(los[1], los[0]) + (0.0 if md > 0 else np.pi))
                 yaw_sigma = LOS_YAW_SIGMA
-            near = np.flatnonzero(behind)
-            behind[k] = True
-            # the vehicle may go on towards the sensor: born from its nearest part
+            # the vehicle may go on into the withheld range: born once it has left it
+            near = withheld[~np.isin(withheld, k)]
             if self._continues_into(z, md, yaw, det.z[near], det.doppler[near]):
                 continue
             self._birth(det, k, z, dop, rng, yaw, yaw_sigma, zone)
@@ -747,7 +746,7 @@ class Tracker:
         """Whether a birth cluster z (k, 2) (mean Doppler ``doppler``, m/s; heading prior
         ``yaw``, rad) may continue towards the sensor into the detections ``near_z`` (m, 2)
         (Doppler ``near_doppler`` (m,)): free ones in the range withheld from births (closer
-        than ``min_range + birth_blind_margin``) or of a nearer birth cluster. Seen end-on
+        than ``min_range + birth_blind_margin``). Seen end-on
         (the sensor beyond one of its ends along the heading), one of them of the same Doppler
         sign lies in its lengthwise corridor (its lateral extent grown by ``cluster_eps``)
         beyond its sensor-side end, within ``mean_length + chain_reach`` (m; the longest the
