@@ -80,9 +80,10 @@ def _truck_length(ts) -> float:
 
 
 # straight road, sparse returns (bench/robustness.py's far-sparse), the truck seen end-on for
-# most of it. Measured on seeds 1-8: batch median length 11.8-12.4 m with the floor on all but
-# seed 3 (whose filter track stays 6.3 m, no occupied length), 10.7-11.8 m without it (seeds
-# 1 / 8: 11.2 / 10.7 m against 11.9 / 11.8 m; centre RMS 0.43 / 0.65 m against 0.16 / 0.20 m)
+# most of it. Measured on seeds 1-8 (c90c465): batch median length 11.8-12.4 m with the floor
+# on all but seed 3 (whose filter track stays 6.3 m, no occupied length), 10.7-11.8 m without
+# it (seeds 1 / 8: 11.2 / 10.7 m against 11.9 / 11.8 m; centre RMS 0.43 / 0.65 m against
+# 0.16 / 0.20 m)
 @pytest.mark.parametrize("seed", [1, 8])
 def test_batch_keeps_the_length_of_a_truck_seen_end_on(seed: int) -> None:
     table = {**TRUCK_12M, "radar": SPARSE}
