@@ -56,10 +56,11 @@ class SmoothingConfig:
     contour model). 0 = off."""
     length_floor_sigma: float = 0.3
     """Batch: the occupied length the tracker measured behind a truck's seen end
-    (``Track.length_floor``; ``[tracking] occupancy_gap``) is a floor under the smoothed
-    length: a step whose contour (front + rear radius) is shorter by d (m) adds
-    0.5 (d / length_floor_sigma)^2 to the cost (:mod:`fgloc.smoothing.length_floor`; seen
-    end-on the smoother's rows would shorten the truck to its grazing side returns). 0 = off."""
+    (``Track.length_floor``; ``[tracking] occupancy_gap``), less twice ``[tracking]
+    sigma_range``, is a floor under the smoothed length: a step whose contour (front + rear
+    radius) is shorter by d (m) adds 0.5 (d / length_floor_sigma)^2 to the cost
+    (:mod:`fgloc.smoothing.length_floor`; seen end-on the smoother's rows would shorten the
+    truck to its grazing side returns). 0 = off."""
     use_doppler: bool = True
     """Add range-rate rows to each measurement factor (the tracker's Doppler measurement,
     ``tracking.sigma_doppler``): they observe speed, heading and yaw rate, which the contour

@@ -255,9 +255,13 @@ class TrackModel:
 
     def length_floor(self, track: Track) -> float:
         """Floor (m) under ``track``'s smoothed contour length: the tracker's
-        ``track.length_floor`` (its occupied length) with ``length_floor_sigma`` > 0, else 0
-        (none; :mod:`fgloc.smoothing.length_floor`)."""
-        return float(track.length_floor) if self.smoothing.length_floor_sigma > 0 else 0.0
+        ``track.length_floor`` (its occupied length, whose far end is a detection: up to about
+        twice the range noise beyond the vehicle's end) less ``2 tracking.sigma_range``, with
+        ``length_floor_sigma`` > 0 and a floor > 0, else 0 (none;
+        :mod:`fgloc.smoothing.length_floor`)."""
+        if self.smoothing.length_floor_sigma <= 0 or track.length_floor <= 0:
+            return 0.0
+        return max(float(track.length_floor) - 2.0 * self.tracking.sigma_range, 0.0)
 
     def prior(self, key: int, track: Track, step: int = 0) -> gtsam.PriorFactorVector:
         """Prior on ``key``: :meth:`prior_mean` and :meth:`prior_covariance`."""

@@ -8,8 +8,10 @@ pooled behind the seen end (``[tracking] occupancy_gap``; a lower bound: where t
 detections first leave a gap, less the last few), which it reports as ``Track.length_floor``
 (the largest that set the contour's length, 0 without).
 
-The batch smoother adds one one-sided row per (track, step) of a track with such a floor:
-the contour length ``r_0 + r_{n/2}`` (front + rear radius, m) below the floor by ``d`` costs
+The batch smoother adds one one-sided row per (track, step) of a track with such a floor
+(less twice ``[tracking] sigma_range``: the occupied length ends at a detection, whose range
+noise may put it beyond the vehicle's end; a dense-return truck's was 0.2 m too long): the
+contour length ``r_0 + r_{n/2}`` (front + rear radius, m) below the floor by ``d`` costs
 ``0.5 (d / sigma)^2``, above it nothing (``[smoothing] length_floor_sigma``). The smoother may
 still lengthen the vehicle (a side seen later) or shorten a contour the filter let grow beyond
 the vehicle, but not below what the tracker measured behind its seen end.
