@@ -42,6 +42,10 @@ class Track:
     labels: (n,) int8 label codes (fgloc.labels) from kappa = yawrate / v.
     det_index: (m,) int64 indices into the scenario's RadarData of the detections this track
     used; det_step: (m,) int64 index into ``t`` of the step that used each of them.
+    length_floor: a lower bound (m) of the vehicle's length the tracker measured (the
+    largest occupied length behind the seen end of a truck seen end-on that set its
+    contour's length; ``[tracking] occupancy_gap``), 0 without; the batch smoother keeps the
+    length above it (:mod:`fgloc.smoothing.length_floor`). Not stored in the track files.
     """
 
     id: int
@@ -51,6 +55,7 @@ class Track:
     covariances: np.ndarray | None = None
     det_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     det_step: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+    length_floor: float = 0.0
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
@@ -106,6 +111,7 @@ class TrackSet:
                     cov,
                     tr.det_index.copy(),
                     tr.det_step.copy(),
+                    tr.length_floor,
                 )
             )
         return TrackSet(out, frame="L", T_frame_to_L=np.eye(3), diagnostics=dict(self.diagnostics))

@@ -54,6 +54,13 @@ class SmoothingConfig:
     smoother switches to it online once the filter's contour has stayed that long for 1 s.
     The joint registration keeps the car model for every track (its point rows take one
     contour model). 0 = off."""
+    length_floor_sigma: float = 0.3
+    """Batch: the occupied length the tracker measured behind a truck's seen end
+    (``Track.length_floor``; ``[tracking] occupancy_gap``), less twice ``[tracking]
+    sigma_range``, is a floor under the smoothed length: a step whose contour (front + rear
+    radius) is shorter by d (m) adds 0.5 (d / length_floor_sigma)^2 to the cost
+    (:mod:`fgloc.smoothing.length_floor`; seen end-on the smoother's rows would shorten the
+    truck to its grazing side returns). 0 = off."""
     use_doppler: bool = True
     """Add range-rate rows to each measurement factor (the tracker's Doppler measurement,
     ``tracking.sigma_doppler``): they observe speed, heading and yaw rate, which the contour
@@ -87,6 +94,9 @@ class SmoothingConfig:
         if self.long_vehicle_length < 0:
             raise ValueError(f"long_vehicle_length must be >= 0 m, got "
                              f"{self.long_vehicle_length}")
+        if self.length_floor_sigma < 0:
+            raise ValueError(f"length_floor_sigma must be >= 0 m, got "
+                             f"{self.length_floor_sigma}")
         if not self.lag > 0:
             raise ValueError(f"lag must be > 0 s, got {self.lag}")
         if self.max_detections < 0 or self.max_iterations < 1 or self.relinearize_skip < 1:

@@ -55,10 +55,11 @@ from factors.gtsam_factors import (
     process_factor,
     track_key,
 )
-from factors.track_system import StackedTracks, sqrt_information
+from factors.track_system import sqrt_information
 from fgloc.geo import wrap_angle
 from fgloc.scenario import Scenario
 from fgloc.smoothing.config import SmoothingConfig
+from fgloc.smoothing.length_floor import FlooredTracks, length_floor_factor
 from fgloc.tracking.birth import FieldOfView
 from fgloc.tracking.config import TrackingConfig
 from fgloc.tracking.tracker import kappa_labels
@@ -252,6 +253,16 @@ class TrackModel:
             P[N_KIN:, N_KIN:] = self.gp.K
         return P + _PRIOR_JITTER * np.eye(N_STATE)
 
+    def length_floor(self, track: Track) -> float:
+        """Floor (m) under ``track``'s smoothed contour length: the tracker's
+        ``track.length_floor`` (its occupied length, whose far end is a detection: up to about
+        twice the range noise beyond the vehicle's end) less ``2 tracking.sigma_range``, with
+        ``length_floor_sigma`` > 0 and a floor > 0, else 0 (none;
+        :mod:`fgloc.smoothing.length_floor`)."""
+        if self.smoothing.length_floor_sigma <= 0 or track.length_floor <= 0:
+            return 0.0
+        return max(float(track.length_floor) - 2.0 * self.tracking.sigma_range, 0.0)
+
     def prior(self, key: int, track: Track, step: int = 0) -> gtsam.PriorFactorVector:
         """Prior on ``key``: :meth:`prior_mean` and :meth:`prior_covariance`."""
         return prior_factor(key, self.prior_mean(track, step),
@@ -289,9 +300,13 @@ class TrackModels:
     def is_long(self, track: Track) -> bool:
         """Whether ``track``'s filtered contour reaches ``long_vehicle_length`` and stays that
         long on at least half of the steps from then on (a car whose contour grows for a
-        moment is not a truck)."""
+        moment is not a truck), or the tracker measured an occupied length behind its seen end
+        (``track.length_floor`` > 0: at least ``[tracking] large_length``, truck-sized; seen
+        end-on the filter's contour may stay shorter than ``long_vehicle_length``)."""
         if self.long is None or not len(track):
             return False
+        if track.length_floor > 0:
+            return True
         reached = self._reached(track)
         if not reached.any():
             return False
@@ -371,6 +386,7 @@ def build_track_graph(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarra
             raise ValueError(f"track {tr.id}: det_index beyond the {len(det_xy)} detections")
         k = np.array([track_key(tr.id, s) for s in range(len(tr))], dtype=np.int64)
         keys.append(k)
+        floor = model.length_floor(tr)
         for s, idx in enumerate(step_detections(tr)):
             values.insert(int(k[s]), tr.states[s])
             if s == 0:
@@ -383,6 +399,9 @@ def build_track_graph(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarra
                     int(k[s]), det_xy[idx], sensor_xy,
                     None if det_trusted is None else det_trusted[idx],
                     None if det_range_rate is None else det_range_rate[idx]))
+            if floor > 0:
+                graph.add(length_floor_factor(int(k[s]), floor,
+                                              model.smoothing.length_floor_sigma))
     return TrackGraph(graph, values, keys, models)
 
 
@@ -417,9 +436,10 @@ def stack_tracks(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                  tracking: TrackingConfig | None = None,
                  det_trusted: np.ndarray | None = None,
                  det_range_rate: np.ndarray | None = None,
-                 chunk: int = 1024) -> StackedTracks:
+                 chunk: int = 1024) -> FlooredTracks:
     """The factors of :func:`build_track_graph` (same arguments, same residuals and noise,
-    same model per track) as one :class:`factors.track_system.StackedTracks` over the steps
+    same model per track) as one :class:`factors.track_system.StackedTracks` (with the
+    length floor rows: :class:`fgloc.smoothing.length_floor.FlooredTracks`) over the steps
     of all tracks, in ``tracks.tracks`` order; measurement frames in chunks of at most
     ``chunk`` frames of one model (bounds the memory of an evaluation)."""
     det_xy = np.asarray(det_xy, dtype=float)
@@ -471,9 +491,14 @@ def stack_tracks(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                                                 valid_all, trusted[rows_all], sensor_xy, rr))
             meas_step += [f[0] for f in part]
             bounds.append(bounds[-1] + len(part))
-    return StackedTracks(start, prior_mean, prior_W, proc_step, dt, proc_W,
+    floor = np.repeat([m.length_floor(tr) for m, tr in zip(per_track, tracks.tracks)],
+                      lengths)
+    floor_step = np.flatnonzero(floor > 0)
+    return FlooredTracks(start, prior_mean, prior_W, proc_step, dt, proc_W,
                          np.array(meas_step, dtype=np.int64), meas,
-                         np.array(bounds, dtype=np.int64), proc_mean, models.car.tau)
+                         np.array(bounds, dtype=np.int64), proc_mean, models.car.tau,
+                         floor_step, floor[floor_step],
+                         float(models.car.smoothing.length_floor_sigma))
 
 
 def tracks_from_states(tracks: TrackSet, states: list[np.ndarray],

@@ -118,9 +118,10 @@ class _Record:
     len_var: list[float] = field(default_factory=list)
     #: per step: the length held by the long-vehicle prior (promoted, side not seen yet)
     held: list[bool] = field(default_factory=list)
-    #: per step: the contour's length reached by a truck-sized occupied length that reaches
-    #: farther than the spans of its own detections (measured end-on)
-    occupied: list[bool] = field(default_factory=list)
+    #: per step: the occupied length (m) where the contour's length is reached by a
+    #: truck-sized occupied length that reaches farther than the spans of its own detections
+    #: (measured end-on), else 0
+    occupied: list[float] = field(default_factory=list)
     det_index: list[np.ndarray] = field(default_factory=list)
     det_step: list[np.ndarray] = field(default_factory=list)
 
@@ -686,9 +687,10 @@ class Tracker:
             rec.len_var.append(float(len_var[i]))
             rec.held.append(rec.long and rec.side_hits < self.cfg.long_side_updates)
             occ = rec.occupied_length
-            rec.occupied.append(occ >= self.cfg.large_length
-                                and rec.span_length + self.cfg.span_margin < occ
-                                <= length[i] + self.cfg.span_margin)
+            reached = (occ >= self.cfg.large_length
+                       and rec.span_length + self.cfg.span_margin < occ
+                       <= length[i] + self.cfg.span_margin)
+            rec.occupied.append(occ if reached else 0.0)
             if Ps is not None:
                 rec.covs.append(Ps[i])
         for i in updated:
@@ -708,7 +710,14 @@ class Tracker:
             return
         lab = cluster_labels(det.z[idx], cfg.cluster_eps, cfg.cluster_min_points)
         sensor = self.fov.sensor
-        for c in range(int(lab.max(initial=-1)) + 1):
+        dist = np.linalg.norm(det.z[idx] - sensor, axis=1)
+        # free detections in the range withheld from births (next to the blind range)
+        withheld = idx[dist < self.fov.min_range + cfg.birth_blind_margin]
+        # clusters in order of range: a vehicle split in two is born first (a lower id: the
+        # stronger under the duplicate rule) from its nearer part, whose sensor-side end is
+        # its own
+        n_clusters = int(lab.max(initial=-1)) + 1
+        for c in np.argsort([dist[lab == c].mean() for c in range(n_clusters)]):
             k = idx[lab == c]
             z, dop, rng = det.z[k], det.doppler[k], det.rng[k]
             centroid = z.mean(axis=0)
@@ -726,7 +735,40 @@ class Tracker:
             if yaw is None:
                 yaw = float(np.arctan2(los[1], los[0]) + (0.0 if md > 0 else np.pi))
                 yaw_sigma = LOS_YAW_SIGMA
+            # the vehicle may go on into the withheld range: born once it has left it
+            near = withheld[~np.isin(withheld, k)]
+            if self._continues_into(z, md, yaw, det.z[near], det.doppler[near]):
+                continue
             self._birth(det, k, z, dop, rng, yaw, yaw_sigma, zone)
+
+    def _continues_into(self, z: np.ndarray, doppler: float, yaw: float,
+                        near_z: np.ndarray, near_doppler: np.ndarray) -> bool:
+        """Whether a birth cluster z (k, 2) (mean Doppler ``doppler``, m/s; heading prior
+        ``yaw``, rad) may continue towards the sensor into the detections ``near_z`` (m, 2)
+        (Doppler ``near_doppler`` (m,)): free ones in the range withheld from births (closer
+        than ``min_range + birth_blind_margin``). Seen end-on
+        (the sensor beyond one of its ends along the heading), one of them of the same Doppler
+        sign lies in its lengthwise corridor (its lateral extent grown by ``cluster_eps``)
+        beyond its sensor-side end, within ``mean_length + chain_reach`` (m; the longest the
+        association grows a track to) of its far end. Such a cluster waits: a sparse vehicle
+        leaving the blind range splits into a withheld cluster on its rear and a few returns
+        at its front, and born from those its box's sensor-side end (the cluster's) was metres
+        ahead of the vehicle's (far-sparse: 2.5-6.6 m in the track's first second)."""
+        if not len(near_z):
+            return False
+        cfg = self.cfg
+        h = unit(np.asarray(yaw))
+        axes = np.stack([h, [-h[1], h[0]]])
+        q, qn, s = z @ axes.T, near_z @ axes.T, axes @ self.fov.sensor
+        lo, hi = q.min(axis=0), q.max(axis=0)
+        if lo[0] <= s[0] <= hi[0]:
+            return False
+        # lengthwise coordinate growing towards the sensor: the cluster spans [u0, u1]
+        toward = 1.0 if s[0] > hi[0] else -1.0
+        u, (u0, u1) = toward * qn[:, 0], sorted((toward * lo[0], toward * hi[0]))
+        inside = ((qn[:, 1] >= lo[1] - cfg.cluster_eps) & (qn[:, 1] <= hi[1] + cfg.cluster_eps)
+                  & (np.sign(near_doppler) == np.sign(doppler)))
+        return bool(np.any(inside & (u > u1) & (u - u0 <= cfg.mean_length + cfg.chain_reach)))
 
     def _birth(self, det: _Frame, k: np.ndarray, z: np.ndarray, dop: np.ndarray,
                rng: np.ndarray, yaw: float, yaw_sigma: float, zone: int | None) -> None:
@@ -751,7 +793,7 @@ class Tracker:
         rec.states.append(x0.copy())
         rec.len_var.append(float(length_variance(P0)))
         rec.held.append(False)
-        rec.occupied.append(False)
+        rec.occupied.append(0.0)
         if cfg.store_covariances:
             rec.covs.append(P0.copy())
         rec.det_index.append(det.index[k])
@@ -818,7 +860,7 @@ class Tracker:
         states = retrodict_length(np.asarray(rec.states[:n]), np.sqrt(rec.len_var[:n]),
                                   self.fov.sensor, self.cfg.retrodict_window,
                                   self.cfg.retrodict_max_sd, np.asarray(rec.held[:n]),
-                                  np.asarray(rec.occupied[:n]))
+                                  np.asarray(rec.occupied[:n]) > 0.0)
         return Track(
             id=rec.id,
             t=np.asarray(rec.t[:n]),
@@ -827,6 +869,7 @@ class Tracker:
             covariances=np.asarray(rec.covs[:n]) if self.cfg.store_covariances else None,
             det_index=np.concatenate(rec.det_index).astype(np.int64),
             det_step=np.concatenate(rec.det_step).astype(np.int64),
+            length_floor=max(rec.occupied[:n], default=0.0),
         )
 
 
