@@ -13,6 +13,8 @@ placed by the best mode, moved rigidly by the mode's start) and hands its final 
   a vehicle's point is scored against the lanes of its driving direction
   (``sicp.direction_gate_deg``).
 * **Choice**: the mode of least total cost.
+* **Height**: a final pose takes the z (and its std. dev.) of the coarse mode nearest to where
+  it ended (:func:`height_mode`), which need not be the one it started from.
 * **Told apart?** The points of one vehicle share its errors, so the evidence against mode k
   is counted per track: ``D_j`` = track j's cost under k minus under the best mode, and
   ``z_k = sum_j D_j / sqrt(sum_j D_j^2)`` (a self-normalized sum: about N(0, 1) when the
