@@ -52,13 +52,14 @@ def _visible_points(centre: np.ndarray, yaw: float, sensor: np.ndarray,
 
 def _scene(crossing: bool, T_true: np.ndarray, sensor_l: np.ndarray, seed: int,
            per_lane: int = 4, offset: float = 0.0, range_bias: float = 0.0,
-           lane_shift: tuple[int, float] | None = None):
+           lane_shift: tuple[int, float] | None = None, lateral_sd: float = 0.1):
     """Tracks in C = T_true^-1 L of vehicles on the lanes (each with its own lateral offset
     from the lane centre), their detections in C, the sensor in C and the target lines in L
     (lane centres, shifted ``offset`` m towards the sensor; each lane one lanelet).
     ``range_bias`` (m per 100 m): every vehicle, its states and its detections, lies that far
     per 100 m of its range towards the sensor's side of its lane (a tracker's range-growing
-    bias). ``lane_shift`` (lane index, m): that lane's line moved along its left normal."""
+    bias). ``lane_shift`` (lane index, m): that lane's line moved along its left normal.
+    ``lateral_sd`` (m): std. dev. of the vehicles' lateral offsets from their lane centres."""
     rng = np.random.default_rng(seed)
     Tinv = np.linalg.inv(T_true)
     yaw_c = se2_params(Tinv)[2]
@@ -71,7 +72,7 @@ def _scene(crossing: bool, T_true: np.ndarray, sensor_l: np.ndarray, seed: int,
         xy_l.append(start + u[:, None] * d)
         nrm_l.append(np.tile(left, (len(u), 1)))
         for _ in range(per_lane):
-            lateral = rng.normal(0.0, 0.1)
+            lateral = rng.normal(0.0, lateral_sd)
             s0 = rng.uniform(2.0, 30.0)
             n = 16                                   # 5 Hz, 3.2 s, 10 m/s
             centres = start + (s0 + 2.0 * np.arange(n))[:, None] * d + lateral * left
@@ -128,6 +129,37 @@ def test_known_offset_recovered_and_covered(seed, pose, sensor):
     deg = degeneracy_report(res.covariance, res.T, res.matched, 0.3)
     assert deg["available"] and not deg["weakly_observed"]
     assert res.converged and len(res.tracks) == len(tracks)
+
+
+@pytest.mark.parametrize("error", [(0.0, 0.5, 0.0), (0.4, -0.3, 0.3)])
+def test_noise_levels_do_not_grow_with_the_pose_error(error):
+    """The offset level is the vehicles' lateral scatter about their lanes (known: 0.3 m) at
+    the true pose and at a pose off by ``error`` (m, m, deg) alike: estimated at a pose off
+    across a road, every track on it shares the error, and an offset level that grew with it
+    let the joint drift (T-junction at 10 vehicles per minute, seed 2: 0.35 m)."""
+    from fgloc.registration.joint import _correspondences, frame_points, noise_levels
+    from fgloc.smoothing.graph import contour_gp
+
+    T_true = se2(0.2, -0.1, np.deg2rad(0.3))
+    tracks, det, sensor_c, lines = _scene(True, T_true, np.array([12.0, -12.0]), 5,
+                                          per_lane=8, lateral_sd=0.3)
+    cfg = _cfg()
+    gp = contour_gp(cfg.tracking)
+    x = np.concatenate([tr.states for tr in tracks.tracks])
+    start = np.concatenate([[0], np.cumsum([len(tr) for tr in tracks.tracks])])
+    fp = frame_points(tracks, start, det, sensor_c, gp, 6)
+    T_off = se2(error[0], error[1], np.deg2rad(error[2])) @ T_true
+    levels = []
+    for T in (T_true, T_off):
+        idx, _, target, normal = _correspondences(fp, x, np.array(se2_params(T)), lines, gp,
+                                                  cfg.joint)
+        assert np.count_nonzero(idx >= 0) > 0.95 * len(idx)
+        levels.append(noise_levels(fp, x[fp.frame_state], T, idx, target, normal, gp,
+                                   len(tracks), 0.01))
+    at_truth, off = levels
+    assert 0.2 < at_truth.offset < 0.4, at_truth
+    assert abs(off.offset - at_truth.offset) < 0.02, (at_truth, off)
+    assert abs(off.frame - at_truth.frame) < 0.2 * at_truth.frame, (at_truth, off)
 
 
 def test_straight_road_flags_the_along_road_direction():

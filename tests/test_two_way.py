@@ -195,10 +195,10 @@ def test_the_tracks_choose_the_lane_model_of_their_traffic(traffic: str) -> None
     each, driving either keep-right lanes or the centre line. Registered once per lane model
     (:mod:`fgloc.map.lane_models`) from the same offset start and compared per track with the
     direction-gated cost, the model of the traffic wins, resolved, at the true pose; the other
-    model's fit is 1-2 m off. (The keep-right model on centre-line traffic ends where one
-    direction per street fits: half the tracks prefer the centre model, the others are
-    indifferent, so the evidence grows as the square root of their number: 12 tracks give
-    z = 3.5 against ``coarse.mode_z`` = 3.)"""
+    model's fit is metres off at the points (turned by 4-6 deg). (The keep-right model on
+    centre-line traffic ends where one direction per street fits: half the tracks prefer the
+    centre model, the others are indifferent, so the evidence grows as the square root of
+    their number: 12 tracks give z = 3.5 against ``coarse.mode_z`` = 3.)"""
     from fgloc.map.lane_models import MODELS, min_width
     from fgloc.registration.modes import ModeFit, choose_mode, track_costs
     from fgloc.registration.source import SourceCloud
@@ -244,7 +244,8 @@ def test_the_tracks_choose_the_lane_model_of_their_traffic(traffic: str) -> None
     err = transform_points(choice.best.T_fine, src.xy) - truth
     assert np.hypot(*err.mean(axis=0)) < 0.05
     other = next(f for f in fits if f.lanes != traffic)
-    assert np.hypot(*(transform_points(other.T_fine, src.xy) - truth).mean(axis=0)) > 0.5
+    off = transform_points(other.T_fine, src.xy) - truth     # turned 4-6 deg: RMS, not mean
+    assert np.sqrt(np.mean(np.sum(off**2, axis=1))) > 0.5
 
 
 def test_narrow_two_way_lanelet_bends_each_direction_into_its_own_lane() -> None:

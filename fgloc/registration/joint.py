@@ -533,23 +533,40 @@ class NoiseLevels:
 def noise_levels(fp: FramePoints, states0: np.ndarray, T: np.ndarray, index: np.ndarray,
                  target: np.ndarray, normal: np.ndarray, gp: ContourGP, n_tracks: int,
                  floor: float, shift: np.ndarray | None = None) -> NoiseLevels:
-    """Moment estimates of the :class:`NoiseLevels` at the pose T from the filter's states
+    """Moment estimates of the :class:`NoiseLevels` about the pose T from the filter's states
     ``states0`` (F, 26), not the refined ones (which the point factors pull towards the
-    lines). Each track's mean across-line residual is its raw offset (their RMS with
-    ``n_tracks - 3`` degrees of freedom, the pose takes up three, is the offset level);
-    about it, the per-frame means give the frame level (MAD) and the lag-1 correlation of
-    consecutive frames of one track (clipped to [0, 0.95]); the points about their frame
-    mean the within level (MAD). Levels are at least ``floor`` m. shift (P,): the points'
-    side bias along ``normal`` (m; None = 0), taken off the residuals."""
+    lines). Each track's mean across-line residual is its raw offset. The pose correction
+    ``dp`` (tx, ty, phi of a change of T) that fits the raw offsets best (least squares on
+    each track's mean of the residuals' derivatives) is taken off every residual first, so
+    the levels are those about the pose the offsets themselves favour, not inflated by T's
+    own error (estimated at a T off across a road, every track on that road would share T's
+    error in its offset: the offset level grows with it, the offsets' prior loosens and lets
+    T drift farther at the next estimate). The offsets' RMS with ``n_tracks - rank``
+    degrees of freedom (the pose takes up as many as it can move the offsets, at most
+    three) is the offset level; about them, the per-frame means give the frame level (MAD)
+    and the lag-1 correlation of consecutive frames of one track (clipped to [0, 0.95]);
+    the points about their frame mean the within level (MAD). Levels are at least
+    ``floor`` m. shift (P,): the points' side bias along ``normal`` (m; None = 0), taken
+    off the residuals."""
     ok = index >= 0
     q = transform_points(T, fp.points(states0, gp.mu)[0])[ok]
-    res = np.einsum("pi,pi->p", q - target[ok], normal[ok])
+    n = normal[ok]
+    res = np.einsum("pi,pi->p", q - target[ok], n)
     if shift is not None:
         res = res - shift[ok]
     frame = fp.point_frame[ok]
     track = fp.frame_track[frame]
     count = np.bincount(track, minlength=n_tracks)
+    seen = count > 0
+    # d res / d (tx, ty, phi) of T = se2(tx, ty, phi): n . (1, 0), n . (0, 1), n . perp(R p)
+    rp = q - T[:2, 2]
+    jac = np.column_stack([n, n[:, 1] * rp[:, 0] - n[:, 0] * rp[:, 1]])
+    mean_jac = np.column_stack([np.bincount(track, jac[:, k], minlength=n_tracks)
+                                for k in range(3)]) / np.maximum(count, 1)[:, None]
     raw = np.bincount(track, res, minlength=n_tracks) / np.maximum(count, 1)
+    dp, _, rank, _ = np.linalg.lstsq(mean_jac[seen], raw[seen], rcond=1e-9)
+    res = res - jac @ dp
+    raw = raw - mean_jac @ dp
     dev = res - raw[track]
     nf = len(fp.frame_state)
     fcount = np.bincount(frame, minlength=nf)
@@ -563,8 +580,7 @@ def noise_levels(fp: FramePoints, states0: np.ndarray, T: np.ndarray, index: np.
         a = np.clip(fmean[:-1][pair], -3 * level, 3 * level)
         b = np.clip(fmean[1:][pair], -3 * level, 3 * level)
         rho = float(np.clip(np.sum(a * b) / np.sqrt(np.sum(a * a) * np.sum(b * b)), 0.0, 0.95))
-    seen = count > 0
-    offset = float(np.sqrt(np.sum(raw[seen] ** 2) / max(1, int(seen.sum()) - 3)))
+    offset = float(np.sqrt(np.sum(raw[seen] ** 2) / max(1, int(seen.sum()) - rank)))
     return NoiseLevels(max(floor, within), max(floor, level), rho, max(floor, offset))
 
 
@@ -775,7 +791,7 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
         register_tracks,
         sensor_covariance,
     )
-    from fgloc.registration.modes import ModeFit, choose_mode, track_costs
+    from fgloc.registration.modes import ModeFit, choose_mode, height_mode, track_costs
     from fgloc.registration.source import build_source_cloud, choose_tracks
     from fgloc.smoothing.graph import detection_range_rates, extent_trusted, placed_detections
 
@@ -810,13 +826,15 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
                 cov = cov + tilt
             targets = mode_targets(scn, target, cfg, coarse, mode.start, mode.lanes)
             T_local = se2_to_se3(jr.T) @ coarse.T_coarse
-            T_local[2, 3] = mode.T_local[2, 3]          # the coarse mode's height
+            near = height_mode(coarse, T_local)         # the height where the fit ended
+            T_local[2, 3] = mode.T_local[2, 3] if near is None else near.z
+            z_std = mode.z_std if near is None else near.z_std
             cost = track_costs(cloud, targets, jr.T, cfg.coarse.mode_cost_scale,
                                cfg.sicp.direction_gate_deg)
             if mode.track_cost.shape == cost.shape and mode.cost < cost.sum():
                 cost = mode.track_cost      # the mode's evidence: its start fits the data better
             fits.append(ModeFit(jr.T, T_local, cov, cost, mode.lane_score, jr.converged,
-                                mode.start, mode.z_std, mode.lanes))
+                                mode.start, z_std, mode.lanes))
             runs.append(jr)
         choice = choose_mode(fits, cfg.coarse)
         jr = runs[next(i for i, f in enumerate(fits) if f is choice.best)]

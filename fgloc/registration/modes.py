@@ -13,6 +13,8 @@ placed by the best mode, moved rigidly by the mode's start) and hands its final 
   a vehicle's point is scored against the lanes of its driving direction
   (``sicp.direction_gate_deg``).
 * **Choice**: the mode of least total cost.
+* **Height**: a final pose takes the z (and its std. dev.) of the coarse mode nearest to where
+  it ended (:func:`height_mode`), which need not be the one it started from.
 * **Told apart?** The points of one vehicle share its errors, so the evidence against mode k
   is counted per track: ``D_j`` = track j's cost under k minus under the best mode, and
   ``z_k = sum_j D_j / sqrt(sum_j D_j^2)`` (a self-normalized sum: about N(0, 1) when the
@@ -43,7 +45,7 @@ from fgloc.registration.sicp import ALL, SemanticTargets
 from fgloc.registration.source import SourceCloud
 
 if TYPE_CHECKING:
-    from fgloc.coarse import CoarseResult
+    from fgloc.coarse import CoarseMode, CoarseResult
 
 RESOLVED = "resolved"
 AMBIGUOUS = "ambiguous"
@@ -82,6 +84,21 @@ class ModeFit:
         """(x, y, yaw) of the sensor in L (m, m, rad)."""
         return np.array([self.T_local[0, 3], self.T_local[1, 3],
                          np.arctan2(self.T_local[1, 0], self.T_local[0, 0])])
+
+
+def height_mode(coarse: CoarseResult, T_local: np.ndarray) -> CoarseMode | None:
+    """The coarse mode whose sensor position lies nearest (in the plane) to ``T_local``'s
+    (4x4 S -> L), whose height (z, z_std) a final pose there takes; None without modes.
+
+    Each mode's height is the vertical fit at its own planar pose (a mode a lane away stands on
+    other road heights). A registration started from one mode may end at another's pose (a
+    start in a flat valley creeps to where the data fit: T-junction, 20 vehicles per minute,
+    seed 5, a start 5 m away ended 0.09 m from the truth) and must then take the height
+    fitted there, not its start's (2.1 m off in that run)."""
+    if not coarse.modes:
+        return None
+    dist = [np.hypot(*(m.pose2d[:2] - T_local[:2, 3])) for m in coarse.modes]
+    return coarse.modes[int(np.argmin(dist))]
 
 
 def track_costs(src: SourceCloud, targets: SemanticTargets, T: np.ndarray, scale: float,

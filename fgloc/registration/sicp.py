@@ -24,8 +24,10 @@ Algorithm (one call of :func:`sicp`)
    (iteratively reweighted least squares; Huber ``min(1, k/d)``, Cauchy ``1/(1 + (d/k)^2)``).
 4. Schedule: ``r`` starts at ``max_correspondence`` (50 m) and is multiplied by ``range_decay``
    per iteration down to ``min_correspondence``. Converged when, with ``r`` at its floor for two
-   consecutive iterations, the inlier RMSE changes by less than ``rmse_tol``; otherwise the call
-   stops after ``max_iterations`` alignments (``converged = False``).
+   consecutive iterations, the inlier RMSE changes by less than ``rmse_tol`` and the last
+   alignment moved the pose by less than ``step_tol`` / ``step_tol_deg`` (along a weakly
+   observed direction ICP creeps while the RMSE hardly changes); otherwise the call stops
+   after ``max_iterations`` alignments (``converged = False``).
 
 Uncertainty
 -----------
@@ -285,6 +287,8 @@ def check_config(cfg: SicpConfig) -> None:
         "range_decay": not 0.0 < cfg.range_decay <= 1.0,
         "max_iterations": cfg.max_iterations < 0,
         "rmse_tol": cfg.rmse_tol < 0.0,
+        "step_tol": cfg.step_tol < 0.0,
+        "step_tol_deg": cfg.step_tol_deg < 0.0,
         "kernel_scale": not cfg.kernel_scale > 0.0,
         "min_points_per_label": cfg.min_points_per_label < 1,
         "sigma_floor": not cfg.sigma_floor > 0.0,
@@ -417,6 +421,36 @@ def _information(
     return info, float(np.sqrt(sigma2))
 
 
+#: Largest extrapolation, in steps of the last alignment (Besl & McKay 1992 cap theirs at 25).
+_MAX_EXTRAPOLATION: float = 25.0
+#: Consecutive alignments pointing within this angle (deg) of each other are extrapolated.
+_SAME_WAY_DEG: float = 10.0
+
+
+def _extrapolation(now: np.ndarray, last: np.ndarray, centre: np.ndarray, turn: float
+                   ) -> np.ndarray | None:
+    """The rest of a creep (accelerated ICP, after Besl & McKay 1992): when the last two
+    alignments at the floor range, ``last`` then ``now`` (each the move (m) of the matched
+    points' centroid and its turn as arc length at their RMS radius), point the same way
+    (within ``_SAME_WAY_DEG``) and shrink by the ratio ``r < 1``, the iterations go on as a
+    geometric series: ``r / (1 - r)`` more steps like ``now`` (at most
+    ``_MAX_EXTRAPOLATION``), returned as one 3x3 transform in the target frame that turns by
+    that many times ``turn`` (rad) about ``centre`` (the centroid after ``now``, (2,) m) and
+    moves it that many times ``now``'s move. None when they do not."""
+    a, b = float(np.linalg.norm(now)), float(np.linalg.norm(last))
+    if a == 0.0 or b == 0.0 or a >= b:
+        return None
+    if now @ last < np.cos(np.deg2rad(_SAME_WAY_DEG)) * a * b:
+        return None
+    k = min(a / (b - a), _MAX_EXTRAPOLATION)
+    c, s = np.cos(k * turn), np.sin(k * turn)
+    R = np.array([[c, -s], [s, c]])
+    out = np.eye(3)
+    out[:2, :2] = R
+    out[:2, 2] = centre - R @ centre + k * now[:2]
+    return out
+
+
 def sicp(
     source_xy: np.ndarray,
     source_label: np.ndarray,
@@ -466,6 +500,8 @@ def sicp(
     T = np.asarray(T0, dtype=np.float64).copy()
     rng, prev_rng, prev_rmse = cfg.max_correspondence, np.nan, np.nan
     stop, iterations = "max_iterations", 0
+    moved_by, turned_by = np.inf, np.inf        # the last alignment's move (m) and turn (rad)
+    last: np.ndarray | None = None              # the last alignment's (move, arc) at the floor
     while True:  # each pass matches at the current T and range, so m always belongs to T
         moved = transform_points(T, src)
         m = _match(moved, g, targets, rng, u_src @ T[:2, :2].T if directed else None,
@@ -478,12 +514,26 @@ def sicp(
             stop = "too_few_correspondences"
             break
         rmse = float(np.sqrt(np.mean(m.dist[ok] ** 2)))
-        if rng == prev_rng and abs(rmse - prev_rmse) < cfg.rmse_tol:
+        settled = ((cfg.step_tol == 0.0 or moved_by < cfg.step_tol)
+                   and (cfg.step_tol_deg == 0.0 or turned_by < np.deg2rad(cfg.step_tol_deg)))
+        if rng == prev_rng and abs(rmse - prev_rmse) < cfg.rmse_tol and settled:
             stop = "rmse_converged"
             break
         if iterations == cfg.max_iterations:
             break
-        T = weighted_procrustes(moved[ok], targets.xy[m.index[ok]], w_all[ok]) @ T
+        step = weighted_procrustes(moved[ok], targets.xy[m.index[ok]], w_all[ok])
+        centre = moved[ok].mean(axis=0)         # the move of the matched points' centroid
+        move = step[:2, :2] @ centre + step[:2, 2] - centre
+        turn = float(np.arctan2(step[1, 0], step[0, 0]))
+        moved_by, turned_by = float(np.hypot(*move)), abs(turn)
+        T = step @ T
+        if cfg.accelerate and rng == prev_rng:
+            radius = float(np.sqrt(np.mean(np.sum((moved[ok] - centre) ** 2, axis=1))))
+            now = np.array([*move, turn * radius])
+            extra = None if last is None else _extrapolation(now, last, centre + move, turn)
+            if extra is not None:
+                T = extra @ T
+            last = None if extra is not None else now
         iterations += 1
         prev_rng, prev_rmse = rng, rmse
         rng = max(cfg.min_correspondence, rng * cfg.range_decay)
