@@ -149,6 +149,11 @@ class CoarseConfig:
     visible_side_offset: float = 0.3
     """Mean lateral offset (m) of vehicle detections from the lane centre towards the sensor
     (the radar sees the sensor-facing side and nearest corner of each vehicle)."""
+    lane_doppler_gate_deg: float = 20.0
+    """The lane-centre fits match a dynamic point moving away from the sensor (Doppler > 0)
+    only to lanes driven away from it, one moving towards it only to lanes driven towards it,
+    except on lanes within this angle (deg) of square to the line of sight (there the sign says
+    nothing: vehicles turn off the lane's direction, Doppler is noisy); 90 = Doppler ignored."""
     height_residual_sigma: float = 0.7
     """Std. dev. (m) of a dynamic point's height about road + reflection height (body height
     spread and elevation noise) in the vertical fit."""
@@ -198,6 +203,11 @@ class CoarseConfig:
     """A final fitness below this marks the result as not converged."""
     default_height: float = 6.0
     """Sensor height above the road (m) used when sensor.toml has no approx_height."""
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.lane_doppler_gate_deg <= 90.0:
+            raise ValueError("lane_doppler_gate_deg must be in [0, 90], got "
+                             f"{self.lane_doppler_gate_deg}")
 
 
 @dataclass

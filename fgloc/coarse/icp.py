@@ -26,6 +26,40 @@ class PlanarTarget:
     def of(cls, xy: np.ndarray) -> PlanarTarget:
         return cls(xy=xy, tree=cKDTree(xy))
 
+    def query(self, xy: np.ndarray, receding: np.ndarray | None, upper: float
+              ) -> tuple[np.ndarray, np.ndarray]:
+        """Distance (N,) (m; inf beyond ``upper``) and nearest target point (N, 2) of points
+        ``xy`` (N, 2) in L (where the distance is inf: the point itself). ``receding`` (the
+        points' Doppler signs) is not read: any point may match any target point."""
+        if not len(self.xy):
+            return np.full(len(xy), np.inf), np.array(xy, dtype=float)
+        d, i = self.tree.query(xy, distance_upper_bound=upper)
+        near = self.xy[np.minimum(i, len(self.xy) - 1)]
+        return d, np.where(np.isfinite(d)[:, None], near, xy)
+
+
+@dataclass
+class SignedLanes:
+    """Lane lines seen from one sensor position, split by the Doppler sign of the vehicles
+    that may drive them: ``receding`` holds the samples a point moving away from the sensor
+    (Doppler > 0) may match, ``approaching`` those a point moving towards it may match. A lane
+    is in both where it runs within the gate angle of square to the line of sight (its
+    vehicles' Doppler sign says nothing there)."""
+
+    receding: PlanarTarget
+    approaching: PlanarTarget
+
+    def query(self, xy: np.ndarray, receding: np.ndarray | None, upper: float
+              ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`PlanarTarget.query` of points ``xy`` (N, 2) each against the lanes of its
+        Doppler sign (``receding`` (N,) bool)."""
+        if receding is None:
+            raise ValueError("SignedLanes.query needs the points' Doppler signs (receding)")
+        d, near = np.empty(len(xy)), np.empty((len(xy), 2))
+        for target, sel in ((self.receding, receding), (self.approaching, ~receding)):
+            d[sel], near[sel] = target.query(xy[sel], None, upper)
+        return d, near
+
 
 @dataclass
 class ScoreRaster:
@@ -117,8 +151,23 @@ class LaneCentres:
 
     def towards(self, sensor_xy: np.ndarray, offset: float) -> PlanarTarget:
         """The centre lines shifted ``offset`` m sideways towards ``sensor_xy`` (2,)."""
+        return PlanarTarget.of(self._shifted(sensor_xy, offset))
+
+    def seen_from(self, sensor_xy: np.ndarray, offset: float, gate_deg: float) -> SignedLanes:
+        """:meth:`towards`, split by Doppler sign (:class:`SignedLanes`): a sample whose
+        driving direction ``d`` has ``d . u > -sin(gate_deg)`` (``u`` the unit line of sight
+        from ``sensor_xy`` to it) may be driven away from the sensor, one with ``d . u <
+        sin(gate_deg)`` towards it; 90 deg admits every sample for both signs."""
+        xy = self._shifted(sensor_xy, offset)
+        los = xy - np.asarray(sensor_xy, dtype=float)
+        los /= np.maximum(np.linalg.norm(los, axis=1, keepdims=True), 1e-9)
+        away = los[:, 0] * self.normal[:, 1] - los[:, 1] * self.normal[:, 0]   # d . u
+        tol = np.sin(np.deg2rad(gate_deg))
+        return SignedLanes(PlanarTarget.of(xy[away >= -tol]), PlanarTarget.of(xy[away <= tol]))
+
+    def _shifted(self, sensor_xy: np.ndarray, offset: float) -> np.ndarray:
         side = np.sign(np.einsum("ij,ij->i", sensor_xy - self.xy, self.normal))
-        return PlanarTarget.of(self.xy + (offset * side)[:, None] * self.normal)
+        return self.xy + (offset * side)[:, None] * self.normal
 
 
 def robust_score(d: np.ndarray, tau: float) -> float:
@@ -151,11 +200,13 @@ class IcpOutcome:
 
 
 def icp_planar(
-    src: np.ndarray, target: PlanarTarget, pose0: np.ndarray, ranges: list[float],
-    iterations: int, tol: float = 1e-3,
+    src: np.ndarray, target: PlanarTarget | SignedLanes, pose0: np.ndarray, ranges: list[float],
+    iterations: int, tol: float = 1e-3, receding: np.ndarray | None = None,
 ) -> IcpOutcome:
     """Point-to-point planar ICP of source points (N, 2) (sensor-centred, levelled) against a
     planar target, one stage per correspondence range (m); returns the pose mapping src to L.
+    ``receding`` (N,) bool: the points' Doppler signs, needed by a :class:`SignedLanes` target
+    (each point matched only to the lanes its sign may drive).
 
     A stage ends when the update moves the source by less than ``tol`` m (translation plus
     rotation times the source radius) or after ``iterations`` steps.
@@ -168,11 +219,11 @@ def icp_planar(
         for _ in range(iterations):
             total += 1
             cur = apply_planar(src, pose)
-            d, idx = target.tree.query(cur, distance_upper_bound=rng)
+            d, near = target.query(cur, receding, rng)
             ok = np.isfinite(d)
             if ok.sum() < 3:
                 break
-            ang, t = _kabsch_2d(cur[ok], target.xy[idx[ok]])
+            ang, t = _kabsch_2d(cur[ok], near[ok])
             c, s = np.cos(ang), np.sin(ang)
             pose[:2] = np.array([[c, -s], [s, c]]) @ pose[:2] + t
             pose[2] = wrap_angle(pose[2] + ang)

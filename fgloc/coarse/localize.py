@@ -4,7 +4,7 @@ road points of the target cloud, giving ``T_coarse`` (sensor frame S -> local fr
 Method
 ------
 1. Source: detections with ``|doppler| >= lambda`` from the whole recording, voxel-downsampled
-   and filtered by DBSCAN (Open3D) to drop isolated clutter.
+   per Doppler sign and filtered by DBSCAN (Open3D) to drop isolated clutter.
 2. The pose is split as ``R = Rz(yaw) R_tilt`` with ``R_tilt = Ry(pitch) Rx(roll)``. Dynamic
    points lie on vehicle bodies 0.3-1.5 m above the asphalt while the target is the asphalt, so a
    3D point-to-point ICP would pull the sensor down by the reflection height. Instead:
@@ -30,7 +30,9 @@ Method
    along the lane centres, and the radar sees their sensor-facing side, so the last stage
    registers the cloud to the lanelet centre lines (of the lanelets in the target cloud),
    sampled every ``lane_sample_step`` m and shifted by ``visible_side_offset`` m towards the
-   current sensor position, alternating with the vertical fit.
+   current sensor position, alternating with the vertical fit. A point moving away from the
+   sensor is matched only to lanes driven away from it and vice versa (``SignedLanes``; lanes
+   within ``lane_doppler_gate_deg`` of square to the line of sight admit both).
 
 Fitness and inlier RMSE are planar (2D) quantities: the share of source points with a road point
 within the last correspondence range, and the RMS 2D distance of those points.
@@ -50,9 +52,9 @@ import numpy as np
 from fgloc.coarse.icp import (
     IcpOutcome,
     LaneCentres,
-    PlanarTarget,
     RoadModel,
     ScoreRaster,
+    SignedLanes,
     apply_planar,
     distinct_peaks,
     icp_planar,
@@ -148,21 +150,28 @@ def _yaw_candidates(yaw_guess_deg: float | None, cfg: CoarseConfig) -> np.ndarra
     return np.deg2rad(yaw_guess_deg) + np.arange(-w, w + 1e-9, step)
 
 
-def _lane_fit(lev: np.ndarray, target: PlanarTarget | LaneCentres, pose: np.ndarray,
-              cfg: CoarseConfig, iterations: int | None = None) -> tuple[float, np.ndarray]:
-    """Lane-centre ICP of levelled points ``lev`` (N, 2) from ``pose`` against ``target`` (the
-    shifted centre lines; given the lanes, those shifted towards the pose's sensor position,
-    start and end); (robust lane score, end pose). ``iterations`` per ICP stage (default
-    ``cfg.icp_iterations``)."""
+def _seen_from(lanes: LaneCentres, sensor_xy: np.ndarray, cfg: CoarseConfig) -> SignedLanes:
+    """The lane-centre target of the lane fits: the centre lines shifted towards the sensor
+    position ``sensor_xy`` (2,), split by Doppler sign (``lane_doppler_gate_deg``)."""
+    return lanes.seen_from(sensor_xy, cfg.visible_side_offset, cfg.lane_doppler_gate_deg)
+
+
+def _lane_fit(lev: np.ndarray, receding: np.ndarray, target: SignedLanes | LaneCentres,
+              pose: np.ndarray, cfg: CoarseConfig, iterations: int | None = None
+              ) -> tuple[float, np.ndarray]:
+    """Lane-centre ICP of levelled points ``lev`` (N, 2) with Doppler signs ``receding`` (N,)
+    from ``pose`` against ``target`` (given the lanes: those seen from the pose's sensor
+    position, start and end); (robust lane score, end pose). ``iterations`` per ICP stage
+    (default ``cfg.icp_iterations``)."""
     tau = cfg.lane_icp_ranges[-1]
     lanes = target if isinstance(target, LaneCentres) else None
     if lanes is not None:
-        target = lanes.towards(pose[:2], cfg.visible_side_offset)
+        target = _seen_from(lanes, pose[:2], cfg)
     end = icp_planar(lev, target, pose, cfg.lane_icp_ranges,
-                     iterations or cfg.icp_iterations).pose
+                     iterations or cfg.icp_iterations, receding=receding).pose
     if lanes is not None:
-        target = lanes.towards(end[:2], cfg.visible_side_offset)
-    d = target.tree.query(apply_planar(lev, end), distance_upper_bound=tau)[0]
+        target = _seen_from(lanes, end[:2], cfg)
+    d = target.query(apply_planar(lev, end), receding, tau)[0]
     return robust_score(d, tau), end
 
 
@@ -175,7 +184,7 @@ def _distinct(pose: np.ndarray, kept: list[tuple[float, np.ndarray]], cfg: Coars
 
 def lane_modes(
     refined: list[tuple[float, np.ndarray]], final: _Refined, src: np.ndarray,
-    lanes: LaneCentres, cfg: CoarseConfig,
+    receding: np.ndarray, lanes: LaneCentres, cfg: CoarseConfig,
 ) -> list[tuple[float, np.ndarray]]:
     """The distinct planar poses (x, y, yaw) that fit the lane centres within
     ``cfg.mode_margin`` of the best, as (lane score, pose), best first (at most ``max_modes``).
@@ -185,33 +194,39 @@ def lane_modes(
     within ``mode_search_radius`` m (steps of the raster cell ``mode_search_cell``) and
     ``mode_search_yaw_deg`` (steps ``mode_search_yaw_step_deg``) of ``final``'s, scored like
     the road-area search (:func:`search_grid`) on a raster of the centre lines shifted
-    towards ``final``'s sensor (``tau`` = the last lane ICP range). Each start is carried
+    towards ``final``'s sensor (``tau`` = the last lane ICP range; one raster per Doppler sign
+    of ``src``'s points, ``receding`` (N,)). Each start is carried
     through the lane-centre ICP on a subsample of ``mode_points`` levelled points
     (``mode_search_iterations`` per stage) against those lines; the distinct ends within the
     margin are polished and re-scored with every point of ``src`` (levelled with ``final``'s
     tilt) against the lines shifted towards their own.
     """
     lev_all = (src @ final.r_tilt.T)[:, :2]
-    lev = lev_all[:: max(1, len(lev_all) // cfg.mode_points)]
-    target = lanes.towards(final.pose2d[:2], cfg.visible_side_offset)
+    stride = max(1, len(lev_all) // cfg.mode_points)
+    lev, rec = lev_all[::stride], receding[::stride]
+    target = _seen_from(lanes, final.pose2d[:2], cfg)
     r, cell, tau = cfg.mode_search_radius, cfg.mode_search_cell, cfg.lane_icp_ranges[-1]
     offs = np.arange(-np.floor(r / cell), np.floor(r / cell) + 1) * cell
-    raster = ScoreRaster.build(target.xy, cell, 2.0 * (r + tau) + cell, tau)
     w, step = cfg.mode_search_yaw_deg, cfg.mode_search_yaw_step_deg
     yaws = final.pose2d[2] + np.deg2rad(np.arange(-w, w + 1e-9, step))
-    scores = search_grid(lev, raster, final.pose2d[:2], yaws, offs)
+    scores = np.zeros((len(yaws), len(offs), len(offs)), dtype=np.float32)
+    for lines, sel in ((target.receding, rec), (target.approaching, ~rec)):
+        if sel.any() and len(lines.xy):       # a sign without lanes scores 0
+            raster = ScoreRaster.build(lines.xy, cell, 2.0 * (r + tau) + cell, tau)
+            scores += search_grid(lev[sel], raster, final.pose2d[:2], yaws, offs) * (
+                sel.sum() / len(lev))
     peaks = distinct_peaks(scores, yaws, offs, cfg.mode_candidates,
                            np.deg2rad(cfg.mode_separation_deg), cfg.mode_separation)
     grid = [np.array([final.pose2d[0] + dx, final.pose2d[1] + dy, yaw])
             for _, yaw, dx, dy in peaks]
-    ends = [_lane_fit(lev, target, p, cfg, cfg.mode_search_iterations)
+    ends = [_lane_fit(lev, rec, target, p, cfg, cfg.mode_search_iterations)
             for p in [final.pose2d, *(p for _, p in refined[1:]), *grid]]
     top = max(score for score, _ in ends)
     rough: list[tuple[float, np.ndarray]] = []
     for score, pose in sorted(ends, key=lambda item: -item[0]):
         if score >= cfg.mode_margin * top and _distinct(pose, rough, cfg):
             rough.append((score, pose))
-    polished = sorted((_lane_fit(lev_all, lanes, pose, cfg) for _, pose in rough),
+    polished = sorted((_lane_fit(lev_all, receding, lanes, pose, cfg) for _, pose in rough),
                       key=lambda item: -item[0])
     top = polished[0][0]
     kept: list[tuple[float, np.ndarray]] = []
@@ -309,10 +324,12 @@ class _Refined:
 
 
 def _refine(
-    src: np.ndarray, road: RoadModel, lanes: LaneCentres, pose2d: np.ndarray, z: float,
-    vfov_deg: float, cfg: CoarseConfig, statics: StaticGround | None = None,
+    src: np.ndarray, receding: np.ndarray, road: RoadModel, lanes: LaneCentres,
+    pose2d: np.ndarray, z: float, vfov_deg: float, cfg: CoarseConfig,
+    statics: StaticGround | None = None,
 ) -> _Refined:
-    """Alternate the lane-centre planar ICP and the vertical fit (see the module docstring)."""
+    """Alternate the lane-centre planar ICP and the vertical fit (see the module docstring);
+    src (N, 3) in S, receding (N,) their Doppler signs."""
     r_tilt = np.eye(3)
     pitch = roll = 0.0
     z_prior = z
@@ -321,8 +338,8 @@ def _refine(
     out = IcpOutcome(pose2d, False, 0)
     for _ in range(cfg.alternations):
         lev = src @ r_tilt.T
-        target = lanes.towards(pose2d[:2], cfg.visible_side_offset)
-        out = icp_planar(lev[:, :2], target, pose2d, cfg.lane_icp_ranges, cfg.icp_iterations)
+        out = icp_planar(lev[:, :2], _seen_from(lanes, pose2d[:2], cfg), pose2d,
+                         cfg.lane_icp_ranges, cfg.icp_iterations, receding=receding)
         pose2d = out.pose
         xy_l = apply_planar(lev[:, :2], pose2d)
         seen = below_fov_floor(src, r_tilt, z, road.road_height(xy_l)[0], vfov_deg)
@@ -363,7 +380,7 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
     if len(target) == 0:
         raise LocalizationError("the target cloud is empty: no road points to register to")
     check_inside_als(scn)
-    src, n_dyn = dynamic_points(scn.radar, cfg)
+    src, receding, n_dyn = dynamic_points(scn.radar, cfg)
     timings["source filter"] = time.perf_counter() - t0
     if len(src) < cfg.min_points:
         raise LocalizationError(
@@ -391,29 +408,31 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
     timings["hypothesis search"] = time.perf_counter() - t
 
     t = time.perf_counter()
-    fit = src[:: max(1, len(src) // cfg.refine_points)]
+    stride = max(1, len(src) // cfg.refine_points)
+    fit, fit_rec = src[::stride], receding[::stride]
     statics = StaticGround.build(scn.radar, np.asarray(scn.als.xyz, dtype=float),
                                  np.asarray(scn.als.classification), centre,
                                  scn.sensor.max_range + pad,
                                  np.vstack([lc.xy for lc in models.values()]), cfg)
-    refs = {model: _refine(fit, road, lanes, refined[0][1], z0, scn.sensor.vfov_deg, cfg,
-                           statics) for model, lanes in models.items()}
+    refs = {model: _refine(fit, fit_rec, road, lanes, refined[0][1], z0, scn.sensor.vfov_deg,
+                           cfg, statics) for model, lanes in models.items()}
     kept: list[tuple[float, np.ndarray, str]] = []
     for model, lanes in models.items():
         ref = refs[model]
         if cfg.max_modes > 1:
-            kept += [(score, pose, model) for score, pose in lane_modes(refined, ref, fit, lanes,
-                                                                        cfg)]
+            kept += [(score, pose, model)
+                     for score, pose in lane_modes(refined, ref, fit, fit_rec, lanes, cfg)]
         else:
-            score, pose = _lane_fit((fit @ ref.r_tilt.T)[:, :2], lanes, ref.pose2d, cfg)
+            score, pose = _lane_fit((fit @ ref.r_tilt.T)[:, :2], fit_rec, lanes, ref.pose2d,
+                                    cfg)
             kept.append((score, pose, model))
     kept.sort(key=lambda item: -item[0])
     # a lane model is a mode like any other: within mode_margin of the best of all, or dropped
     kept = [k for k in kept if k[0] >= cfg.mode_margin * kept[0][0]]
     ref = refs[kept[0][2]]
     if _distinct(ref.pose2d, kept[:1], cfg):      # another pose fits the lanes best
-        ref = _refine(fit, road, models[kept[0][2]], kept[0][1], z0, scn.sensor.vfov_deg, cfg,
-                      statics)
+        ref = _refine(fit, fit_rec, road, models[kept[0][2]], kept[0][1], z0,
+                      scn.sensor.vfov_deg, cfg, statics)
         kept[0] = (kept[0][0], ref.pose2d, kept[0][2])
     heights = [(ref.z, ref.z_std)] + [
         _height_at(fit, road, statics, ref, pose, z0, scn.sensor.vfov_deg, cfg)
