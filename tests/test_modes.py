@@ -85,18 +85,31 @@ def _error_2d(T: np.ndarray, truth: np.ndarray) -> float:
 @pytest.fixture(scope="module")
 def sparse_runs():
     """5 vehicles per minute through the 4-arm junction, seed 1: the road-area search ends a
-    lane off (4-5 m) and several lane-width shifts fit the lane centres alike."""
+    lane off (4-5 m); without the coarse stage's Doppler gate several lane-width shifts fit
+    the lane centres alike."""
     scn = sparse("intersection", 1, 5.0)
     return scn, localize_many(scn, ["icp", "filter-sicp", "joint"])
 
 
 def test_coarse_keeps_the_true_pose_among_its_modes(sparse_runs):
+    """Doppler gate off (``lane_doppler_gate_deg = 90``: a point may match a lane of either
+    direction): several modes, the best-scoring one a lane off, the truth among the others.
+    Gate on (default): each vehicle fits only its own direction's lanes, the lane-width shifts
+    no longer fit alike and the coarse stage resolves near the truth."""
+    from fgloc.coarse import coarse_localize
+    from fgloc.map import build_target_cloud
+
     scn, out = sparse_runs
     truth = scn.truth.sensor_pose
-    modes = out["icp"].mode_fits
+    cfg = Config()
+    cfg.coarse.lane_doppler_gate_deg = 90.0
+    modes = coarse_localize(scn, build_target_cloud(scn, cfg.map), cfg.coarse, cfg.map).modes
+    placed = [float(np.hypot(*(m.pose2d[:2] - truth[:2, 3]))) for m in modes]
     assert len(modes) >= 2
-    assert min(_error_2d(m.T_local, truth) for m in modes) < 0.5
-    assert _error_2d(modes[0].T_local, truth) > 2.0     # and the best-scoring one is wrong
+    assert min(placed) < 0.5
+    assert placed[0] > 2.0          # and the best-scoring one is wrong
+    gated = out["icp"]
+    assert gated.status == RESOLVED and _error_2d(gated.T_local, truth) < 0.3
 
 
 def test_no_method_is_confidently_wrong_on_sparse_traffic(sparse_runs):
@@ -141,21 +154,23 @@ def test_one_mode_when_max_modes_is_one(sparse_runs):
 
 
 def test_cli_localize_exits_3_on_an_ambiguous_pose(sparse_runs, tmp_path, capsys):
-    """icp on the sparse junction keeps several coarse modes: exit code 3, a warning on
-    stderr, result.json with status, every mode and a covariance covering them."""
+    """icp on the sparse junction with the coarse stage's Doppler gate off keeps several
+    coarse modes: exit code 3, a warning on stderr, result.json with status, every mode and a
+    covariance covering them."""
     import json
 
     from fgloc.cli import EXIT_AMBIGUOUS, main
     from fgloc.io import write_scenario
 
-    scn, out = sparse_runs
+    scn, _ = sparse_runs
     write_scenario(scn, tmp_path / "scn")
+    (tmp_path / "cfg.toml").write_text("[coarse]\nlane_doppler_gate_deg = 90.0\n")
     code = main(["-q", "localize", str(tmp_path / "scn"), "--out", str(tmp_path / "out"),
-                 "--method", "icp"])
+                 "--method", "icp", "--config", str(tmp_path / "cfg.toml")])
     assert code == EXIT_AMBIGUOUS == 3
     assert "ambiguous" in capsys.readouterr().err
     doc = json.loads((tmp_path / "out" / "result.json").read_text())
-    assert doc["status"] == "ambiguous" and len(doc["modes"]) == len(out["icp"].modes) >= 2
+    assert doc["status"] == "ambiguous" and len(doc["modes"]) >= 2
     assert sum(m["tied"] for m in doc["modes"]) >= 2 and doc["covariance"] is not None
     assert doc["z_std_m"] > 0
 
