@@ -117,7 +117,8 @@ class CoarseMode:
     that moves the best mode's placement onto this one (the same tilt: the registrations
     later reuse the tracks placed by the best mode, moved rigidly). z, z_std: the sensor height
     (m in L) of the vertical fit at this mode's pose and its std. dev. (m; None without a fit);
-    a final pose that started from this mode takes this height. lanes: the lane model of
+    a final pose nearest this mode's position takes this height
+    (:func:`fgloc.registration.modes.height_mode`). lanes: the lane model of
     two-way streets it was found with (:mod:`fgloc.map.lane_models`); the later stages register
     it against the same.
     """
