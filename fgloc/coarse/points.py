@@ -14,6 +14,7 @@ from fgloc.scenario import RadarData
 def dynamic_points(radar: RadarData, cfg: CoarseConfig) -> tuple[np.ndarray, np.ndarray, int]:
     """Filtered dynamic cloud (M, 3) in S, whether each point moves away from the sensor (M,)
     bool (Doppler > 0) and the number of dynamic detections before filtering.
+
     Keeps ``|doppler| >= cfg.doppler_min``, averages per ``cfg.voxel_size`` voxel and Doppler
     sign (where vehicles of both directions pass, a voxel gives one point per direction) and
     drops the points DBSCAN (``dbscan_eps`` m, ``dbscan_min_points``) labels as noise.

@@ -33,7 +33,13 @@ from fgloc.labels import NAMES, mirrored
 from fgloc.map.lane_models import KEEP_RIGHT, min_width
 from fgloc.progress import Timer
 from fgloc.registration.config import FineConfig, SicpConfig
-from fgloc.registration.modes import RESOLVED, ModeFit, choose_mode, height_mode, track_costs
+from fgloc.registration.modes import (
+    RESOLVED,
+    ModeFit,
+    choose_mode,
+    placed_where_ended,
+    track_costs,
+)
 from fgloc.registration.sicp import SemanticTargets, SicpResult, sicp
 from fgloc.registration.source import SourceCloud, build_source_cloud, check_fine_config
 from fgloc.result import LocalizationResult, json_ready
@@ -223,13 +229,12 @@ def register_tracks(
             targets = mode_targets(scn, target, cfg, coarse, start, lanes)
             res = sicp(src.xy, src.label, targets, None, start, scfg,
                        source_direction=src.direction)
-            T_local = se2_to_se3(res.T) @ coarse.T_coarse
-            near = height_mode(coarse, T_local)         # the height where the fit ended
-            fits.append(ModeFit(res.T, T_local if near is None else near.placed(T_local), None,
+            T_local, z_std = placed_where_ended(coarse, se2_to_se3(res.T) @ coarse.T_coarse)
+            fits.append(ModeFit(res.T, T_local, None,
                                 track_costs(src, targets, res.T, cfg.coarse.mode_cost_scale,
                                             cfg.sicp.direction_gate_deg),
                                 1.0 if mode is None else mode.lane_score, res.converged,
-                                start, coarse.z_std if near is None else near.z_std, lanes))
+                                start, z_std, lanes))
             runs.append((res, targets))      # SICP's covariance is not calibrated: None
     choice = choose_mode(fits, cfg.coarse)
     res, targets = runs[next(i for i, f in enumerate(fits) if f is choice.best)]

@@ -791,7 +791,7 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
         register_tracks,
         sensor_covariance,
     )
-    from fgloc.registration.modes import ModeFit, choose_mode, height_mode, track_costs
+    from fgloc.registration.modes import ModeFit, choose_mode, placed_where_ended, track_costs
     from fgloc.registration.source import build_source_cloud, choose_tracks
     from fgloc.smoothing.graph import detection_range_rates, extent_trusted, placed_detections
 
@@ -825,10 +825,7 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
             if tilt is not None and cov is not None:
                 cov = cov + tilt
             targets = mode_targets(scn, target, cfg, coarse, mode.start, mode.lanes)
-            T_local = se2_to_se3(jr.T) @ coarse.T_coarse
-            near = height_mode(coarse, T_local)         # the height where the fit ended
-            T_local[2, 3] = mode.T_local[2, 3] if near is None else near.z
-            z_std = mode.z_std if near is None else near.z_std
+            T_local, z_std = placed_where_ended(coarse, se2_to_se3(jr.T) @ coarse.T_coarse)
             cost = track_costs(cloud, targets, jr.T, cfg.coarse.mode_cost_scale,
                                cfg.sicp.direction_gate_deg)
             if mode.track_cost.shape == cost.shape and mode.cost < cost.sum():

@@ -101,6 +101,14 @@ def height_mode(coarse: CoarseResult, T_local: np.ndarray) -> CoarseMode | None:
     return coarse.modes[int(np.argmin(dist))]
 
 
+def placed_where_ended(coarse: CoarseResult, T_local: np.ndarray
+                       ) -> tuple[np.ndarray, float | None]:
+    """A final pose ``T_local`` (4x4 S -> L) with the height of :func:`height_mode` and that
+    height's std. dev. (m); without coarse modes ``T_local`` as it is and ``coarse.z_std``."""
+    near = height_mode(coarse, T_local)
+    return (T_local, coarse.z_std) if near is None else (near.placed(T_local), near.z_std)
+
+
 def track_costs(src: SourceCloud, targets: SemanticTargets, T: np.ndarray, scale: float,
                 gate_deg: float = 180.0) -> np.ndarray:
     """Summed robust cost ``min(d, scale)^2 / scale^2`` per track (ordered by track id) of the
