@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from fgloc.config import CoarseConfig, Config
-from fgloc.geo import se2, se2_to_se3
+from fgloc.geo import LocalFrame, se2, se2_to_se3
 from fgloc.pipeline import localize, localize_many
 from fgloc.registration.modes import AMBIGUOUS, RESOLVED, ModeFit, choose_mode, separation_z
 from fgloc.sim import SimConfig, simulate
@@ -52,6 +52,34 @@ def test_modes_ending_on_the_same_pose_merge_into_the_better():
     c = _fit(0.0, 0.0, 1.5, [1.2, 1.2])            # 1.5 deg away: distinct
     ch = choose_mode([b, c, a], cfg)
     assert [f for f in ch.fits] == [a, c]
+
+
+def test_a_start_the_refinement_slid_away_from_stays_a_mode():
+    """Refinements of three tied starts along a road (x) all end at x = 9 (a flat valley):
+    merged they would read as one resolved pose; the starts keep the choice ambiguous, and the
+    covering covariance holds the truth at one of them. A start the refinement stayed near
+    merges into its fit; a start the tracks rule out stays a mode but not a tied one."""
+    cfg = CoarseConfig()
+    own = np.diag([1.0, 0.05**2, np.deg2rad(0.05) ** 2])
+    costs = [1.0, 1.2, 0.9, 1.1, 1.0, 1.05, 0.95, 1.0] * 2     # 16 tracks
+    starts = [_fit(x, 0.0, 0.0, costs) for x in (0.0, 2.5, 5.0)]
+    finals = [_fit(9.0, 0.0, 0.0, costs, own) for _ in starts]
+    assert choose_mode(finals, cfg).status == RESOLVED                # the merge alone
+    ch = choose_mode(finals, cfg, starts)
+    assert ch.status == AMBIGUOUS and len(ch.tied) == 4
+    assert [f.origin for f in ch.fits] == ["final", "start", "start", "start"]
+    assert ch.best.sensor[0] == pytest.approx(9.0)
+    e = np.array([0.0 - 9.0, 0.0, 0.0])                              # the truth at the first start
+    assert e @ np.linalg.solve(ch.covariance(cfg), e) < 11.34            # chi2(3) 99 %
+    # a start within the mode separation of its fit is that fit's pose
+    near = [_fit(8.5, 0.0, 0.0, costs)]
+    assert choose_mode(finals[:1], cfg, near).status == RESOLVED
+    # a start every track fits worse is ruled out (z = sqrt(16))
+    bad = [_fit(0.0, 0.0, 0.0, [c + 0.5 for c in costs])]
+    ch = choose_mode(finals[:1], cfg, bad)
+    assert ch.status == RESOLVED and len(ch.fits) == 2 and ch.fits[1].origin == "start"
+    assert ch.summary(LocalFrame((677000.0, 5400000.0, 380.0), "EPSG:25832"))[1]["origin"] \
+        == "start"
 
 
 def test_ambiguous_covariance_covers_every_tied_mode():
@@ -227,3 +255,23 @@ def test_registered_modes_hold_the_truth_on_a_t_junction(case, per_minute, seed)
             tied = [f for f, m in zip(res.mode_fits, res.modes) if m["tied"]]
             assert min(_error_2d(f.T_local, truth) for f in tied) < 0.5, method
         assert abs(res.T_local[2, 3] - truth[2, 3]) < 0.3, method
+
+
+@pytest.mark.slow
+def test_traffic_that_never_turns_leaves_the_along_road_position_open():
+    """T-junction with every return model at its hardest (bench.robustness "combined", seed
+    4): none of its 32 vehicles turns, so nothing fixes the position along the main road; the
+    coarse modes are tied samples along it (2.8-10.7 m from the truth). The joint's
+    refinements of all of them slid into one pose 16.8 m off, which read as resolved (NEES
+    13.8); with the starts kept as modes the result is ambiguous and its covariance holds the
+    truth (chi2(3) 99 %)."""
+    from bench.robustness import sim_config
+
+    scn = simulate("tjunction", 4, duration=60.0, config=sim_config("combined"))
+    truth = scn.truth.sensor_pose
+    res = localize_many(scn, ["filter-sicp", "joint"])["joint"]
+    assert res.status == AMBIGUOUS
+    e = np.array([*(res.T_local[:2, 3] - truth[:2, 3]),
+                  np.arctan2(res.T_local[1, 0], res.T_local[0, 0])
+                  - np.arctan2(truth[1, 0], truth[0, 0])])
+    assert e @ np.linalg.solve(res.covariance, e) < 11.34

@@ -783,7 +783,10 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
     :mod:`fgloc.registration.modes` (``status``, ``modes``, a covering covariance when
     ambiguous); a mode's evidence is the better of its two fits' costs (the joint's and the
     start's: the joint optimizes another objective and may end where the shared cost is
-    higher, which must not count against the mode). Raises ValueError when ``smoothed``
+    higher, which must not count against the mode); a start that its refinement left by more
+    than the mode separation stays a mode of its own (:func:`~fgloc.registration.modes.
+    choose_mode`'s ``starts``: sliding along a flat direction is no evidence against it).
+    Raises ValueError when ``smoothed``
     holds other tracks than ``tracks``."""
     from fgloc.registration.fine import (
         coarse_tilt_covariance,
@@ -833,7 +836,8 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
             fits.append(ModeFit(jr.T, T_local, cov, cost, mode.lane_score, jr.converged,
                                 mode.start, z_std, mode.lanes))
             runs.append(jr)
-        choice = choose_mode(fits, cfg.coarse)
+        comparable = [m for m in start.mode_fits if m.track_cost.shape == cost.shape]
+        choice = choose_mode(fits, cfg.coarse, comparable)
         jr = runs[next(i for i, f in enumerate(fits) if f is choice.best)]
     cov = choice.best.covariance
     cov_model = sensor_covariance(jr.covariance_model, jr.T, sensor_c)

@@ -25,6 +25,13 @@ placed by the best mode, moved rigidly by the mode's start) and hands its final 
   its modes in both lane models (:mod:`fgloc.map.lane_models`); each is registered against
   its own model's targets and scored against them, and the two models compete like any two
   modes (a model is ruled out by the tracks' fit, or the result is ambiguous).
+* **Starts kept**: a refinement of a mode (the joint's, started from SICP's fit) ends where
+  it ends, but moving from its start is not evidence against the start: in a direction the
+  cost hardly observes (all traffic on one straight road, nothing turning) the refinements
+  of several tied starts slide along the valley into one pose, which must not read as
+  "resolved". So a start that ended farther than the mode separation from every final fit
+  stays a mode at its own pose with its own cost (``origin = "start"``), compared with the
+  best final fit like any other (:func:`choose_mode`'s ``starts``).
 * **Ambiguous**: the reported pose stays the best mode's, but the covariance covers every mode
   not ruled out: ``mean_k (C_k + e_k e_k^T)``, ``e_k`` the mode's (x, y, yaw) minus the
   reported one and ``C_k`` its own covariance (where the method has one), so the truth at any
@@ -33,7 +40,7 @@ placed by the best mode, moved rigidly by the mode's start) and hands its final 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -62,7 +69,9 @@ class ModeFit:
     start: 3x3 SE(2) C -> L, the coarse mode's start (:attr:`fgloc.coarse.CoarseMode.start`).
     z_std: std. dev. (m) of the height (T_local's z, that of the coarse mode), or None.
     lanes: the lane model of two-way streets it was registered with
-    (:mod:`fgloc.map.lane_models`).
+    (:mod:`fgloc.map.lane_models`). origin: "final" (a method's own fit) or "start" (the fit a
+    refinement started from, kept because the refinement moved away from it without ruling
+    it out; module docstring).
     """
 
     T_fine: np.ndarray
@@ -74,6 +83,7 @@ class ModeFit:
     start: np.ndarray
     z_std: float | None = None
     lanes: str = KEEP_RIGHT
+    origin: str = "final"
 
     @property
     def cost(self) -> float:
@@ -143,14 +153,20 @@ def separation_z(worse: np.ndarray, best: np.ndarray) -> float:
     return float(diff.sum() / norm) if norm > 0.0 else 0.0
 
 
+def distinct(fit: ModeFit, others: list[ModeFit], cfg: CoarseConfig) -> bool:
+    """Whether ``fit`` lies at least ``mode_separation`` m or ``mode_separation_deg`` away
+    from each of ``others`` (a pose of its own, not one of theirs)."""
+    return all(np.hypot(*(fit.sensor[:2] - k.sensor[:2])) >= cfg.mode_separation
+               or abs(wrap_angle(fit.sensor[2] - k.sensor[2]))
+               >= np.deg2rad(cfg.mode_separation_deg) for k in others)
+
+
 def merge_modes(fits: list[ModeFit], cfg: CoarseConfig) -> list[ModeFit]:
     """The fits best (least cost) first, without those that ended within
     ``mode_separation`` m and ``mode_separation_deg`` of a better one (the same pose)."""
     kept: list[ModeFit] = []
     for fit in sorted(fits, key=lambda f: f.cost):
-        if all(np.hypot(*(fit.sensor[:2] - k.sensor[:2])) >= cfg.mode_separation
-               or abs(wrap_angle(fit.sensor[2] - k.sensor[2]))
-               >= np.deg2rad(cfg.mode_separation_deg) for k in kept):
+        if distinct(fit, kept, cfg):
             kept.append(fit)
     return kept
 
@@ -203,7 +219,7 @@ class ModeChoice:
                 "cost": fit.cost if len(fit.track_cost) else None, "separation_z": float(self.z[k]),
                 "selected": k == 0, "tied": k in self.tied,
                 "coarse_lane_score": fit.lane_score, "converged": fit.converged,
-                "lanes": fit.lanes,
+                "lanes": fit.lanes, "origin": fit.origin,
                 "std": None if cov is None else {
                     "x_m": float(np.sqrt(cov[0, 0])), "y_m": float(np.sqrt(cov[1, 1])),
                     "yaw_deg": float(np.rad2deg(np.sqrt(cov[2, 2])))},
@@ -232,10 +248,15 @@ def coarse_choice(coarse: CoarseResult) -> ModeChoice:
     return ModeChoice(fits, np.zeros(len(fits)), list(range(len(fits))))
 
 
-def choose_mode(fits: list[ModeFit], cfg: CoarseConfig) -> ModeChoice:
+def choose_mode(fits: list[ModeFit], cfg: CoarseConfig,
+                starts: list[ModeFit] | None = None) -> ModeChoice:
     """Merge the fits, pick the least cost and rule out modes by ``cfg.mode_z`` (module
-    docstring)."""
+    docstring). ``starts``: the fits the ``fits`` were refined from (their track costs on the
+    same tracks); each one distinct from every merged fit is added after them as a mode of
+    its own (``origin = "start"``), so the best final fit must rule it out."""
     merged = merge_modes(fits, cfg)
+    merged += [replace(s, origin="start") for s in merge_modes(starts or [], cfg)
+               if distinct(s, merged, cfg)]
     best = merged[0].track_cost
     z = np.array([separation_z(f.track_cost, best) for f in merged])
     tied = [k for k in range(len(merged)) if k == 0 or z[k] < cfg.mode_z]
