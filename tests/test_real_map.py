@@ -332,10 +332,15 @@ def test_ele_tags_win_over_the_ground(tmp_path: Path) -> None:
         assert z == pytest.approx(tagged[i] - 100.0 if i in tagged else -7.0)
 
 
-@pytest.mark.parametrize("local_crs", ["EPSG:25832", "EPSG:3035"])
-def test_local_xy_nodes_with_declared_crs_and_offset(tmp_path: Path, local_crs: str) -> None:
+@pytest.mark.parametrize("local_crs,latlon", [("EPSG:25832", ' lat="0" lon="0"'),
+                                               ("EPSG:3035", ' lat="0" lon="0"'),
+                                               ("EPSG:25832", ' lat="" lon=""'),
+                                               ("EPSG:25832", "")])
+def test_local_xy_nodes_with_declared_crs_and_offset(tmp_path: Path, local_crs: str,
+                                                     latlon: str) -> None:
     """Autoware-style nodes: local_x/local_y in a declared CRS relative to an offset, lat/lon
-    0. They must land where the lat/lon of the original map put them (< 1 mm)."""
+    0, empty (as Vector Map Builder exports them) or absent. They must land where the lat/lon
+    of the original map put them (< 1 mm)."""
     text = CROP.read_text()
     offset = (4_210_000.0, 2_860_000.0) if local_crs == "EPSG:3035" else (456_000.0, 5_429_000.0)
     to_local = transformer("EPSG:4326", local_crs)
@@ -343,7 +348,7 @@ def test_local_xy_nodes_with_declared_crs_and_offset(tmp_path: Path, local_crs: 
     def repl(m: re.Match[str]) -> str:
         lat, lon = float(m.group(2)), float(m.group(3))
         x, y = to_local.transform(lon, lat)
-        return (f'<node id="{m.group(1)}" lat="0" lon="0"><tag k="local_x" '
+        return (f'<node id="{m.group(1)}"{latlon}><tag k="local_x" '
                 f'v="{x - offset[0]:.5f}"/><tag k="local_y" v="{y - offset[1]:.5f}"/>'
                 f"{m.group(4)}")
     pattern = r'<node id="(\d+)" visible="true" version="1" lat="([-\d.]+)" lon="([-\d.]+)"' \

@@ -233,9 +233,11 @@ def _parse_osm(path: Path) -> tuple[_Nodes, dict[int, dict[str, str]]]:
         tags = {t.get("k"): t.get("v") for t in node.iter("tag")}
         try:
             nid = int(node.attrib["id"])
-            if not ("local_x" in tags and "local_y" in tags):
-                node.attrib["lat"], node.attrib["lon"]  # noqa: B018 (required without local_x/y)
-            lat, lon = float(node.get("lat", "0")), float(node.get("lon", "0"))
+            if "local_x" in tags and "local_y" in tags:
+                # lat/lon optional; Vector Map Builder writes them empty (lat="" lon="")
+                lat, lon = (float(node.get(k) or "0") for k in ("lat", "lon"))
+            else:
+                lat, lon = float(node.attrib["lat"]), float(node.attrib["lon"])
             ele, lx, ly = (float(tags[k]) if k in tags else float("nan")
                            for k in ("ele", "local_x", "local_y"))
         except (KeyError, TypeError, ValueError) as exc:
