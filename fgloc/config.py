@@ -199,6 +199,10 @@ class CoarseConfig:
     """A mode is told apart from the best when the best fits better by at least this many
     standard errors over the tracks (self-normalized sum of the per-track cost differences);
     otherwise the result is ``ambiguous``."""
+    approx_position_sigma: float = 5.0
+    """Std. dev. (m, per axis) of sensor.toml's ``approx_position`` (documented as off by up to
+    about 10 m: 2 sigma) as a prior on the sensor's position. It decides only which of the
+    modes the data cannot tell apart is reported (``ambiguous`` results)."""
     min_fitness: float = 0.5
     """A final fitness below this marks the result as not converged."""
     default_height: float = 6.0
@@ -208,6 +212,9 @@ class CoarseConfig:
         if not 0.0 <= self.lane_doppler_gate_deg <= 90.0:
             raise ValueError("lane_doppler_gate_deg must be in [0, 90], got "
                              f"{self.lane_doppler_gate_deg}")
+        if not self.approx_position_sigma > 0.0:
+            raise ValueError("approx_position_sigma must be > 0 (m), got "
+                             f"{self.approx_position_sigma}")
 
 
 @dataclass

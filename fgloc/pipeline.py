@@ -171,12 +171,12 @@ def _icp(scn: Scenario, cfg: Config, timer: Timer, coarse_stage: tuple[TargetClo
     """``--method icp``, coarse-only localization (the paper's Table II baseline): the best
     coarse mode, ``ambiguous`` when the coarse stage kept several (the covariance then spans
     them). No stage of its own (``timer`` unused)."""
-    from fgloc.registration.modes import RESOLVED, coarse_choice
+    from fgloc.registration.modes import RESOLVED, coarse_choice, position_prior
 
     target, coarse = coarse_stage
     src = transform_points(coarse.T_coarse, coarse.source_xyz)
     diag = {k: v for k, v in asdict(coarse).items() if k not in ("T_coarse", "source_xyz")}
-    choice = coarse_choice(coarse)
+    choice = coarse_choice(coarse, position_prior(scn, cfg.coarse))
     return LocalizationResult(
         method="icp",
         frame=scn.frame,

@@ -12,7 +12,15 @@ import pytest
 from fgloc.config import CoarseConfig, Config
 from fgloc.geo import LocalFrame, se2, se2_to_se3
 from fgloc.pipeline import localize, localize_many
-from fgloc.registration.modes import AMBIGUOUS, RESOLVED, ModeFit, choose_mode, separation_z
+from fgloc.registration.modes import (
+    AMBIGUOUS,
+    RESOLVED,
+    ModeChoice,
+    ModeFit,
+    PositionPrior,
+    choose_mode,
+    separation_z,
+)
 from fgloc.sim import SimConfig, simulate
 
 
@@ -80,6 +88,38 @@ def test_a_start_the_refinement_slid_away_from_stays_a_mode():
     assert ch.status == RESOLVED and len(ch.fits) == 2 and ch.fits[1].origin == "start"
     assert ch.summary(LocalFrame((677000.0, 5400000.0, 380.0), "EPSG:25832"))[1]["origin"] \
         == "start"
+
+
+def test_the_prior_selects_the_reported_one_of_tied_modes():
+    """Tied modes 0, 5 and 10 m along a road, the least-cost one at 0: with the approximate
+    position at x = 9 (sigma 5 m) the mode at 10 m is reported, first, still tied with the
+    others and with its z against the least-cost one. The data's evidence counts: a mode the
+    data nearly rule out (z 2.9) 1 m from the prior loses to the least-cost one 7 m from it
+    (8.41 + 0.04 against 1.96), one with z 1.0 wins (1.04); a resolved choice is left alone."""
+    cfg = CoarseConfig()
+    costs = np.array([1.0, 1.2, 0.9, 1.1] * 4)
+    mixed = 0.05 * np.tile([1.0, -1.0], 8)          # tracks disagree: z well below 1
+    fits = [_fit(x, 0.0, 0.0, costs + dx) for x, dx in
+            ((0.0, 0.0), (5.0, mixed + 0.002), (10.0, -mixed + 0.004))]
+    prior = PositionPrior(np.array([9.0, 0.0]), 5.0)
+    plain = choose_mode(fits, cfg)
+    ch = choose_mode(fits, cfg, prior=prior)
+    assert plain.best is fits[0] and ch.best is fits[2]
+    assert ch.status == AMBIGUOUS and ch.tied == [0, 1, 2]
+    assert [f for f in ch.fits] == [fits[2], fits[0], fits[1]]
+    assert ch.z[0] == pytest.approx(plain.z[2]) and ch.z[1] == 0.0
+    # the covering covariance is taken about the reported mode: x spread of (0, -10, -5)
+    floor = 0.5 * cfg.mode_separation
+    assert ch.covariance(cfg)[0, 0] == pytest.approx((0 + 100 + 25) / 3 + floor**2)
+    # the data's evidence counts: z = 2.9 at 1 m from the prior loses to z = 0 at 7 m
+    near = ModeChoice([_fit(0.0, 0.0, 0.0, [1.0]), _fit(8.0, 0.0, 0.0, [1.0])],
+                      np.array([0.0, 2.9]), [0, 1])
+    assert near.selected_by(PositionPrior(np.array([7.0, 0.0]), 5.0)).best.sensor[0] == 0.0
+    weak = dataclasses.replace(near, z=np.array([0.0, 1.0]))        # 1.0 + 0.04 < 1.96
+    assert weak.selected_by(PositionPrior(np.array([7.0, 0.0]), 5.0)).best.sensor[0] == 8.0
+    clear = choose_mode([_fit(0.0, 0.0, 0.0, [1.0] * 16), _fit(8.0, 0.0, 0.0, [2.0] * 16)],
+                        cfg, prior=prior)
+    assert clear.status == RESOLVED and clear.best.sensor[0] == 0.0
 
 
 def test_ambiguous_covariance_covers_every_tied_mode():
@@ -264,14 +304,16 @@ def test_traffic_that_never_turns_leaves_the_along_road_position_open():
     coarse modes are tied samples along it (2.8-10.7 m from the truth). The joint's
     refinements of all of them slid into one pose 16.8 m off, which read as resolved (NEES
     13.8); with the starts kept as modes the result is ambiguous and its covariance holds the
-    truth (chi2(3) 99 %)."""
+    truth (chi2(3) 99 %). The approximate position (3.6 m from the truth) as a prior selects the
+    reported mode among the tied ones: 2.8 m from the truth; for every method."""
     from bench.robustness import sim_config
 
     scn = simulate("tjunction", 4, duration=60.0, config=sim_config("combined"))
     truth = scn.truth.sensor_pose
-    res = localize_many(scn, ["filter-sicp", "joint"])["joint"]
-    assert res.status == AMBIGUOUS
-    e = np.array([*(res.T_local[:2, 3] - truth[:2, 3]),
-                  np.arctan2(res.T_local[1, 0], res.T_local[0, 0])
-                  - np.arctan2(truth[1, 0], truth[0, 0])])
-    assert e @ np.linalg.solve(res.covariance, e) < 11.34
+    for method, res in localize_many(scn, ["icp", "filter-sicp", "joint"]).items():
+        assert res.status == AMBIGUOUS, method
+        e = np.array([*(res.T_local[:2, 3] - truth[:2, 3]),
+                      np.arctan2(res.T_local[1, 0], res.T_local[0, 0])
+                      - np.arctan2(truth[1, 0], truth[0, 0])])
+        assert e @ np.linalg.solve(res.covariance, e) < 11.34, method
+        assert _error_2d(res.T_local, truth) < 3.5, method

@@ -38,6 +38,7 @@ from fgloc.registration.modes import (
     ModeFit,
     choose_mode,
     placed_where_ended,
+    position_prior,
     track_costs,
 )
 from fgloc.registration.sicp import SemanticTargets, SicpResult, sicp
@@ -236,7 +237,7 @@ def register_tracks(
                                 1.0 if mode is None else mode.lane_score, res.converged,
                                 start, z_std, lanes))
             runs.append((res, targets))      # SICP's covariance is not calibrated: None
-    choice = choose_mode(fits, cfg.coarse)
+    choice = choose_mode(fits, cfg.coarse, prior=position_prior(scn, cfg.coarse))
     res, targets = runs[next(i for i, f in enumerate(fits) if f is choice.best)]
     T_fine = res.T
     warnings = [*target.warnings, *coarse.warnings, *res.warnings, *choice.warnings(method)]

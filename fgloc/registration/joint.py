@@ -786,15 +786,22 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
     higher, which must not count against the mode); a start that its refinement left by more
     than the mode separation stays a mode of its own (:func:`~fgloc.registration.modes.
     choose_mode`'s ``starts``: sliding along a flat direction is no evidence against it).
-    Raises ValueError when ``smoothed``
-    holds other tracks than ``tracks``."""
+    When ambiguous the reported mode is selected with the approximate position as a prior
+    (possibly a kept start: then the diagnostics are those of the joint run that left it).
+    Raises ValueError when ``smoothed`` holds other tracks than ``tracks``."""
     from fgloc.registration.fine import (
         coarse_tilt_covariance,
         mode_targets,
         register_tracks,
         sensor_covariance,
     )
-    from fgloc.registration.modes import ModeFit, choose_mode, placed_where_ended, track_costs
+    from fgloc.registration.modes import (
+        ModeFit,
+        choose_mode,
+        placed_where_ended,
+        position_prior,
+        track_costs,
+    )
     from fgloc.registration.source import build_source_cloud, choose_tracks
     from fgloc.smoothing.graph import detection_range_rates, extent_trusted, placed_detections
 
@@ -837,8 +844,11 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
                                 mode.start, z_std, mode.lanes))
             runs.append(jr)
         comparable = [m for m in start.mode_fits if m.track_cost.shape == cost.shape]
-        choice = choose_mode(fits, cfg.coarse, comparable)
-        jr = runs[next(i for i, f in enumerate(fits) if f is choice.best)]
+        choice = choose_mode(fits, cfg.coarse, comparable, position_prior(scn, cfg.coarse))
+        # the joint run of the reported mode (of a kept start: the run that left it)
+        jr = runs[next(i for i, f in enumerate(fits) if f is choice.best
+                       or (f.lanes == choice.best.lanes and np.array_equal(f.start,
+                                                                           choice.best.start)))]
     cov = choice.best.covariance
     cov_model = sensor_covariance(jr.covariance_model, jr.T, sensor_c)
     if tilt is not None and cov_model is not None:
@@ -874,20 +884,20 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
         "history": jr.history,
         "timing_s": jr.timing,
     }
-    # the start's source points, moved from SICP's pose to the joint one (for the plot)
-    delta = jr.T @ np.linalg.inv(start.tracks.T_frame_to_L)
+    # the start's source points, moved from SICP's pose to the reported one (for the plot)
+    delta = choice.best.T_fine @ np.linalg.inv(start.tracks.T_frame_to_L)
     src = start.source_xyz.copy()
     src[:, :2] = transform_points(delta, src[:, :2])
     return dataclasses.replace(
         start,
         method="joint",
         T_local=choice.best.T_local,
-        converged=start.converged and jr.converged and cov is not None,
+        converged=start.converged and jr.converged and jr.covariance is not None,
         covariance=choice.covariance(cfg.coarse),
         diagnostics=json_ready({**start.diagnostics, "joint": diag}),
         warnings=warnings,
         source_xyz=src,
-        tracks=jr.tracks,
+        tracks=dataclasses.replace(jr.tracks, T_frame_to_L=choice.best.T_fine),
         status=choice.status,
         modes=json_ready(choice.summary(scn.frame)),
         mode_fits=choice.fits,
