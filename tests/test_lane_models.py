@@ -56,21 +56,23 @@ def test_auto_finds_the_lane_model_of_the_traffic(traffic: str) -> None:
 @pytest.mark.parametrize("traffic", [KEEP_RIGHT, CENTRE])
 def test_auto_over_seeds(traffic: str) -> None:
     """Seeds 1-5 on the crop (100 m, 40 s: a small, hard setting), either kind of traffic:
-    ``auto`` resolves to the traffic's model, as accurate as that model fixed, and is on
-    average more than 1 m closer to the truth than the other model fixed. (Before the coarse
+    ``auto`` resolves to the traffic's model, on average as accurate as that model fixed (a
+    run may differ: at this junction SICP's end depends on its start along the nearly flat
+    direction of the main street, and ``auto``'s coarse start of the same model can differ;
+    keep-right seed 5: 0.03 m auto, 0.25 m fixed), and is on average more than 1 m closer to
+    the truth than the other model fixed. (Before the coarse
     stage's Doppler gate the keep-right model, two lines per street, took centre-line traffic
     to the nearer line of either direction: all five centre-line runs were ambiguous, one chose
     the keep-right model, ``auto`` 0.90 m against 0.35 m for the centre model fixed.)"""
-    errs, errs_wrong = [], []
+    errs, errs_right, errs_wrong = [], [], []
     for seed in range(1, 6):
         scn = _scenario(traffic, seed)
         res, chosen, _, err = _filter_sicp(scn, "auto")
-        right = _filter_sicp(scn, traffic)
-        wrong = _filter_sicp(scn, KEEP_RIGHT if traffic == CENTRE else CENTRE)
         errs.append(err)
-        errs_wrong.append(wrong[3])
+        errs_right.append(_filter_sicp(scn, traffic)[3])
+        errs_wrong.append(_filter_sicp(scn, KEEP_RIGHT if traffic == CENTRE else CENTRE)[3])
         assert res.status == "resolved" and chosen == traffic
-        assert err == pytest.approx(right[3], abs=0.01)   # (static returns: both models)
+    assert sum(errs) / 5 <= sum(errs_right) / 5 + 0.05
     assert sum(errs_wrong) / 5 > sum(errs) / 5 + 1.0
 
 
