@@ -83,11 +83,12 @@ def test_centres_and_contours(constructed):
 
 def test_voxels_are_per_label():
     xy = np.array([[0.1, 0.1], [0.2, 0.2], [0.3, 0.3], [1.6, 0.1]])
-    cent, lab, first = voxel_per_label(xy, np.array([0, 0, 1, 0], np.int8), 1.0)
+    cent, lab, first, n = voxel_per_label(xy, np.array([0, 0, 1, 0], np.int8), 1.0)
     assert len(cent) == 3
     np.testing.assert_allclose(cent[(lab == 0) & (cent[:, 0] < 1)], [[0.15, 0.15]])
     np.testing.assert_allclose(cent[lab == 1], [[0.3, 0.3]])
     assert sorted(first.tolist()) == [0, 2, 3]
+    assert sorted(n.tolist()) == [1, 1, 2]
 
 
 def test_voxel_none_is_the_targets(constructed):

@@ -78,6 +78,8 @@ class SicpConfig:
 SOURCE_KINDS: tuple[str, ...] = ("detections", "centres", "contours")
 #: What the source cloud of filter-sicp is registered to (see :mod:`fgloc.registration.fine`).
 TARGET_KINDS: tuple[str, ...] = ("road-points", "lane-centres", "visible-sides")
+#: How far the "visible-sides" target lies from the centre lines (see :class:`FineConfig`).
+VISIBLE_SIDE_MODELS: tuple[str, ...] = ("aspect", "constant")
 
 
 @dataclass
@@ -105,6 +107,15 @@ class FineConfig:
     ``lane_sample_step`` m, each sample labelled with its lanelet's label; "visible-sides" =
     those centre lines shifted ``coarse.visible_side_offset`` m towards the sensor (where the
     radar sees a vehicle's side on average; the target for "detections")."""
+    visible_side: str = "aspect"
+    """How far the "visible-sides" target is shifted towards the sensor, for the source
+    "detections": "aspect" = per aspect (|sin| of the angle between the line of sight and the
+    lane), the mean offset of the tracks' detections from their tracks' centre lines at that
+    aspect, measured on this run's tracks (:mod:`fgloc.registration.visible_side`), with
+    the source voxels weighted by the detections they average; "constant" =
+    ``coarse.visible_side_offset`` everywhere, voxels weighted equally (before issue 22).
+    Junction 2 of the real map, seed 1, SICP started at the truth with tracks placed by the
+    truth: the sensor moves 0.47 m with "constant", 0.08 m with "aspect" (docs/experiments.md)."""
     lane_sample_step: float = 0.25
     """Spacing (m) of the samples on the lanelet centre lines (target "lane-centres")."""
     n_trajectories: int | None = None
