@@ -128,14 +128,14 @@ def _track_points(
 
 def voxel_per_label(
     xy: np.ndarray, label: np.ndarray, voxel: float, values: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Average points (N, 2) per occupied (label, voxel) cell of a grid of edge ``voxel`` m
     anchored at the origin. Returns the (M, 2) centroids (with ``values`` (N, D): the cells'
-    (M, D) means of those instead), their (M,) labels and the (M,) index of the first input
-    point of each cell."""
+    (M, D) means of those instead), their (M,) labels, the (M,) index of the first input
+    point of each cell and the (M,) number of input points in each."""
     if xy.shape[0] == 0:
         width = 2 if values is None else values.shape[1]
-        return np.zeros((0, width)), label[:0], np.zeros(0, dtype=np.int64)
+        return np.zeros((0, width)), label[:0], np.zeros(0, dtype=np.int64), np.zeros(0)
     cell = np.floor(xy / voxel).astype(np.int64)
     cell -= cell.min(axis=0)
     span = cell.max(axis=0) + 1
