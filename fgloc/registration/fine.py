@@ -10,9 +10,9 @@ correspondence range. Started from the coarse pose that makes the pose worse: in
 the cost is flat (any pose keeping the points on the asphalt fits) and the wide first ranges
 let off-road detections pull it by about a metre (docs/experiments.md). The default instead
 registers the same labelled detections to the labelled lanelet centre lines shifted towards
-the sensor (the radar sees a vehicle's near side) by the offset measured on the tracks at each
-lane sample's aspect (``[fine] visible_side``, :mod:`fgloc.registration.visible_side`; the
-source voxels weighted by their detections), from a 5 m first range: the coarse stage's lane
+the sensor (the radar sees a vehicle's near side) by ``coarse.visible_side_offset``, or by the
+offset measured on the tracks at each lane sample's aspect (``[fine] visible_side =
+"aspect"``, :mod:`fgloc.registration.visible_side`), from a 5 m first range: the coarse stage's lane
 model, but with only the detections the tracker assigned to vehicles (clutter and ghost points
 left out) and with labels that keep turning vehicles on the turn lanes where lanes cross.
 Measured on simulated intersections and T-junctions it lowers the coarse pose's mean error;
