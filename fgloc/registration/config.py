@@ -116,7 +116,7 @@ class FineConfig:
     the source voxels weighted by the detections they average. "aspect" halves the real
     map's filter-sicp / smoother-sicp error (junction 2 of the example map 0.4-0.6 m ->
     0.01-0.39 m) but puts a T-junction at 20 vehicles per minute, seed 5, 0.40 m off (0.07
-    m with "constant"; a yaw bias, cause not established; docs/experiments.md): not the
+    m with "constant"; one offset per aspect is too coarse there; docs/experiments.md): not the
     default."""
     lane_sample_step: float = 0.25
     """Spacing (m) of the samples on the lanelet centre lines (target "lane-centres")."""
