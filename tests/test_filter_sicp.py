@@ -83,11 +83,12 @@ def test_centres_and_contours(constructed):
 
 def test_voxels_are_per_label():
     xy = np.array([[0.1, 0.1], [0.2, 0.2], [0.3, 0.3], [1.6, 0.1]])
-    cent, lab, first = voxel_per_label(xy, np.array([0, 0, 1, 0], np.int8), 1.0)
+    cent, lab, first, n = voxel_per_label(xy, np.array([0, 0, 1, 0], np.int8), 1.0)
     assert len(cent) == 3
     np.testing.assert_allclose(cent[(lab == 0) & (cent[:, 0] < 1)], [[0.15, 0.15]])
     np.testing.assert_allclose(cent[lab == 1], [[0.3, 0.3]])
     assert sorted(first.tolist()) == [0, 2, 3]
+    assert sorted(n.tolist()) == [1, 1, 2]
 
 
 def test_voxel_none_is_the_targets(constructed):
@@ -254,3 +255,16 @@ def test_localize_end_to_end(stages):
     res = localize(scn, "filter-sicp")
     assert set(res.timings) >= {"coarse ICP", "tracking", "source cloud", "SICP"}
     assert pose_error(res.T_local, scn.truth.sensor_pose).d2d < 0.7
+
+
+def test_aspect_visible_side_weights_voxels_by_their_detections(constructed):
+    """``[fine] visible_side = "aspect"``: each voxel carries the number of detections it
+    averages and the cloud the offsets measured on its tracks; "constant" neither."""
+    scn, tracks, T = constructed
+    src = build_source_cloud(scn, tracks, T, _cfg(source="detections", voxel_size=0.5,
+                                                  visible_side="aspect"))
+    assert sorted(src.weight.tolist()) == [1, 1, 1, 1, 2]   # detections 0 and 1 share a voxel
+    assert src.visible_side is not None and src.visible_side.count.sum() == 6
+    assert "visible_side" in src.summary()
+    plain = build_source_cloud(scn, tracks, T, _cfg(source="detections", voxel_size=0.5))
+    assert plain.weight is None and plain.visible_side is None

@@ -149,8 +149,16 @@ class LaneCentres:
         return cls(np.vstack(xy), np.vstack(normal), np.concatenate(against),
                    np.concatenate(which), np.concatenate(lane))
 
-    def towards(self, sensor_xy: np.ndarray, offset: float) -> PlanarTarget:
-        """The centre lines shifted ``offset`` m sideways towards ``sensor_xy`` (2,)."""
+    def aspect(self, sensor_xy: np.ndarray) -> np.ndarray:
+        """(K,) |sin| of the angle between each sample's driving direction and the line of
+        sight from ``sensor_xy`` (2,) to it: 0 head-on, 1 broadside."""
+        los = self.xy - np.asarray(sensor_xy, dtype=float)
+        dist = np.maximum(np.linalg.norm(los, axis=1), 1e-9)
+        return np.abs(np.einsum("ij,ij->i", los, self.normal)) / dist
+
+    def towards(self, sensor_xy: np.ndarray, offset: float | np.ndarray) -> PlanarTarget:
+        """The centre lines shifted ``offset`` m (one for all, or (K,) per sample) sideways
+        towards ``sensor_xy`` (2,)."""
         return PlanarTarget.of(self._shifted(sensor_xy, offset))
 
     def seen_from(self, sensor_xy: np.ndarray, offset: float, gate_deg: float) -> SignedLanes:
@@ -165,7 +173,7 @@ class LaneCentres:
         tol = np.sin(np.deg2rad(gate_deg))
         return SignedLanes(PlanarTarget.of(xy[away >= -tol]), PlanarTarget.of(xy[away <= tol]))
 
-    def _shifted(self, sensor_xy: np.ndarray, offset: float) -> np.ndarray:
+    def _shifted(self, sensor_xy: np.ndarray, offset: float | np.ndarray) -> np.ndarray:
         side = np.sign(np.einsum("ij,ij->i", sensor_xy - self.xy, self.normal))
         return self.xy + (offset * side)[:, None] * self.normal
 

@@ -78,6 +78,8 @@ class SicpConfig:
 SOURCE_KINDS: tuple[str, ...] = ("detections", "centres", "contours")
 #: What the source cloud of filter-sicp is registered to (see :mod:`fgloc.registration.fine`).
 TARGET_KINDS: tuple[str, ...] = ("road-points", "lane-centres", "visible-sides")
+#: How far the "visible-sides" target lies from the centre lines (see :class:`FineConfig`).
+VISIBLE_SIDE_MODELS: tuple[str, ...] = ("aspect", "constant")
 
 
 @dataclass
@@ -105,6 +107,17 @@ class FineConfig:
     ``lane_sample_step`` m, each sample labelled with its lanelet's label; "visible-sides" =
     those centre lines shifted ``coarse.visible_side_offset`` m towards the sensor (where the
     radar sees a vehicle's side on average; the target for "detections")."""
+    visible_side: str = "constant"
+    """How far the "visible-sides" target is shifted towards the sensor, for the source
+    "detections": "constant" = ``coarse.visible_side_offset`` everywhere, source voxels
+    weighted equally; "aspect" = per aspect (|sin| of the angle between the line of sight and
+    the lane), the mean offset of the tracks' detections from their tracks' centre lines at
+    that aspect, measured on this run's tracks (:mod:`fgloc.registration.visible_side`), with
+    the source voxels weighted by the detections they average. "aspect" halves the real
+    map's filter-sicp / smoother-sicp error (junction 2 of the example map 0.4-0.6 m ->
+    0.01-0.39 m) but puts a T-junction at 20 vehicles per minute, seed 5, 0.40 m off (0.07
+    m with "constant"; one offset per aspect is too coarse there; docs/experiments.md): not the
+    default."""
     lane_sample_step: float = 0.25
     """Spacing (m) of the samples on the lanelet centre lines (target "lane-centres")."""
     n_trajectories: int | None = None

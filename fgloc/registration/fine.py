@@ -10,12 +10,14 @@ correspondence range. Started from the coarse pose that makes the pose worse: in
 the cost is flat (any pose keeping the points on the asphalt fits) and the wide first ranges
 let off-road detections pull it by about a metre (docs/experiments.md). The default instead
 registers the same labelled detections to the labelled lanelet centre lines shifted towards
-the sensor by ``coarse.visible_side_offset`` (the radar sees a vehicle's near side), from a
-5 m first range: the coarse stage's lane model, but with only the detections the tracker
-assigned to vehicles (clutter and ghost points left out) and with labels that keep turning
-vehicles on the turn lanes where lanes cross. Measured on simulated intersections and
-T-junctions it lowers the coarse pose's mean error; registering the tracked centres to the
-centre lines ("centres" / "lane-centres") is limited by the tracker's lateral centre bias.
+the sensor (the radar sees a vehicle's near side) by ``coarse.visible_side_offset``, or by the
+offset measured on the tracks at each lane sample's aspect (``[fine] visible_side =
+"aspect"``, :mod:`fgloc.registration.visible_side`), from a 5 m first range: the coarse stage's lane
+model, but with only the detections the tracker assigned to vehicles (clutter and ghost points
+left out) and with labels that keep turning vehicles on the turn lanes where lanes cross.
+Measured on simulated intersections and T-junctions it lowers the coarse pose's mean error;
+registering the tracked centres to the centre lines ("centres" / "lane-centres") is limited
+by the tracker's lateral centre bias.
 """
 
 from __future__ import annotations
@@ -43,6 +45,7 @@ from fgloc.registration.modes import (
 )
 from fgloc.registration.sicp import SemanticTargets, SicpResult, sicp
 from fgloc.registration.source import SourceCloud, build_source_cloud, check_fine_config
+from fgloc.registration.visible_side import VisibleSide
 from fgloc.result import LocalizationResult, json_ready
 from fgloc.scenario import TWO_WAY_MIN_WIDTH, Lanelet, Scenario
 
@@ -54,19 +57,22 @@ if TYPE_CHECKING:
 
 def lane_centre_points(
     scn: Scenario, target: TargetCloud, step: float, towards: np.ndarray | None = None,
-    offset: float = 0.0, two_way_min_width: float = TWO_WAY_MIN_WIDTH,
+    offset: float | VisibleSide = 0.0, two_way_min_width: float = TWO_WAY_MIN_WIDTH,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(K, 2) samples (m, in L) of the lane centre lines of the lanelets in ``target``
     (:meth:`LaneCentres.build`: one per direction on a wide two-way lanelet), every about
     ``step`` m, and the (K,) label code of each (its lanelet's label, mirrored on a lane driven
     against the lanelet's direction), and the (K, 2) unit driving direction of each. With
     ``towards`` (2,) m, every sample is shifted ``offset`` m sideways towards that point (the
-    sensor). ``two_way_min_width`` (m) sets the lane model of two-way lanelets
+    sensor); a :class:`VisibleSide` offset shifts each sample by its value at the sample's
+    aspect seen from there. ``two_way_min_width`` (m) sets the lane model of two-way lanelets
     (:func:`fgloc.map.lane_models.min_width`)."""
     from fgloc.coarse import LaneCentres
 
     lanelets = target.lanelets(scn.lanelets)
     lanes = LaneCentres.build(lanelets, step, two_way_min_width)
+    if towards is not None and isinstance(offset, VisibleSide):
+        offset = offset.at(lanes.aspect(towards))
     xy = lanes.xy if towards is None else lanes.towards(towards, offset).xy
     direction = np.column_stack([lanes.normal[:, 1], -lanes.normal[:, 0]])
     return xy, lane_labels(target, lanelets, lanes), direction
@@ -82,11 +88,13 @@ def lane_labels(target: TargetCloud, lanelets: list[Lanelet], lanes: LaneCentres
 
 def fine_targets(
     scn: Scenario, target: TargetCloud, cfg: Config, sensor_xy: np.ndarray,
-    lanes: str = KEEP_RIGHT,
+    lanes: str = KEEP_RIGHT, side: VisibleSide | None = None,
 ) -> SemanticTargets:
     """The labelled SICP target in L of ``cfg.fine.target`` (see :class:`FineConfig`);
     sensor_xy: (2,) m, the sensor's position in L (for "visible-sides"); lanes: the lane model
-    of two-way streets (:mod:`fgloc.map.lane_models`; not read for "road-points")."""
+    of two-way streets (:mod:`fgloc.map.lane_models`; not read for "road-points"); side: the
+    visible-side offsets measured on the tracks ("visible-sides"; None: the constant
+    ``coarse.visible_side_offset``)."""
     check_fine_config(cfg.fine)
     kind, step = cfg.fine.target, cfg.fine.lane_sample_step
     if kind == "road-points":
@@ -95,17 +103,18 @@ def fine_targets(
     if kind == "lane-centres":
         return SemanticTargets.build(*lane_centre_points(scn, target, step,
                                                          two_way_min_width=width))
-    offset = cfg.coarse.visible_side_offset
+    offset = cfg.coarse.visible_side_offset if side is None else side
     return SemanticTargets.build(*lane_centre_points(scn, target, step, sensor_xy, offset, width))
 
 
 def mode_targets(scn: Scenario, target: TargetCloud, cfg: Config, coarse: CoarseResult,
-                 start: np.ndarray, lanes: str = KEEP_RIGHT) -> SemanticTargets:
+                 start: np.ndarray, lanes: str = KEEP_RIGHT, side: VisibleSide | None = None
+                 ) -> SemanticTargets:
     """:func:`fine_targets` for the mode whose placement is ``start`` (3x3 C -> L) applied to
     the coarse frame and whose lane model is ``lanes``: the visible sides face that mode's
     sensor position."""
     return fine_targets(scn, target, cfg, transform_points(start, coarse.T_coarse[None, :2, 3])[0],
-                        lanes)
+                        lanes, side)
 
 
 def fine_sicp_config(cfg: Config) -> SicpConfig:
@@ -227,9 +236,9 @@ def register_tracks(
     with timer.stage("SICP"):
         for start, mode in zip(coarse.mode_starts(), coarse.modes or [None]):
             lanes = KEEP_RIGHT if mode is None else mode.lanes
-            targets = mode_targets(scn, target, cfg, coarse, start, lanes)
+            targets = mode_targets(scn, target, cfg, coarse, start, lanes, src.visible_side)
             res = sicp(src.xy, src.label, targets, None, start, scfg,
-                       source_direction=src.direction)
+                       weights=src.weight, source_direction=src.direction)
             T_local, z_std = placed_where_ended(coarse, se2_to_se3(res.T) @ coarse.T_coarse)
             fits.append(ModeFit(res.T, T_local, None,
                                 track_costs(src, targets, res.T, cfg.coarse.mode_cost_scale,

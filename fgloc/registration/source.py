@@ -26,7 +26,13 @@ import numpy as np
 from fgloc.config import Config
 from fgloc.geo import transform_points
 from fgloc.labels import NAMES
-from fgloc.registration.config import SOURCE_KINDS, TARGET_KINDS, FineConfig
+from fgloc.registration.config import (
+    SOURCE_KINDS,
+    TARGET_KINDS,
+    VISIBLE_SIDE_MODELS,
+    FineConfig,
+)
+from fgloc.registration.visible_side import VisibleSide, measure_visible_side
 from fgloc.scenario import Scenario
 from fgloc.tracks import N_CONTOUR, N_KIN, YAW, Track, TrackSet, contour_angles
 
@@ -40,7 +46,11 @@ class SourceCloud:
     kind: the ``FineConfig.source`` it was built as. n_tracks_used / n_tracks_total: trajectories
     in the cloud / available. n_raw: points before downsampling. direction: (N, 2) unit driving
     direction in C of the tracks' states the points came from (mean over the voxel; the first
-    point's where the voxel's directions cancel).
+    point's where the voxel's directions cancel). weight: None, or (N,) the number of
+    detections each point averages (``[fine] visible_side = "aspect"``: SICP weights the
+    points by it). visible_side: the visible-side offsets measured on the tracks
+    (:mod:`fgloc.registration.visible_side`) the target is shifted by, or None (the constant
+    ``coarse.visible_side_offset``).
     """
 
     xy: np.ndarray
@@ -51,6 +61,8 @@ class SourceCloud:
     n_tracks_total: int
     n_raw: int
     direction: np.ndarray | None = None
+    weight: np.ndarray | None = None
+    visible_side: VisibleSide | None = None
 
     def __len__(self) -> int:
         return int(self.xy.shape[0])
@@ -64,6 +76,8 @@ class SourceCloud:
             "points_per_label": {NAMES[k]: int((self.label == k).sum()) for k in NAMES},
             "n_tracks_used": self.n_tracks_used,
             "n_tracks_total": self.n_tracks_total,
+            **({} if self.visible_side is None
+               else {"visible_side": self.visible_side.summary()}),
         }
 
 
@@ -72,6 +86,7 @@ def check_fine_config(cfg: FineConfig) -> None:
     problems = {
         "source": cfg.source not in SOURCE_KINDS,
         "target": cfg.target not in TARGET_KINDS,
+        "visible_side": cfg.visible_side not in VISIBLE_SIDE_MODELS,
         "lane_sample_step": not cfg.lane_sample_step > 0.0,
         "start_range": not cfg.start_range >= 0.0,
         "n_trajectories": cfg.n_trajectories is not None and cfg.n_trajectories < 1,
@@ -113,14 +128,14 @@ def _track_points(
 
 def voxel_per_label(
     xy: np.ndarray, label: np.ndarray, voxel: float, values: np.ndarray | None = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Average points (N, 2) per occupied (label, voxel) cell of a grid of edge ``voxel`` m
     anchored at the origin. Returns the (M, 2) centroids (with ``values`` (N, D): the cells'
-    (M, D) means of those instead), their (M,) labels and the (M,) index of the first input
-    point of each cell."""
+    (M, D) means of those instead), their (M,) labels, the (M,) index of the first input
+    point of each cell and the (M,) number of input points in each."""
     if xy.shape[0] == 0:
         width = 2 if values is None else values.shape[1]
-        return np.zeros((0, width)), label[:0], np.zeros(0, dtype=np.int64)
+        return np.zeros((0, width)), label[:0], np.zeros(0, dtype=np.int64), np.zeros(0)
     cell = np.floor(xy / voxel).astype(np.int64)
     cell -= cell.min(axis=0)
     span = cell.max(axis=0) + 1
@@ -130,7 +145,7 @@ def voxel_per_label(
     n = np.bincount(inv).astype(float)
     v = xy if values is None else values
     cent = np.column_stack([np.bincount(inv, weights=v[:, k]) / n for k in range(v.shape[1])])
-    return cent, label[first], first
+    return cent, label[first], first, n
 
 
 def build_source_cloud(
@@ -158,9 +173,21 @@ def build_source_cloud(
         + [np.zeros(0, np.int64)]
     )
     unit = np.column_stack([np.cos(heading), np.sin(heading)])
-    means, lab, first = voxel_per_label(xy, label, voxel, np.hstack([xy, unit]))
+    means, lab, first, count = voxel_per_label(xy, label, voxel, np.hstack([xy, unit]))
     cent, direction = means[:, :2], means[:, 2:]
     norm = np.linalg.norm(direction, axis=1, keepdims=True)
     direction = np.where(norm > 1e-6, direction / np.maximum(norm, 1e-12), unit[first])
+    side = None
+    if measures_visible_side(fine):
+        placed = transform_points(T_coarse, np.asarray(scn.radar.xyz, float))[:, :2]
+        side = measure_visible_side([tracks.tracks[i] for i in used], placed,
+                                    np.asarray(T_coarse)[:2, 3], cfg.coarse.visible_side_offset)
     return SourceCloud(cent, lab, track_id[first], fine.source, int(used.size), len(tracks),
-                       int(xy.shape[0]), direction)
+                       int(xy.shape[0]), direction, count if side is not None else None, side)
+
+
+def measures_visible_side(fine: FineConfig) -> bool:
+    """Whether the fine stage measures the visible-side offsets on the tracks: the detections
+    registered to the visible sides with ``visible_side = "aspect"``."""
+    return (fine.visible_side == "aspect" and fine.source == "detections"
+            and fine.target == "visible-sides")
