@@ -16,6 +16,7 @@ from fgloc.scenario import Lanelet
 
 #: spacing (m) of the centre-line samples used for headings and FOV entries
 LANE_STEP: float = 1.0
+EDGE_MIN_INCIDENCE = 0.5
 #: a lanelet starting within this distance (m) of another's end continues it
 CONNECT_TOL: float = 1.0
 
@@ -203,4 +204,10 @@ def initial_kinematics(z: np.ndarray, doppler: np.ndarray, rng: np.ndarray, yaw:
     s = axes @ sensor
     near_lo = s < 0.5 * (lo + hi)
     mid = np.where(near_lo, lo + size / 2, hi - size / 2)
+    # a face is seen only if the sensor is beyond its plane at a useful incidence: sin of
+    # the angle between the line of sight and the face (the face perpendicular to the other
+    # axis)
+    rel = s - 0.5 * (lo + hi)
+    inc = np.abs(rel) / max(float(np.hypot(*rel)), 1e-6)
+    mid = np.where(inc >= EDGE_MIN_INCIDENCE, mid, 0.5 * (lo + hi))
     return mid @ axes, float(wrap_angle(yaw)), min(v, 40.0), size
