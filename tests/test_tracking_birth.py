@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fgloc.tracking.birth import BirthZones, FieldOfView, LaneHeadings, initial_kinematics
+from fgloc.tracking.birth import BirthZones, FieldOfView, LaneHeadings
 from fgloc.tracking.config import TrackingConfig
 from fgloc.tracking.tracker import Tracker, _Frame
 
@@ -79,56 +79,3 @@ def test_birth_waits_until_the_vehicle_has_left_the_withheld_range(length: float
     alone = Tracker(cfg, fov, zones, LaneHeadings.of([]))
     alone.step(0.0, frame)
     assert len(alone.recs) == 1
-
-
-def _car_frame(yaw: float) -> tuple[np.ndarray, np.ndarray]:
-    """Unit heading and left normal of a car with yaw (rad)."""
-    h = np.array([np.cos(yaw), np.sin(yaw)])
-    return h, np.array([-h[1], h[0]])
-
-
-def _local(p: np.ndarray, centre: np.ndarray, yaw: float) -> np.ndarray:
-    """Point p (2,) in the car's frame: lengthwise, sideways offset (m) from its centre."""
-    h, lat = _car_frame(yaw)
-    d = np.asarray(p) - centre
-    return np.array([d @ h, d @ lat])
-
-
-def test_head_on_birth_centres_the_box_on_a_partial_front_face() -> None:
-    """A car 130 m out driving towards the sensor 15 deg off the line of sight: its long side
-    is at grazing incidence (not seen), and the first cluster holds three returns on the half
-    of the front face away from the sensor. Aligning the box's sensor-side edge with the
-    cluster put the centre 1.35 m off sideways (the start of a yaw divergence and a second
-    track on the vehicle); centred on the cluster it is off by at most half the sideways
-    room the cluster leaves in the car's width (0.7 m)."""
-    sensor = np.zeros(2)
-    yaw = np.deg2rad(-78.0)
-    centre = 130.0 * np.array([np.cos(np.deg2rad(87.0)), np.sin(np.deg2rad(87.0))])
-    h, lat = _car_frame(yaw)
-    la = np.array([0.4, 0.65, 0.9])
-    assert _local(sensor, centre, yaw)[1] < 0.0                # sensor on the other side
-    z = centre + 2.3 * h + la[:, None] * lat
-    rng = np.linalg.norm(z - sensor, axis=1)
-    dop = 12.0 * ((z - sensor) / rng[:, None]) @ h
-    c, *_ = initial_kinematics(z, dop, rng, yaw, sensor, 4.6, 1.9, 8.0, 0.0)
-    err = _local(c, centre, yaw)
-    assert abs(err[0]) < 0.05                                  # the front face is seen
-    assert abs(err[1]) <= 0.5 * (1.9 - np.ptp(la)) + 0.01
-
-
-def test_corner_view_birth_keeps_the_seen_edges() -> None:
-    """Seen at 45 deg, the near corner's two faces are seen: the box's sensor-side edges sit on
-    the cluster's extremes although the cluster covers only part of each face."""
-    sensor = np.zeros(2)
-    yaw = np.deg2rad(-135.0)
-    centre = 40.0 * np.array([np.cos(np.deg2rad(90.0)), np.sin(np.deg2rad(90.0))])
-    h, lat = _car_frame(yaw)
-    s = _local(sensor, centre, yaw)
-    side = np.sign(s[1])
-    front = [centre + 2.3 * h + side * w * lat for w in (0.95, 0.6, 0.3)]
-    flank = [centre + u * h + side * 0.95 * lat for u in (2.0, 1.5, 1.0)]
-    z = np.array(front + flank)
-    rng = np.linalg.norm(z - sensor, axis=1)
-    dop = 10.0 * ((z - sensor) / rng[:, None]) @ h
-    c, *_ = initial_kinematics(z, dop, rng, yaw, sensor, 4.6, 1.9, 8.0, 0.0)
-    assert np.linalg.norm(_local(c, centre, yaw)) < 0.05

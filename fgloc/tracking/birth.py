@@ -16,9 +16,6 @@ from fgloc.scenario import Lanelet
 
 #: spacing (m) of the centre-line samples used for headings and FOV entries
 LANE_STEP: float = 1.0
-#: a new track's box aligns its sensor-side edge with its cluster's along an axis only if
-#: sin(angle between the line of sight and the face across that axis) is at least this
-EDGE_MIN_INCIDENCE: float = 0.5
 #: a lanelet starting within this distance (m) of another's end continues it
 CONNECT_TOL: float = 1.0
 
@@ -187,11 +184,7 @@ def initial_kinematics(z: np.ndarray, doppler: np.ndarray, rng: np.ndarray, yaw:
     Speed: median of doppler / (u(yaw) . line of sight) over detections where the heading is
     not across the line of sight, else ``default_speed``; a negative speed flips the heading.
     Centre: the box of size max(prior, cluster extent - 2 noise) per axis of the heading frame
-    whose sensor-side edges coincide with the cluster's (a radar sees the near sides only)
-    along each axis whose face across it is seen (sin incidence >= EDGE_MIN_INCIDENCE), else
-    centred on the cluster's extent along that axis (seen head-on, a sparse cluster may hold
-    a part of the front face only: the side facing the sensor is not seen, and aligning the
-    box with the cluster's sensor-side extreme put it up to a width off);
+    whose sensor-side edges coincide with the cluster's (a radar sees the near sides only);
     noise (m) is the detections' position std. dev., by which the extent of a few noisy
     detections exceeds the vehicle's on each side (far out, azimuth noise alone spreads a
     car's detections wider than a truck).
@@ -210,8 +203,4 @@ def initial_kinematics(z: np.ndarray, doppler: np.ndarray, rng: np.ndarray, yaw:
     s = axes @ sensor
     near_lo = s < 0.5 * (lo + hi)
     mid = np.where(near_lo, lo + size / 2, hi - size / 2)
-    # sin of the angle between the line of sight and the face across each axis
-    rel = s - 0.5 * (lo + hi)
-    inc = np.abs(rel) / max(float(np.hypot(*rel)), 1e-6)
-    mid = np.where(inc >= EDGE_MIN_INCIDENCE, mid, 0.5 * (lo + hi))
     return mid @ axes, float(wrap_angle(yaw)), min(v, 40.0), size
