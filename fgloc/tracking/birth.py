@@ -66,11 +66,11 @@ class FieldOfView:
     def contains(self, p: np.ndarray) -> np.ndarray:
         return self.outside_distance(p) <= 0.0
 
-    def seen(self, p: np.ndarray) -> np.ndarray:
-        """(n,) points (n, 2) inside the sector and beyond the blind range (the same as
-        ``contains(p) & ~blind(p)``, one pass)."""
+    def seen(self, p: np.ndarray, margin: float = 0.0) -> np.ndarray:
+        """(n,) points (n, 2) inside the sector (or at most ``margin`` m outside it) and beyond
+        the blind range (with margin 0 the same as ``contains(p) & ~blind(p)``, one pass)."""
         out, r = self._outside_range(p)
-        return (out <= 0.0) & (r >= self.min_range)
+        return (out <= margin) & (r >= self.min_range)
 
 
 @dataclass(frozen=True)

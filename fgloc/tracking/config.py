@@ -64,6 +64,12 @@ class TrackingConfig:
     growth test (``grow_margin``) uses the extreme detection itself."""
     extent_gap_max: float = 0.6
     """Cap (m) of that sampling-gap correction."""
+    chain_fov_margin: float = 1.0
+    """Contour points up to this far (m) outside the field of view still belong to the visible
+    chain the detections are matched to (a detection is inside it, the track's contour may
+    be a little off: a car driving along the FOV's edge had its seen side just outside, and
+    its side returns went to the front face 1.5-3 m away, turning the yaw 10 deg in one
+    update)."""
     extent_min_incidence: float = 0.25
     """A face gives extent rows only if sin(angle between the line of sight and the face) is at
     least this (a face seen at grazing incidence holds too few detections to reach its ends)."""

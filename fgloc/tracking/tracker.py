@@ -377,7 +377,7 @@ class Tracker:
         r = self.cand_mean + (x[:, N_KIN:] - self.gp.mu) @ self.cand_H.T          # (T, m)
         pts = contour_point(x[:, [X, Y]], x[:, YAW], r, self.cand_theta)         # (T, m, 2)
         vis = contour_candidates(pts, sensor)
-        in_fov = self.fov.seen(pts)
+        in_fov = self.fov.seen(pts, cfg.chain_fov_margin)
         use_fov = (vis & in_fov).any(axis=1, keepdims=True)
         vis = np.where(use_fov, vis & in_fov, vis)
         vis |= ~vis.any(axis=1, keepdims=True)
