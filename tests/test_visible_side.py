@@ -10,7 +10,11 @@ from fgloc.coarse.icp import LaneCentres
 from fgloc.geo import se2, transform_points
 from fgloc.registration.config import SicpConfig
 from fgloc.registration.sicp import SemanticTargets, sicp
-from fgloc.registration.visible_side import ASPECT_EDGES, measure_visible_side
+from fgloc.registration.visible_side import (
+    ASPECT_EDGES,
+    measure_visible_side,
+    onto_cross_section,
+)
 from fgloc.scenario import Lanelet
 from fgloc.tracks import N_STATE, YAW, Track
 
@@ -100,3 +104,53 @@ def test_measured_offsets_fix_the_pose_along_a_street_seen_head_on():
         errors[name] = np.hypot(*res.T[:2, 2])
     assert errors["constant"] > 0.3
     assert errors["aspect"] < 0.05
+
+
+def _arc_lanelet(lid: int, centre: tuple[float, float], radius: float, a0: float, a1: float
+                 ) -> Lanelet:
+    """A 3.5 m wide lanelet along the arc of ``radius`` m about ``centre`` from angle ``a0``
+    to ``a1`` (rad; a1 > a0: driven counter-clockwise, a left turn)."""
+    a = np.linspace(a0, a1, 40)[:, None]
+    c = np.array(centre)
+    left = c + (radius - 1.75) * np.hstack([np.cos(a), np.sin(a)])
+    right = c + (radius + 1.75) * np.hstack([np.cos(a), np.sin(a)])
+    z = np.zeros((40, 1))
+    return Lanelet(lid, np.hstack([left, z]), np.hstack([right, z]))
+
+
+def test_onto_cross_section_keeps_the_place_across_the_heading():
+    rng = np.random.default_rng(3)
+    centre = rng.uniform(-50.0, 50.0, (200, 2))
+    yaw = rng.uniform(-np.pi, np.pi, 200)
+    along, across = rng.uniform(-2.5, 2.5, 200), rng.uniform(-1.0, 1.0, 200)
+    h = np.column_stack([np.cos(yaw), np.sin(yaw)])
+    n = np.column_stack([-h[:, 1], h[:, 0]])
+    xy = centre + along[:, None] * h + across[:, None] * n
+    np.testing.assert_allclose(onto_cross_section(xy, centre, yaw),
+                               centre + across[:, None] * n, atol=1e-12)
+
+
+def test_detections_on_the_cross_section_hold_the_pose_on_a_turn():
+    """Left turns of 12 m radius seen from the sensor, every vehicle's detections on its
+    front face (2.25 m ahead of its centre, the offset of its aspect towards the sensor) and
+    a straight street: registered where they are, the front-face detections lie outside the
+    arcs (0.2 m) and move the pose 0.3 m; moved onto their tracks' cross-sections they fit."""
+    lanes = LaneCentres.build([_arc_lanelet(1, (30.0, 20.0), 12.0, -0.5 * np.pi, 0.0),
+                               _arc_lanelet(2, (-30.0, 25.0), 12.0, np.pi, 1.5 * np.pi),
+                               _lanelet(3, (-20.0, 5.0), (20.0, 5.0))], 0.25)
+    tracks, det = _tracks(lanes, every=1)
+    centre = np.vstack([tr.states[0, :2] for tr in tracks])
+    yaw = np.array([tr.states[0, YAW] for tr in tracks])
+    front = det + 2.25 * np.column_stack([np.cos(yaw), np.sin(yaw)])
+    side = measure_visible_side(tracks, front, SENSOR, fallback=0.3)
+    target = SemanticTargets.build(lanes.towards(SENSOR, side.at(lanes.aspect(SENSOR))).xy,
+                                   np.zeros(len(lanes.xy)))
+    cfg = SicpConfig(max_correspondence=5.0, min_correspondence=1.5, info_window=0.0)
+    label = np.zeros(len(det), np.int64)
+    errors = {}
+    for name, src in [("where they are", front),
+                      ("cross-section", onto_cross_section(front, centre, yaw))]:
+        T = sicp(src, label, target, None, np.eye(3), cfg).T
+        errors[name] = (np.hypot(*T[:2, 2]), abs(np.rad2deg(np.arctan2(T[1, 0], T[0, 0]))))
+    assert errors["where they are"][0] > 0.2
+    assert errors["cross-section"][0] < 0.02 and errors["cross-section"][1] < 0.01

@@ -112,12 +112,14 @@ class FineConfig:
     "detections": "constant" = ``coarse.visible_side_offset`` everywhere, source voxels
     weighted equally; "aspect" = per aspect (|sin| of the angle between the line of sight and
     the lane), the mean offset of the tracks' detections from their tracks' centre lines at
-    that aspect, measured on this run's tracks (:mod:`fgloc.registration.visible_side`), with
-    the source voxels weighted by the detections they average. "aspect" halves the real
-    map's filter-sicp / smoother-sicp error (junction 2 of the example map 0.4-0.6 m ->
-    0.01-0.39 m) but puts a T-junction at 20 vehicles per minute, seed 5, 0.40 m off (0.07
-    m with "constant"; one offset per aspect is too coarse there; docs/experiments.md): not the
-    default."""
+    that aspect, measured on this run's tracks (:mod:`fgloc.registration.visible_side`), the
+    detections moved along their tracks' headings onto the cross-sections through the
+    tracked centres and the source voxels weighted by the detections they average. "aspect"
+    halves the real map's filter-sicp / smoother-sicp error (3 junctions x 3 seeds x both
+    kinds of two-way traffic: 0.29 / 0.25 m -> 0.13 / 0.14 m mean, yaw 0.18 -> 0.05 deg) but
+    not the synthetic layouts' (intersection / T-junction / curve x seeds 1-5: 0.14 / 0.13 m
+    -> 0.18 / 0.18 m; the curves lose, curve 4 smoother-sicp 1.29 m): not the default
+    (docs/experiments.md, issue 22)."""
     lane_sample_step: float = 0.25
     """Spacing (m) of the samples on the lanelet centre lines (target "lane-centres")."""
     n_trajectories: int | None = None

@@ -32,7 +32,11 @@ from fgloc.registration.config import (
     VISIBLE_SIDE_MODELS,
     FineConfig,
 )
-from fgloc.registration.visible_side import VisibleSide, measure_visible_side
+from fgloc.registration.visible_side import (
+    VisibleSide,
+    measure_visible_side,
+    onto_cross_section,
+)
 from fgloc.scenario import Scenario
 from fgloc.tracks import N_CONTOUR, N_KIN, YAW, Track, TrackSet, contour_angles
 
@@ -48,9 +52,11 @@ class SourceCloud:
     direction in C of the tracks' states the points came from (mean over the voxel; the first
     point's where the voxel's directions cancel). weight: None, or (N,) the number of
     detections each point averages (``[fine] visible_side = "aspect"``: SICP weights the
-    points by it). visible_side: the visible-side offsets measured on the tracks
-    (:mod:`fgloc.registration.visible_side`) the target is shifted by, or None (the constant
-    ``coarse.visible_side_offset``).
+    points by it; the detections are then moved along their tracks' headings onto the
+    cross-sections through the tracked centres before averaging,
+    :func:`fgloc.registration.visible_side.onto_cross_section`). visible_side: the
+    visible-side offsets measured on the tracks (:mod:`fgloc.registration.visible_side`) the
+    target is shifted by, or None (the constant ``coarse.visible_side_offset``).
     """
 
     xy: np.ndarray
@@ -110,12 +116,17 @@ def choose_tracks(n: int, cfg: FineConfig, rng: np.random.Generator) -> np.ndarr
 
 
 def _track_points(
-    scn: Scenario, tr: Track, T_coarse: np.ndarray, kind: str
+    scn: Scenario, tr: Track, T_coarse: np.ndarray, kind: str, cross_section: bool = False
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(n, 2) points in C of one track, the (n,) label and the (n,) heading (rad, C) of each."""
+    """(n, 2) points in C of one track, the (n,) label and the (n,) heading (rad, C) of each;
+    with ``cross_section`` detections are moved onto their states' cross-sections
+    (:func:`fgloc.registration.visible_side.onto_cross_section`)."""
     if kind == "detections":
         xy = transform_points(T_coarse, np.asarray(scn.radar.xyz, float)[tr.det_index])[:, :2]
-        return xy, tr.labels[tr.det_step], tr.states[tr.det_step, YAW]
+        yaw = tr.states[tr.det_step, YAW]
+        if cross_section:
+            xy = onto_cross_section(xy, tr.states[tr.det_step, :2], yaw)
+        return xy, tr.labels[tr.det_step], yaw
     if kind == "centres":
         return tr.states[:, :2], tr.labels, tr.states[:, YAW]
     s = tr.states
@@ -164,7 +175,9 @@ def build_source_cloud(
     check_fine_config(fine)
     voxel = cfg.map.voxel_size if fine.voxel_size is None else fine.voxel_size
     used = choose_tracks(len(tracks), fine, rng or np.random.default_rng(cfg.seed))
-    parts = [_track_points(scn, tracks.tracks[i], T_coarse, fine.source) for i in used]
+    per_aspect = measures_visible_side(fine)
+    parts = [_track_points(scn, tracks.tracks[i], T_coarse, fine.source, per_aspect)
+             for i in used]
     xy = np.vstack([p[0] for p in parts]) if parts else np.zeros((0, 2))
     label = np.concatenate([p[1] for p in parts] + [np.zeros(0, np.int8)]).astype(np.int8)
     heading = np.concatenate([p[2] for p in parts] + [np.zeros(0)])
@@ -178,7 +191,7 @@ def build_source_cloud(
     norm = np.linalg.norm(direction, axis=1, keepdims=True)
     direction = np.where(norm > 1e-6, direction / np.maximum(norm, 1e-12), unit[first])
     side = None
-    if measures_visible_side(fine):
+    if per_aspect:
         placed = transform_points(T_coarse, np.asarray(scn.radar.xyz, float))[:, :2]
         side = measure_visible_side([tracks.tracks[i] for i in used], placed,
                                     np.asarray(T_coarse)[:2, 3], cfg.coarse.visible_side_offset)
