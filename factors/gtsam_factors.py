@@ -474,13 +474,21 @@ class ExtentSettings:
     face, ``sin(incidence) >= min_incidence`` of the line of sight on the face; ``gap_max``
     (m): cap of the lengthwise sampling-gap correction (the tracker's
     ``extent_gap_correction``: with n detections spanning s along the heading, each end lies
-    s / (n - 1) beyond its extreme detection; 0 = no correction)."""
+    s / (n - 1) beyond its extreme detection; 0 = no correction); ``face_min_points``: the
+    rows of a face's ends need at least this many detections on that face -- within
+    ``face_band`` (m) of its outermost detection across it (the seen side for the length
+    rows, the seen front or rear for the width rows) -- 0 = no such test. With a few returns
+    on a face its extremes stop short of the far end (the corner away from the sensor) by
+    about the sampling gap, and a smoother that sums these rows over a whole track shrinks
+    the vehicle to that bias."""
 
     sigma: float = 0.35
     min_points: int = 4
     min_cover: float = 0.5
     min_incidence: float = 0.25
     gap_max: float = 0.0
+    face_min_points: int = 0
+    face_band: float = 0.5
 
 
 class ExtentRows(_FrameRows):
@@ -497,7 +505,10 @@ class ExtentRows(_FrameRows):
     sampling gap beyond the extreme detections (``s / (n - 1)`` for n detections spanning s
     along the heading, at most ``gap_max``; held constant in the Jacobian, like the
     selection): sparse returns rarely reach a vehicle's ends, and without it the contour
-    shrinks to the detections. Always 4 rows (front, left, rear, right); a row that does not
+    shrinks to the detections. With ``settings.face_min_points`` > 0 the rows of a face's
+    ends apply only with that many detections within ``settings.face_band`` of the face (the
+    seen side for the length rows, the seen front or rear for the width rows; the side /
+    face the sensor is on). Always 4 rows (front, left, rear, right); a row that does not
     apply is zero with a zero Jacobian, so the factor's dimension stays fixed while the
     selection (like the contour association) is re-done at every evaluation. Rows enter
     scaled by ``sigma_factor / settings.sigma`` (the factor's noise model is isotropic).
@@ -561,6 +572,14 @@ class ExtentRows(_FrameRows):
         enough = self.valid.sum(axis=1) >= cfg.min_points
         use = (np.stack([side, face, side, face], axis=1) & enough[:, None]
                & np.take_along_axis(self.trusted, j, axis=1))
+        if cfg.face_min_points > 0:
+            # detections on the seen side (length rows) and on the seen front / rear (width
+            # rows): within face_band of the outermost one across that face
+            f_ax = np.stack([np.where(s[:, 1] > 0, 1, 3), np.where(s[:, 0] > 0, 0, 2)], axis=1)
+            p = np.take_along_axis(proj, f_ax[:, None, :], axis=2)          # (F, K, 2)
+            t = np.take_along_axis(top, f_ax, axis=1)                        # (F, 2)
+            n_on = np.sum(p >= t[:, None, :] - cfg.face_band, axis=1)       # (F, 2)
+            use &= np.tile(n_on >= cfg.face_min_points, 2)
         return j, use
 
     def rows(self, x: np.ndarray, sel: tuple[np.ndarray, np.ndarray] | None = None,

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from factors.ctra import ctra_predict
-from factors.gp import ContourGP
+from factors.gp import ContourGP, rectangle_radius
 from factors.gtsam_factors import (
     N_KIN,
     N_STATE,
@@ -365,3 +365,32 @@ def test_extent_rows_sampling_gap_correction() -> None:
         e1, J1 = fixed.rows(x, jacobian=True)
         np.testing.assert_allclose(e1 - e0, [gap, 0.0, gap, 0.0], atol=1e-12)
         np.testing.assert_allclose(J1, J0)
+
+
+def test_extent_rows_need_enough_detections_on_the_face_they_measure() -> None:
+    """A 4.5 x 1.8 m car seen from ahead and to its left (front face and left side seen):
+    with ``face_min_points`` the width rows need that many detections on the front face and
+    the length rows that many on the left side (within ``face_band`` of the outermost one);
+    a face with a few returns gives no rows for its ends, the other face's rows stay."""
+    x = np.zeros(N_STATE)
+    x[N_KIN:] = rectangle_radius(GP.angles, 4.5, 1.8)
+    sensor = np.array([30.0, 12.0])
+    rng = np.random.default_rng(2)
+
+    def car(n_front: int, n_side: int) -> np.ndarray:
+        front = np.column_stack([np.full(n_front, 2.25), np.linspace(-0.8, 0.8, n_front)])
+        side = np.column_stack([np.linspace(-2.1, 2.1, n_side), np.full(n_side, 0.9)])
+        return np.vstack([front, side]) + rng.normal(0.0, 0.03, (n_front + n_side, 2))
+
+    def use(z: np.ndarray, k: int) -> np.ndarray:
+        return ExtentRows(z, sensor, ExtentSettings(face_min_points=k, face_band=0.5),
+                          0.3).select(x)[1]
+
+    # order of the rows: front, left, rear, right (length, width, length, width)
+    sparse_front = car(3, 14)
+    np.testing.assert_array_equal(use(sparse_front, 0), [True, True, True, True])
+    np.testing.assert_array_equal(use(sparse_front, 12), [True, False, True, False])
+    sparse_side = car(14, 3)
+    np.testing.assert_array_equal(use(sparse_side, 0), [True, True, True, True])
+    np.testing.assert_array_equal(use(sparse_side, 12), [False, True, False, True])
+    np.testing.assert_array_equal(use(car(14, 14), 12), [True, True, True, True])

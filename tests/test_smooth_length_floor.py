@@ -84,8 +84,11 @@ def _truck_length(ts) -> float:
 # straight road, sparse returns (bench/robustness.py's far-sparse), the truck seen end-on for
 # most of it. Measured on seeds 1-8: batch median length 11.3-12.1 m with the floor on all but
 # seed 3 (whose filter track stays 6.3 m, no occupied length), 7.9-11.9 m without it (seeds
-# 6 / 8: 7.9 / 10.7 m against 11.3 / 11.3 m; centre RMS 2.03 / 0.65 m against 0.45 / 0.39 m)
-@pytest.mark.parametrize("seed", [6, 8])
+# 6 / 8: 7.9 / 10.7 m against 11.3 / 11.3 m; centre RMS 2.03 / 0.65 m against 0.45 / 0.39 m).
+# Since the extent rows need 12 detections on their face (``extent_face_min_points``) the
+# smoother alone shortens less: without the floor seeds 6 / 8 9.4 / 11.2 m (with it 11.3 /
+# 11.4 m), so the cause is checked on seed 6 only
+@pytest.mark.parametrize("seed", [6, pytest.param(8, marks=pytest.mark.slow)])
 def test_batch_keeps_the_length_of_a_truck_seen_end_on(seed: int) -> None:
     table = {**TRUCK_12M, "radar": SPARSE}
     scn = simulate_detailed("straight", seed, 25.0, vehicles=1,
@@ -99,7 +102,7 @@ def test_batch_keeps_the_length_of_a_truck_seen_end_on(seed: int) -> None:
     off.smoothing.length_floor_sigma = 0.0
     free = smooth_tracks(scn, run.tracks, run.T_placement, "batch", off)
     # the cause: without the floor the smoother shortens the truck (to its grazing returns)
-    assert _truck_length(free) < _truck_length(batch) - 0.5
+    assert seed != 6 or _truck_length(free) < _truck_length(batch) - 0.5
 
 
 def test_a_track_with_an_occupied_length_gets_the_long_model() -> None:

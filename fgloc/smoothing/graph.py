@@ -151,7 +151,8 @@ class TrackModel:
                                      + tcfg.sigma_width_rw**2 * np.outer(gw, gw))
         gap = tcfg.extent_gap_max if tcfg.extent_gap_correction else 0.0
         ext = (ExtentSettings(tcfg.sigma_extent, tcfg.extent_min_points, tcfg.extent_min_cover,
-                              tcfg.extent_min_incidence, gap) if scfg.extent_rows else None)
+                              tcfg.extent_min_incidence, gap, scfg.extent_face_min_points,
+                              2.0 * tcfg.sigma_range) if scfg.extent_rows else None)
         return TrackModel(tcfg, scfg, gp, rw, ConditionalTable(gp), ext, long)
 
     @property
