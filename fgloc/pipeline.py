@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from functools import partial
 from typing import TYPE_CHECKING
 
@@ -30,6 +30,7 @@ from fgloc.tracks import TrackSet
 if TYPE_CHECKING:
     from fgloc.coarse import CoarseResult
     from fgloc.map import TargetCloud
+    from fgloc.registration.modes import ModeFit
 
 
 @dataclass
@@ -171,13 +172,13 @@ def _icp(scn: Scenario, cfg: Config, timer: Timer, coarse_stage: tuple[TargetClo
     """``--method icp``, coarse-only localization (the paper's Table II baseline): the best
     coarse mode, ``ambiguous`` when the coarse stage kept several (the covariance then spans
     them). No stage of its own (``timer`` unused)."""
-    from fgloc.registration.modes import RESOLVED, coarse_choice, position_prior
+    from fgloc.registration.modes import RESOLVED, coarse_choice, position_prior, valley_result
 
     target, coarse = coarse_stage
     src = transform_points(coarse.T_coarse, coarse.source_xyz)
     diag = {k: v for k, v in asdict(coarse).items() if k not in ("T_coarse", "source_xyz")}
     choice = coarse_choice(coarse, position_prior(scn, cfg.coarse))
-    return LocalizationResult(
+    res = LocalizationResult(
         method="icp",
         frame=scn.frame,
         T_local=choice.best.T_local,
@@ -194,6 +195,41 @@ def _icp(scn: Scenario, cfg: Config, timer: Timer, coarse_stage: tuple[TargetClo
         mode_fits=choice.fits,
         z_std=choice.best.z_std,
     )
+    return valley_result(res, replace(choice, valley=coarse.valley), cfg.coarse, coarse)
+
+
+def _with_valley(scn: Scenario, cfg: Config, coarse_stage: tuple[TargetCloud, CoarseResult],
+                 tracks: TrackSet, res: LocalizationResult, visible_side: bool
+                 ) -> LocalizationResult:
+    """``res`` of a method on ``tracks`` reporting the valley of its tied modes
+    (:func:`fgloc.registration.modes.track_valley`, scored on the source cloud of ``tracks``
+    against each mode's fine targets, with the measured visible sides when ``visible_side``)
+    when they are samples of one; else ``res`` itself."""
+    from fgloc.registration.fine import mode_targets
+    from fgloc.registration.modes import (
+        RESOLVED,
+        choice_of,
+        position_prior,
+        track_costs,
+        track_valley,
+        valley_result,
+    )
+    from fgloc.registration.source import build_source_cloud
+
+    if res.status == RESOLVED:
+        return res
+    target, coarse = coarse_stage
+    src = build_source_cloud(scn, tracks, coarse.T_coarse, cfg)
+    side = src.visible_side if visible_side else None
+
+    def cost_at(fit: ModeFit, T: np.ndarray) -> np.ndarray:
+        targets = mode_targets(scn, target, cfg, coarse, fit.start, fit.lanes, side)
+        return track_costs(src, targets, T, cfg.coarse.mode_cost_scale,
+                           cfg.sicp.direction_gate_deg)
+
+    choice = choice_of(res)
+    valley = track_valley(choice, cost_at, position_prior(scn, cfg.coarse), cfg.coarse)
+    return valley_result(res, replace(choice, valley=valley), cfg.coarse, coarse)
 
 
 def _register(scn: Scenario, cfg: Config, timer: Timer,
@@ -203,7 +239,9 @@ def _register(scn: Scenario, cfg: Config, timer: Timer,
     (:func:`fgloc.registration.fine.register_tracks`)."""
     from fgloc.registration.fine import register_tracks
 
-    return register_tracks(scn, cfg, *coarse_stage, tracks, timer, method=method)
+    res = register_tracks(scn, cfg, *coarse_stage, tracks, timer, method=method)
+    with timer.stage("valley"):
+        return _with_valley(scn, cfg, coarse_stage, tracks, res, visible_side=True)
 
 
 def _joint(scn: Scenario, cfg: Config, timer: Timer,
@@ -212,8 +250,10 @@ def _joint(scn: Scenario, cfg: Config, timer: Timer,
     """``--method joint`` (:mod:`fgloc.registration.joint`; gtsam is imported on use)."""
     from fgloc.registration.joint import joint_from_tracks
 
-    return joint_from_tracks(scn, cfg, *coarse_stage, tracks, timer, start=start,
-                             smoothed=smoothed)
+    res = joint_from_tracks(scn, cfg, *coarse_stage, tracks, timer, start=start,
+                            smoothed=smoothed)
+    with timer.stage("valley"):
+        return _with_valley(scn, cfg, coarse_stage, tracks, res, visible_side=False)
 
 
 @dataclass(frozen=True)
