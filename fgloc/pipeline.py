@@ -29,8 +29,9 @@ from fgloc.tracks import TrackSet
 
 if TYPE_CHECKING:
     from fgloc.coarse import CoarseResult
+    from fgloc.config import CoarseConfig
     from fgloc.map import TargetCloud
-    from fgloc.registration.modes import ModeFit
+    from fgloc.registration.modes import ModeChoice, ModeFit
 
 
 @dataclass
@@ -172,7 +173,7 @@ def _icp(scn: Scenario, cfg: Config, timer: Timer, coarse_stage: tuple[TargetClo
     """``--method icp``, coarse-only localization (the paper's Table II baseline): the best
     coarse mode, ``ambiguous`` when the coarse stage kept several (the covariance then spans
     them). No stage of its own (``timer`` unused)."""
-    from fgloc.registration.modes import RESOLVED, coarse_choice, position_prior, valley_result
+    from fgloc.registration.modes import RESOLVED, coarse_choice, position_prior
 
     target, coarse = coarse_stage
     src = transform_points(coarse.T_coarse, coarse.source_xyz)
@@ -198,6 +199,47 @@ def _icp(scn: Scenario, cfg: Config, timer: Timer, coarse_stage: tuple[TargetClo
     return valley_result(res, replace(choice, valley=coarse.valley), cfg.coarse, coarse)
 
 
+def choice_of(res: LocalizationResult) -> ModeChoice:
+    """The comparison ``res`` reports: its mode fits (the reported one first) with their
+    ``separation_z`` and ``tied`` flags from ``res.modes``."""
+    from fgloc.registration.modes import ModeChoice
+
+    return ModeChoice(list(res.mode_fits), np.array([float(m["separation_z"]) for m in res.modes]),
+                      [k for k, m in enumerate(res.modes) if m["tied"]])
+
+
+def valley_result(res: LocalizationResult, choice: ModeChoice, cfg: CoarseConfig,
+                  coarse: CoarseResult) -> LocalizationResult:
+    """``res`` (reporting ``choice`` without its valley) reporting the valley of ``choice``:
+    the pose at its posterior mean (:meth:`ModeChoice.reported`, the height of the coarse mode
+    nearest there), the covariance over it, the valley in ``valley`` and its warning in place
+    of the modes'; the tracks and their source cloud moved with the pose. ``res`` itself
+    when ``choice`` has no valley."""
+    from fgloc.registration.modes import placed_where_ended
+
+    if choice.valley is None:
+        return res
+    x, y, _ = choice.reported()
+    origin = min(choice.fits, key=lambda f: np.hypot(*(f.sensor[:2] - choice.valley.origin)))
+    T_local = np.array(origin.T_local, dtype=float)
+    T_local[:2, 3] = (x, y)
+    T_local, z_std = placed_where_ended(coarse, T_local)
+    shift = np.eye(3)
+    shift[:2, 2] = (x, y) - origin.sensor[:2]
+    src, tracks = res.source_xyz, res.tracks
+    if tracks is not None:
+        moved = shift @ origin.T_fine
+        if src is not None:
+            src = src.copy()
+            src[:, :2] = transform_points(moved @ np.linalg.inv(tracks.T_frame_to_L), src[:, :2])
+        tracks = replace(tracks, T_frame_to_L=moved)
+    prefix = f"{res.method}: ambiguous"
+    return replace(res, T_local=T_local, covariance=choice.covariance(cfg), z_std=z_std,
+                   warnings=[*(w for w in res.warnings if not w.startswith(prefix)),
+                             *choice.warnings(res.method)],
+                   valley=choice.valley_summary(res.frame), source_xyz=src, tracks=tracks)
+
+
 def _with_valley(scn: Scenario, cfg: Config, coarse_stage: tuple[TargetCloud, CoarseResult],
                  tracks: TrackSet, res: LocalizationResult, visible_side: bool
                  ) -> LocalizationResult:
@@ -206,14 +248,7 @@ def _with_valley(scn: Scenario, cfg: Config, coarse_stage: tuple[TargetCloud, Co
     against each mode's fine targets, with the measured visible sides when ``visible_side``)
     when they are samples of one; else ``res`` itself."""
     from fgloc.registration.fine import mode_targets
-    from fgloc.registration.modes import (
-        RESOLVED,
-        choice_of,
-        position_prior,
-        track_costs,
-        track_valley,
-        valley_result,
-    )
+    from fgloc.registration.modes import RESOLVED, position_prior, track_costs, track_valley
     from fgloc.registration.source import build_source_cloud
 
     if res.status == RESOLVED:

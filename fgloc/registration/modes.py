@@ -17,10 +17,14 @@ placed by the best mode, moved rigidly by the mode's start) and hands its final 
   position as a prior (:class:`PositionPrior`): least ``max(z_k, 0)^2 + |p_k - a|^2 /
   sigma^2`` (``z_k`` below, ``p_k`` the mode's position, ``a`` sensor.toml's approx_position,
   sigma ``coarse.approx_position_sigma``), both read as ``-2 log`` of a likelihood ratio and of
-  the prior. Where the data are indifferent along a road (nothing turns) the tied modes are
-  samples of a continuum up to 20 m long, and only the prior says where on it the sensor is
-  likelier (robustness "combined", T-junction seed 4: the least-cost mode 16.8 m off, the one
-  nearest the approximate position 2.8 m).
+  the prior.
+* **Valley**: where the data are indifferent along a road (nothing turns) the tied modes are
+  samples of a continuum, and where the samples stop says nothing (robustness "combined",
+  T-junction seed 4: four modes 2.8-10.7 m from the truth, all on one side of it). Tied modes
+  on one line are scanned along it with the test that tied them (:func:`track_valley`; icp:
+  the coarse stage's :attr:`~fgloc.coarse.CoarseResult.valley`); the reported pose is then the
+  posterior mean along the valley and the covariance spans it (:mod:`fgloc.coarse.valley`,
+  :func:`fgloc.pipeline.valley_result`).
 * **Height**: a final pose takes the z (and its std. dev.) of the coarse mode nearest to where
   it ended (:func:`height_mode`), which need not be the one it started from.
 * **Told apart?** The points of one vehicle share its errors, so the evidence against mode k
@@ -61,7 +65,6 @@ from fgloc.map import approx_position_local
 from fgloc.map.lane_models import KEEP_RIGHT, other_model_note
 from fgloc.registration.sicp import ALL, SemanticTargets
 from fgloc.registration.source import SourceCloud
-from fgloc.result import LocalizationResult
 
 if TYPE_CHECKING:
     from fgloc.coarse import CoarseMode, CoarseResult
@@ -354,13 +357,6 @@ def choose_mode(fits: list[ModeFit], cfg: CoarseConfig,
     return ModeChoice(merged, z, tied).selected_by(prior)
 
 
-def choice_of(res: LocalizationResult) -> ModeChoice:
-    """The comparison ``res`` reports: its mode fits (the reported one first) with their
-    ``separation_z`` and ``tied`` flags from ``res.modes``."""
-    return ModeChoice(list(res.mode_fits), np.array([float(m["separation_z"]) for m in res.modes]),
-                      [k for k, m in enumerate(res.modes) if m["tied"]])
-
-
 def track_valley(choice: ModeChoice, cost_at: Callable[[ModeFit, np.ndarray], np.ndarray],
                  prior: PositionPrior, cfg: CoarseConfig) -> Valley | None:
     """The valley of an ambiguous comparison of final fits (:mod:`fgloc.coarse.valley`), or
@@ -383,32 +379,3 @@ def track_valley(choice: ModeChoice, cost_at: Callable[[ModeFit, np.ndarray], np
     poses = np.array([f.sensor for f in tied])
     return find_valley(poses, at, prior.xy, prior.sigma, cfg, z_at)
 
-
-def valley_result(res: LocalizationResult, choice: ModeChoice, cfg: CoarseConfig,
-                  coarse: CoarseResult) -> LocalizationResult:
-    """``res`` (reporting ``choice`` without its valley) reporting the valley of ``choice``:
-    the pose at its posterior mean (:meth:`ModeChoice.reported`, the height of the coarse mode
-    nearest there), the covariance over it, the valley in ``valley`` and its warning in place
-    of the modes'; the tracks and their source cloud moved with the pose. ``res`` itself
-    when ``choice`` has no valley."""
-    if choice.valley is None:
-        return res
-    x, y, yaw = choice.reported()
-    origin = min(choice.fits, key=lambda f: np.hypot(*(f.sensor[:2] - choice.valley.origin)))
-    T_local = np.array(origin.T_local, dtype=float)
-    T_local[:2, 3] = (x, y)
-    T_local, z_std = placed_where_ended(coarse, T_local)
-    shift = np.eye(3)
-    shift[:2, 2] = (x, y) - origin.sensor[:2]
-    src, tracks = res.source_xyz, res.tracks
-    if tracks is not None:
-        moved = shift @ origin.T_fine
-        if src is not None:
-            src = src.copy()
-            src[:, :2] = transform_points(moved @ np.linalg.inv(tracks.T_frame_to_L), src[:, :2])
-        tracks = replace(tracks, T_frame_to_L=moved)
-    prefix = f"{res.method}: ambiguous"
-    return replace(res, T_local=T_local, covariance=choice.covariance(cfg), z_std=z_std,
-                   warnings=[*(w for w in res.warnings if not w.startswith(prefix)),
-                             *choice.warnings(res.method)],
-                   valley=choice.valley_summary(res.frame), source_xyz=src, tracks=tracks)
