@@ -9,10 +9,9 @@ and the extent along it over which the comparison that tied them ties every pose
 steps of half the mode separation, out to ``mode_z`` prior standard deviations from the
 approximate position; the scan's ends beyond that are the prior's, not the data's).
 
-Along the valley the data hardly discriminate and the user's approximate position
-(``approx_position_sigma``) is most of what says where the sensor is: the posterior along it is
-the prior ``N(s_a, sigma^2)`` (``s_a`` the approximate position's projection) times the
-evidence of each tied pose (``exp(-max(z, 0)^2 / 2)``, as the tied modes are weighed), on the
+Along the valley the data are indifferent and the user's approximate position
+(``approx_position_sigma``) is all that says where the sensor is: the posterior along it is the
+prior ``N(s_a, sigma^2)`` (``s_a`` the approximate position's projection) truncated to the
 valley; its mean is the reported position, its variance the reported covariance along the
 valley (across the valley and in yaw the modes' own spread stays).
 """
@@ -35,8 +34,7 @@ class Valley:
     origin: (2,) m, the sensor position of the fit the line passes through (s = 0); yaw (rad)
     that fit's yaw, which every pose on the line keeps. direction: (2,) unit vector along the
     line. s: (n,) m along ``direction`` from ``origin``, the scanned tied poses (steps of half
-    the mode separation), z: (n,) the standard errors by which the best fit beats each (0 where
-    the comparison has no such measure, e.g. the coarse lane score). open_lo, open_hi: whether
+    the mode separation), ascending. open_lo, open_hi: whether
     the scan stopped at that end on its limit (the prior's range) rather than on a pose the
     data rule out. prior_s: the approximate position's projection (m along the line), sigma:
     its std. dev. (m).
@@ -46,7 +44,6 @@ class Valley:
     yaw: float
     direction: np.ndarray
     s: np.ndarray
-    z: np.ndarray
     open_lo: bool
     open_hi: bool
     prior_s: float
@@ -66,10 +63,11 @@ class Valley:
 
     def posterior(self) -> tuple[float, float]:
         """Mean (m along the line) and variance (m^2) of the position along the valley: the
-        scanned poses weighted by ``exp(-(max(z, 0)^2 + (s - prior_s)^2 / sigma^2) / 2)`` (the
-        evidence and the prior, as the tied modes are weighed,
-        :meth:`fgloc.registration.modes.ModeChoice.selected_by`), each standing for its step."""
-        q = np.maximum(self.z, 0.0) ** 2 + ((self.s - self.prior_s) / self.sigma) ** 2
+        prior truncated to it, i.e. the scanned poses (each standing for its step) weighted by
+        ``exp(-(s - prior_s)^2 / (2 sigma^2))``. Inside the valley the per-track statistic is
+        no measure of evidence: it is scale-free, so the tiny cost differences of a flat
+        direction give it any value up to ``sqrt(n)``."""
+        q = ((self.s - self.prior_s) / self.sigma) ** 2
         w = np.exp(-0.5 * (q - q.min()))
         mean = float(np.sum(w * self.s) / w.sum())
         step = float(np.min(np.diff(self.s))) if len(self.s) > 1 else 0.0
@@ -98,9 +96,8 @@ def collinear(poses: np.ndarray, cfg: CoarseConfig) -> np.ndarray | None:
 
 
 def flat_extent(s_modes: np.ndarray, prior_s: float, sigma: float, cfg: CoarseConfig,
-                z_at: Callable[[float], float]
-                ) -> tuple[np.ndarray, np.ndarray, bool, bool] | None:
-    """The tied poses along a line: (s, z, open_lo, open_hi) (see :class:`Valley`), or None
+                z_at: Callable[[float], float]) -> tuple[np.ndarray, bool, bool] | None:
+    """The tied poses along a line: (s, open_lo, open_hi) (see :class:`Valley`), or None
     when a pose between the modes at ``s_modes`` (m along the line) is not tied (they are
     distinct modes, not samples of one continuum). ``z_at(s)``: the standard errors by which
     the best beats the pose ``s`` m along the line (tied below ``cfg.mode_z``). Steps of half
@@ -111,23 +108,17 @@ def flat_extent(s_modes: np.ndarray, prior_s: float, sigma: float, cfg: CoarseCo
     lo, hi = float(np.min(s_modes)), float(np.max(s_modes))
     n = max(1, int(np.ceil((hi - lo) / step)))
     s = list(np.linspace(lo, hi, n + 1))
-    z = [z_at(x) for x in s]
-    if max(z) >= cfg.mode_z:
+    if any(z_at(x) >= cfg.mode_z for x in s):
         return None
     reach = cfg.mode_z * sigma
     opened = []
     for sign, limit in ((1.0, max(hi, prior_s + reach)), (-1.0, min(lo, prior_s - reach))):
         end = hi if sign > 0 else lo
-        while sign * (limit - end) >= step:
-            zz = z_at(end + sign * step)
-            if zz >= cfg.mode_z:
-                break
+        while sign * (limit - end) >= step and z_at(end + sign * step) < cfg.mode_z:
             end += sign * step
             s.append(end)
-            z.append(zz)
         opened.append(sign * (limit - end) < step)
-    order = np.argsort(s)
-    return np.asarray(s)[order], np.asarray(z)[order], opened[1], opened[0]
+    return np.sort(s), opened[1], opened[0]
 
 
 def find_valley(poses: np.ndarray, origin: int, prior_xy: np.ndarray, sigma: float,
