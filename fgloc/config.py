@@ -202,7 +202,8 @@ class CoarseConfig:
     approx_position_sigma: float = 5.0
     """Std. dev. (m, per axis) of sensor.toml's ``approx_position`` (documented as off by up to
     about 10 m: 2 sigma) as a prior on the sensor's position. It decides only which of the
-    modes the data cannot tell apart is reported (``ambiguous`` results)."""
+    modes the data cannot tell apart is reported (``ambiguous`` results), and where on a line of
+    tied poses (a road no vehicle turns off) the sensor is reported, with what std. dev."""
     min_fitness: float = 0.5
     """A final fitness below this marks the result as not converged."""
     default_height: float = 6.0

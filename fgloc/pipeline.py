@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from functools import partial
 from typing import TYPE_CHECKING
 
@@ -29,7 +29,9 @@ from fgloc.tracks import TrackSet
 
 if TYPE_CHECKING:
     from fgloc.coarse import CoarseResult
+    from fgloc.config import CoarseConfig
     from fgloc.map import TargetCloud
+    from fgloc.registration.modes import ModeChoice, ModeFit
 
 
 @dataclass
@@ -177,7 +179,7 @@ def _icp(scn: Scenario, cfg: Config, timer: Timer, coarse_stage: tuple[TargetClo
     src = transform_points(coarse.T_coarse, coarse.source_xyz)
     diag = {k: v for k, v in asdict(coarse).items() if k not in ("T_coarse", "source_xyz")}
     choice = coarse_choice(coarse, position_prior(scn, cfg.coarse))
-    return LocalizationResult(
+    res = LocalizationResult(
         method="icp",
         frame=scn.frame,
         T_local=choice.best.T_local,
@@ -194,6 +196,75 @@ def _icp(scn: Scenario, cfg: Config, timer: Timer, coarse_stage: tuple[TargetClo
         mode_fits=choice.fits,
         z_std=choice.best.z_std,
     )
+    return valley_result(res, replace(choice, valley=coarse.valley), cfg.coarse, coarse)
+
+
+def choice_of(res: LocalizationResult) -> ModeChoice:
+    """The comparison ``res`` reports: its mode fits (the reported one first) with their
+    ``separation_z`` and ``tied`` flags from ``res.modes``."""
+    from fgloc.registration.modes import ModeChoice
+
+    return ModeChoice(list(res.mode_fits), np.array([float(m["separation_z"]) for m in res.modes]),
+                      [k for k, m in enumerate(res.modes) if m["tied"]])
+
+
+def valley_result(res: LocalizationResult, choice: ModeChoice, cfg: CoarseConfig,
+                  coarse: CoarseResult) -> LocalizationResult:
+    """``res`` (reporting ``choice`` without its valley) reporting the valley of ``choice``:
+    the pose at its posterior mean (:meth:`ModeChoice.reported`, the height of the coarse mode
+    nearest there), the covariance over it, the valley in ``valley`` and its warning in place
+    of the modes'; the tracks and their source cloud moved with the pose. ``res`` itself
+    when ``choice`` has no valley."""
+    from fgloc.registration.modes import placed_where_ended
+
+    if choice.valley is None:
+        return res
+    x, y, _ = choice.reported()
+    origin = min(choice.fits, key=lambda f: np.hypot(*(f.sensor[:2] - choice.valley.origin)))
+    T_local = np.array(origin.T_local, dtype=float)
+    T_local[:2, 3] = (x, y)
+    T_local, z_std = placed_where_ended(coarse, T_local)
+    shift = np.eye(3)
+    shift[:2, 2] = (x, y) - origin.sensor[:2]
+    src, tracks = res.source_xyz, res.tracks
+    if tracks is not None:
+        moved = shift @ origin.T_fine
+        if src is not None:
+            src = src.copy()
+            src[:, :2] = transform_points(moved @ np.linalg.inv(tracks.T_frame_to_L), src[:, :2])
+        tracks = replace(tracks, T_frame_to_L=moved)
+    prefix = f"{res.method}: ambiguous"
+    return replace(res, T_local=T_local, covariance=choice.covariance(cfg), z_std=z_std,
+                   warnings=[*(w for w in res.warnings if not w.startswith(prefix)),
+                             *choice.warnings(res.method)],
+                   valley=choice.valley_summary(res.frame), source_xyz=src, tracks=tracks)
+
+
+def _with_valley(scn: Scenario, cfg: Config, coarse_stage: tuple[TargetCloud, CoarseResult],
+                 tracks: TrackSet, res: LocalizationResult, visible_side: bool
+                 ) -> LocalizationResult:
+    """``res`` of a method on ``tracks`` reporting the valley of its tied modes
+    (:func:`fgloc.registration.modes.track_valley`, scored on the source cloud of ``tracks``
+    against each mode's fine targets, with the measured visible sides when ``visible_side``)
+    when they are samples of one; else ``res`` itself."""
+    from fgloc.registration.fine import mode_targets
+    from fgloc.registration.modes import RESOLVED, position_prior, track_costs, track_valley
+    from fgloc.registration.source import build_source_cloud
+
+    if res.status == RESOLVED:
+        return res
+    target, coarse = coarse_stage
+    src = build_source_cloud(scn, tracks, coarse.T_coarse, cfg)
+    side = src.visible_side if visible_side else None
+
+    def cost_at(fit: ModeFit, T: np.ndarray) -> np.ndarray:
+        targets = mode_targets(scn, target, cfg, coarse, fit.start, fit.lanes, side)
+        return track_costs(src, targets, T, cfg.coarse.mode_cost_scale,
+                           cfg.sicp.direction_gate_deg)
+
+    choice = choice_of(res)
+    valley = track_valley(choice, cost_at, position_prior(scn, cfg.coarse), cfg.coarse)
+    return valley_result(res, replace(choice, valley=valley), cfg.coarse, coarse)
 
 
 def _register(scn: Scenario, cfg: Config, timer: Timer,
@@ -203,7 +274,9 @@ def _register(scn: Scenario, cfg: Config, timer: Timer,
     (:func:`fgloc.registration.fine.register_tracks`)."""
     from fgloc.registration.fine import register_tracks
 
-    return register_tracks(scn, cfg, *coarse_stage, tracks, timer, method=method)
+    res = register_tracks(scn, cfg, *coarse_stage, tracks, timer, method=method)
+    with timer.stage("valley"):
+        return _with_valley(scn, cfg, coarse_stage, tracks, res, visible_side=True)
 
 
 def _joint(scn: Scenario, cfg: Config, timer: Timer,
@@ -212,8 +285,10 @@ def _joint(scn: Scenario, cfg: Config, timer: Timer,
     """``--method joint`` (:mod:`fgloc.registration.joint`; gtsam is imported on use)."""
     from fgloc.registration.joint import joint_from_tracks
 
-    return joint_from_tracks(scn, cfg, *coarse_stage, tracks, timer, start=start,
-                             smoothed=smoothed)
+    res = joint_from_tracks(scn, cfg, *coarse_stage, tracks, timer, start=start,
+                            smoothed=smoothed)
+    with timer.stage("valley"):
+        return _with_valley(scn, cfg, coarse_stage, tracks, res, visible_side=False)
 
 
 @dataclass(frozen=True)

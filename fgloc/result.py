@@ -48,7 +48,9 @@ class LocalizationResult:
     mode). modes: JSON-ready summary of every mode (best first;
     :meth:`fgloc.registration.modes.ModeChoice.summary`). mode_fits: the modes' fits
     (:class:`fgloc.registration.modes.ModeFit`, best first; the joint starts from them).
-    z_std: std. dev. (m) of the sensor height, or None when the method gives none.
+    z_std: std. dev. (m) of the sensor height, or None when the method gives none. valley:
+    JSON-ready line the tied modes are samples of, along which the data do not fix the pose
+    (:meth:`fgloc.registration.modes.ModeChoice.valley_summary`), or None.
     """
 
     method: str
@@ -68,6 +70,7 @@ class LocalizationResult:
     modes: list[dict[str, Any]] = field(default_factory=list)
     mode_fits: list[ModeFit] = field(default_factory=list)
     z_std: float | None = None
+    valley: dict[str, Any] | None = None
 
     @property
     def crs(self) -> str:
@@ -103,6 +106,7 @@ class LocalizationResult:
             "covariance_order": ["x_m", "y_m", "yaw_rad"],
             "z_std_m": self.z_std,
             "modes": self.modes,
+            "valley": self.valley,
             "local_origin": list(self.frame.origin),
             "diagnostics": self.diagnostics,
             "timings_s": self.timings,

@@ -301,19 +301,24 @@ def test_registered_modes_hold_the_truth_on_a_t_junction(case, per_minute, seed)
 def test_traffic_that_never_turns_leaves_the_along_road_position_open():
     """T-junction with every return model at its hardest (bench.robustness "combined", seed
     4): none of its 32 vehicles turns, so nothing fixes the position along the main road; the
-    coarse modes are tied samples along it (2.8-10.7 m from the truth). The joint's
-    refinements of all of them slid into one pose 16.8 m off, which read as resolved (NEES
-    13.8); with the starts kept as modes the result is ambiguous and its covariance holds the
-    truth (chi2(3) 99 %). The approximate position (3.6 m from the truth) as a prior selects the
-    reported mode among the tied ones: 2.8 m from the truth; for every method."""
+    coarse modes are tied samples along it, all on one side of the truth (2.8-10.7 m from it).
+    Before, the result reported the sampled modes only: the truth 2.8 m from every one. Now it
+    reports the valley they lie on (the truth within 0.5 m of it), the pose the approximate
+    position (3.6 m from the truth) puts on it, no farther from the truth than that prior, and
+    a covariance over the valley that holds the truth (chi2(3) 99 %); for every method."""
     from bench.robustness import sim_config
+    from bench.sparse import truth_distance
+    from fgloc.map import approx_position_local
 
     scn = simulate("tjunction", 4, duration=60.0, config=sim_config("combined"))
     truth = scn.truth.sensor_pose
+    prior_error = float(np.hypot(*(approx_position_local(scn) - truth[:2, 3])))
     for method, res in localize_many(scn, ["icp", "filter-sicp", "joint"]).items():
         assert res.status == AMBIGUOUS, method
+        assert res.valley is not None and res.to_json()["valley"] == res.valley, method
+        assert truth_distance(res, truth) < 0.5, method
         e = np.array([*(res.T_local[:2, 3] - truth[:2, 3]),
                       np.arctan2(res.T_local[1, 0], res.T_local[0, 0])
                       - np.arctan2(truth[1, 0], truth[0, 0])])
         assert e @ np.linalg.solve(res.covariance, e) < 11.34, method
-        assert _error_2d(res.T_local, truth) < 3.5, method
+        assert _error_2d(res.T_local, truth) < prior_error + 0.3, method

@@ -62,6 +62,7 @@ from fgloc.coarse.icp import (
     search_grid,
 )
 from fgloc.coarse.points import dynamic_points
+from fgloc.coarse.valley import Valley, find_valley
 from fgloc.coarse.vertical import StaticGround, below_fov_floor, fit_vertical, rodrigues
 from fgloc.config import CoarseConfig, Config, MapConfig
 from fgloc.errors import LocalizationError
@@ -81,7 +82,9 @@ class CoarseResult:
     inlier_rmse: RMS 2D distance (m) of those points. n_points_dynamic: detections with
     ``|doppler| >= lambda``. n_points_used: after voxel + DBSCAN. yaw_search: (yaw_deg, best
     score over the start positions) per searched yaw, None when not searched. timings: stage ->
-    seconds. source_xyz: (n_points_used, 3) filtered dynamic points in S.
+    seconds. source_xyz: (n_points_used, 3) filtered dynamic points in S. valley: the line the
+    modes are samples of, where the lane score ties every pose along it
+    (:mod:`fgloc.coarse.valley`; ``mode_margin`` of the best mode's score), or None.
     """
 
     T_coarse: np.ndarray
@@ -100,6 +103,7 @@ class CoarseResult:
     modes: list[CoarseMode] = field(default_factory=list)
     z_std: float | None = None
     n_static_ground: int = 0
+    valley: Valley | None = None
 
     def mode_starts(self) -> list[np.ndarray]:
         """Per mode, the 3x3 SE(2) start of T_fine (C -> L) that moves the coarse frame C of
@@ -261,6 +265,29 @@ def _height_at(src: np.ndarray, road: RoadModel, statics: StaticGround, final: _
     out = fit_vertical(lev, xy_l, road, seen, (pitch, roll), z_prior, cfg,
                        statics.rows(final.r_tilt, pose2d, road, cfg))
     return (final.z, final.z_std) if out is None else (out[1], float(np.sqrt(out[2][2, 2])))
+
+
+def lane_valley(kept: list[tuple[float, np.ndarray, str]], ref: _Refined, src: np.ndarray,
+                receding: np.ndarray, models: dict[str, LaneCentres], prior_xy: np.ndarray,
+                cfg: CoarseConfig) -> Valley | None:
+    """The valley of the kept modes ((lane score, pose, lane model) each, best first;
+    :func:`fgloc.coarse.valley.find_valley`), or None (fewer than two, or of two lane models):
+    a pose on the line through the best with its yaw ties when its lane score (``src`` (N, 3)
+    levelled with ``ref``'s tilt, Doppler signs ``receding`` (N,), against the lanes seen from
+    it) is within ``mode_margin`` of the best's. prior_xy (2,): the approximate position in L."""
+    if len(kept) < 2 or len({model for *_, model in kept}) > 1:
+        return None
+    lev = (src @ ref.r_tilt.T)[:, :2]
+    lanes, tau, yaw = models[kept[0][2]], cfg.lane_icp_ranges[-1], kept[0][1][2]
+    bar = cfg.mode_margin * kept[0][0]
+
+    def z_at(xy: np.ndarray) -> float:      # no evidence measure: 0 when tied, else ruled out
+        pose = np.array([xy[0], xy[1], yaw])
+        d = _seen_from(lanes, xy, cfg).query(apply_planar(lev, pose), receding, tau)[0]
+        return 0.0 if robust_score(d, tau) >= bar else np.inf
+
+    poses = np.array([pose for _, pose, _ in kept])
+    return find_valley(poses, 0, prior_xy, cfg.approx_position_sigma, cfg, z_at)
 
 
 def mode_warning(modes: list[CoarseMode]) -> list[str]:
@@ -439,6 +466,7 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
         _height_at(fit, road, statics, ref, pose, z0, scn.sensor.vfov_deg, cfg)
         for _, pose, _ in kept[1:]]
     modes = coarse_modes(kept, ref, heights)
+    valley = lane_valley(kept, ref, fit, fit_rec, models, centre, cfg)
     warnings = mode_warning(modes)
     timings["refinement"] = time.perf_counter() - t
 
@@ -474,6 +502,7 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
         modes=modes,
         z_std=ref.z_std,
         n_static_ground=ref.n_static,
+        valley=valley,
     )
 
 

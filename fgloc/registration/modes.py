@@ -17,10 +17,14 @@ placed by the best mode, moved rigidly by the mode's start) and hands its final 
   position as a prior (:class:`PositionPrior`): least ``max(z_k, 0)^2 + |p_k - a|^2 /
   sigma^2`` (``z_k`` below, ``p_k`` the mode's position, ``a`` sensor.toml's approx_position,
   sigma ``coarse.approx_position_sigma``), both read as ``-2 log`` of a likelihood ratio and of
-  the prior. Where the data are indifferent along a road (nothing turns) the tied modes are
-  samples of a continuum up to 20 m long, and only the prior says where on it the sensor is
-  likelier (robustness "combined", T-junction seed 4: the least-cost mode 16.8 m off, the one
-  nearest the approximate position 2.8 m).
+  the prior.
+* **Valley**: where the data are indifferent along a road (nothing turns) the tied modes are
+  samples of a continuum, and where the samples stop says nothing (robustness "combined",
+  T-junction seed 4: four modes 2.8-10.7 m from the truth, all on one side of it). Tied modes
+  on one line are scanned along it with the test that tied them (:func:`track_valley`; icp:
+  the coarse stage's :attr:`~fgloc.coarse.CoarseResult.valley`); the reported pose is then the
+  posterior mean along the valley and the covariance spans it (:mod:`fgloc.coarse.valley`,
+  :func:`fgloc.pipeline.valley_result`).
 * **Height**: a final pose takes the z (and its std. dev.) of the coarse mode nearest to where
   it ended (:func:`height_mode`), which need not be the one it started from.
 * **Told apart?** The points of one vehicle share its errors, so the evidence against mode k
@@ -48,11 +52,13 @@ placed by the best mode, moved rigidly by the mode's start) and hands its final 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from fgloc.coarse.valley import Valley, find_valley
 from fgloc.config import CoarseConfig
 from fgloc.geo import LocalFrame, pose_from_se3, se2_to_se3, transform_points, wrap_angle
 from fgloc.map import approx_position_local
@@ -200,11 +206,14 @@ class ModeChoice:
     """The comparison of merged fits, the reported one first (the least cost, or when
     ambiguous the tied mode :func:`choose_mode` selects with the prior): z (M,) standard errors
     by which the least-cost fit beats each (0 for itself); tied: indices of the modes not ruled
-    out (the reported one included); status "resolved" (only one) or "ambiguous"."""
+    out (the reported one included); status "resolved" (only one) or "ambiguous". valley: the
+    line the tied modes are samples of (:mod:`fgloc.coarse.valley`), or None; with one the
+    reported pose is its posterior mean (:meth:`reported`), not the first fit's."""
 
     fits: list[ModeFit]
     z: np.ndarray
     tied: list[int]
+    valley: Valley | None = None
 
     @property
     def status(self) -> str:
@@ -226,25 +235,43 @@ class ModeChoice:
         pick = self.tied[int(np.argmin(score))]
         order = [pick, *(k for k in range(len(self.fits)) if k != pick)]
         return ModeChoice([self.fits[k] for k in order], self.z[order],
-                          sorted(order.index(k) for k in self.tied))
+                          sorted(order.index(k) for k in self.tied), self.valley)
+
+    def reported(self) -> np.ndarray:
+        """(x, y, yaw) of the reported sensor pose in L (m, m, rad): the valley's posterior
+        mean with its yaw, else the first fit's."""
+        if self.valley is None:
+            return self.best.sensor
+        return np.array([*self.valley.point(self.valley.posterior()[0]), self.valley.yaw])
 
     def covariance(self, cfg: CoarseConfig) -> np.ndarray | None:
         """The best mode's covariance when resolved; else the covering one (module
-        docstring), about the reported mode's pose (None when resolved without a covariance). A
+        docstring), about the reported pose (None when resolved without a covariance). A
         mode without a covariance of its own counts with the mode set's resolution, half the
-        separation (``cfg.mode_separation`` m, ``mode_separation_deg``) as std. dev."""
+        separation (``cfg.mode_separation`` m, ``mode_separation_deg``) as std. dev. With a
+        valley, the variance along it is the posterior's (plus that resolution) instead of the
+        modes' spread along it."""
         if self.status == RESOLVED:
             return self.best.covariance
-        centre = self.best.sensor
-        floor = np.diag(np.square(0.5 * np.array(
-            [cfg.mode_separation, cfg.mode_separation, np.deg2rad(cfg.mode_separation_deg)])))
+        centre = self.reported()
+        res = 0.5 * np.array([cfg.mode_separation, cfg.mode_separation,
+                              np.deg2rad(cfg.mode_separation_deg)])
+        floor = np.diag(np.square(res))
         acc = np.zeros((3, 3))
         for k in self.tied:
             e = self.fits[k].sensor - centre
             e[2] = wrap_angle(e[2])
             own = self.fits[k].covariance
             acc += np.outer(e, e) + (floor if own is None else own)
-        return acc / len(self.tied)
+        acc /= len(self.tied)
+        if self.valley is None:
+            return acc
+        u = self.valley.direction
+        B = np.array([[u[0], u[1], 0.0], [-u[1], u[0], 0.0], [0.0, 0.0, 1.0]])
+        along = B @ acc @ B.T               # rows / columns: along, across, yaw
+        along[0, :] = along[:, 0] = 0.0
+        along[0, 0] = self.valley.posterior()[1] + res[0] ** 2
+        return B.T @ along @ B
 
     def summary(self, frame: LocalFrame) -> list[dict[str, object]]:
         """JSON-ready modes, best first: world pose, cost, z, tied, lane score, std. devs."""
@@ -265,10 +292,35 @@ class ModeChoice:
             })
         return out
 
+    def valley_summary(self, frame: LocalFrame) -> dict[str, object] | None:
+        """JSON-ready valley: its ends (world x, y), heading (deg CCW from grid east),
+        length (m) and which end the prior bounds rather than the data; None without one."""
+        v = self.valley
+        if v is None:
+            return None
+        ends = []
+        for s in (v.lo, v.hi):
+            x, y = frame.to_world(v.point(s)[None])[0]
+            ends.append({"x": float(x), "y": float(y)})
+        return {"from": ends[0], "to": ends[1],
+                "heading_deg": float(np.rad2deg(np.arctan2(v.direction[1], v.direction[0]))),
+                "length_m": float(v.hi - v.lo),
+                "bounded_by_prior": {"from": bool(v.open_lo), "to": bool(v.open_hi)}}
+
     def warnings(self, method: str) -> list[str]:
         """The ambiguity warning (none when resolved)."""
         if self.status == RESOLVED:
             return []
+        if self.valley is not None:
+            v = self.valley
+            heading = float(np.rad2deg(np.arctan2(v.direction[1], v.direction[0])))
+            ends = " and ".join("the prior" if open_ else "the data"
+                                for open_ in (v.open_lo, v.open_hi))
+            return [f"{method}: ambiguous pose: the position along {heading:.0f} deg (grid) is "
+                    f"not determined: every pose over {v.hi - v.lo:.1f} m along it fits the data "
+                    f"alike ({len(self.tied)} tied modes lie on it; its ends set by {ends}); the "
+                    "reported one is where the approximate position puts it, with a covariance "
+                    "over that extent"]
         c = self.best.sensor
         parts = [f"{np.hypot(*(self.fits[k].sensor[:2] - c[:2])):.1f} m / "
                  f"{np.rad2deg(abs(wrap_angle(self.fits[k].sensor[2] - c[2]))):.1f} deg "
@@ -303,3 +355,27 @@ def choose_mode(fits: list[ModeFit], cfg: CoarseConfig,
     z = np.array([separation_z(f.track_cost, best) for f in merged])
     tied = [k for k in range(len(merged)) if k == 0 or z[k] < cfg.mode_z]
     return ModeChoice(merged, z, tied).selected_by(prior)
+
+
+def track_valley(choice: ModeChoice, cost_at: Callable[[ModeFit, np.ndarray], np.ndarray],
+                 prior: PositionPrior, cfg: CoarseConfig) -> Valley | None:
+    """The valley of an ambiguous comparison of final fits (:mod:`fgloc.coarse.valley`), or
+    None (resolved, tied modes of two lane models, or not samples of one line). The line
+    passes through the least-cost tied fit with its yaw; a pose on it ties when that fit does
+    not beat it by ``cfg.mode_z`` (:func:`separation_z` of the per-track costs
+    ``cost_at(fit, T)``: T the 3x3 SE(2) C -> L of the pose, scored against the targets of
+    ``fit``'s mode) -- the test that tied the modes."""
+    if choice.status == RESOLVED or len({choice.fits[k].lanes for k in choice.tied}) > 1:
+        return None
+    tied = [choice.fits[k] for k in choice.tied]
+    at = min(range(len(tied)), key=lambda k: tied[k].cost)
+    ref = tied[at]
+
+    def z_at(xy: np.ndarray) -> float:
+        T = np.array(ref.T_fine, dtype=float)
+        T[:2, 2] += xy - ref.sensor[:2]
+        return separation_z(cost_at(ref, T), ref.track_cost)
+
+    poses = np.array([f.sensor for f in tied])
+    return find_valley(poses, at, prior.xy, prior.sigma, cfg, z_at)
+
