@@ -68,7 +68,7 @@ def test_a_start_the_refinement_slid_away_from_stays_a_mode():
     covering covariance holds the truth at one of them. A start the refinement stayed near
     merges into its fit; a start the tracks rule out stays a mode but not a tied one."""
     cfg = CoarseConfig()
-    own = np.diag([1.0, 0.05**2, np.deg2rad(0.05) ** 2])
+    own = np.diag([0.2**2, 0.05**2, np.deg2rad(0.05) ** 2])
     costs = [1.0, 1.2, 0.9, 1.1, 1.0, 1.05, 0.95, 1.0] * 2     # 16 tracks
     starts = [_fit(x, 0.0, 0.0, costs) for x in (0.0, 2.5, 5.0)]
     finals = [_fit(9.0, 0.0, 0.0, costs, own) for _ in starts]

@@ -85,6 +85,8 @@ class CoarseResult:
     seconds. source_xyz: (n_points_used, 3) filtered dynamic points in S. valley: the line the
     modes are samples of, where the lane score ties every pose along it
     (:mod:`fgloc.coarse.valley`; ``mode_margin`` of the best mode's score), or None.
+    tie_covariance: 3x3 of the best mode's sensor (x, y, yaw) in L (m^2, rad^2) over the poses
+    around it whose lane score ties with it (:func:`lane_tie_covariance`), or None.
     """
 
     T_coarse: np.ndarray
@@ -104,6 +106,7 @@ class CoarseResult:
     z_std: float | None = None
     n_static_ground: int = 0
     valley: Valley | None = None
+    tie_covariance: np.ndarray | None = None
 
     def mode_starts(self) -> list[np.ndarray]:
         """Per mode, the 3x3 SE(2) start of T_fine (C -> L) that moves the coarse frame C of

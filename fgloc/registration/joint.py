@@ -54,7 +54,7 @@ parameter beside ``T``) takes it up instead of a rotation. The model covariance 
 marginal covariance of ``T`` at the solution (the inverse of its Schur complement, equal to
 ``gtsam.Marginals`` on the equivalent graph); the reported one (``covariance =
 "track-robust"``) is the cluster-robust sandwich over tracks, never below the model one
-(:func:`fgloc.registration.joint_solver.track_robust_covariance`); both add the effect of a
+(:func:`fgloc.registration.sicp.track_robust_covariance`); both add the effect of a
 constant side bias and of one lateral bias per lanelet that are considered, not estimated
 (``consider_side_bias_sigma``, ``consider_lane_bias_sigma``, :func:`consider_covariance`),
 and are mapped to the sensor's (x, y, yaw) in L. Their
@@ -93,9 +93,8 @@ from fgloc.registration.joint_solver import (
     joint_cost,
     linearize,
     solve_arrow,
-    track_robust_covariance,
 )
-from fgloc.registration.sicp import _degeneracy
+from fgloc.registration.sicp import _degeneracy, track_robust_covariance
 from fgloc.result import LocalizationResult, json_ready
 from fgloc.scenario import TWO_WAY_MIN_WIDTH, Scenario
 from fgloc.smoothing.banded_lm import BandedLayout
@@ -902,4 +901,5 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
         modes=json_ready(choice.summary(scn.frame)),
         mode_fits=choice.fits,
         z_std=choice.best.z_std,
+        weak_direction=choice.weak_summary(scn.frame),
     )
