@@ -357,7 +357,7 @@ class ModeChoice:
         w = self.weak
         if w is None:
             return None
-        ends = frame.to_world(self.reported()[:2] + np.outer([-2.0, 2.0], w.direction))
+        ends = frame.to_world(self.reported()[:2] + np.outer([-2.0, 2.0], w.std * w.direction))
         return {"heading_deg": w.heading_deg, "std_m": w.std, "tolerance_m": w.tolerance,
                 "from": {"x": float(ends[0, 0]), "y": float(ends[0, 1])},
                 "to": {"x": float(ends[1, 0]), "y": float(ends[1, 1])}}

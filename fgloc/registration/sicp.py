@@ -56,10 +56,10 @@ translation are comparable and not mixed through the lever arm to the frame orig
 That covariance treats every point as independent; the points of one vehicle are not (a
 driver off the lane centre, a side seen more or less than the target's offset moves all of
 them), so it is far too small (NEES 14 on sparse traffic). :func:`track_covariance` is the
-calibrated one the methods report: the point-to-line model at the solution with one common
-offset per track (marginalized: a track's many points tell the pose only what their spread
-along the lanes' normals says, not their number) and the cluster-robust sandwich over the
-tracks, never below that model (:func:`track_robust_covariance`, as the joint's).
+calibrated one the methods report: SICP's solution linearized point to line, its errors
+modelled with one common offset per track (a track's many points count as one offset's worth,
+not their number), and the cluster-robust sandwich over the tracks, never below that model
+(as the joint's, :func:`track_robust_covariance`).
 """
 
 from __future__ import annotations
@@ -576,6 +576,16 @@ def sicp(
     )
 
 
+def clipped_below(cov: np.ndarray, floor: np.ndarray) -> np.ndarray:
+    """``cov`` (G, G) raised to at least ``floor`` (G, G, positive definite) in every
+    direction: its generalized eigenvalues relative to ``floor`` clipped from below at 1."""
+    L = np.linalg.cholesky(0.5 * (floor + floor.T))
+    A = np.linalg.solve(L, np.linalg.solve(L, cov).T)
+    w, V = np.linalg.eigh(0.5 * (A + A.T))
+    LV = L @ V
+    return (LV * np.maximum(w, 1.0)) @ LV.T
+
+
 def track_robust_covariance(info: np.ndarray, scores: np.ndarray,
                             prior_info: np.ndarray) -> np.ndarray:
     """Covariance (G, G) of the global parameters robust to errors shared within a track.
@@ -587,19 +597,13 @@ def track_robust_covariance(info: np.ndarray, scores: np.ndarray,
     information. The cluster-robust sandwich ``S^-1 (c/(c-G) sum_t g_t g_t^T + P) S^-1`` over
     the c tracks with points counts how far the tracks actually disagree, whatever their
     points' noise and correlation; it is clipped from below at the model covariance
-    (generalized eigenvalues at least 1), so it never claims more than the factors' noise
-    model."""
+    (:func:`clipped_below`), so it never claims more than the factors' noise model."""
     G = len(info)
     model = np.linalg.inv(0.5 * (info + info.T))
     used = scores[np.any(scores != 0.0, axis=1)]
     c = len(used)
     meat = used.T @ used * (c / max(c - G, 1)) + np.diag(prior_info)
-    sandwich = model @ meat @ model
-    L = np.linalg.cholesky(model)
-    A = np.linalg.solve(L, np.linalg.solve(L, sandwich).T)
-    w, V = np.linalg.eigh(0.5 * (A + A.T))
-    LV = L @ V
-    return (LV * np.maximum(w, 1.0)) @ LV.T
+    return clipped_below(model @ meat @ model, model)
 
 
 def track_covariance(res: SicpResult, source_xy: np.ndarray, track: np.ndarray,
@@ -608,18 +612,22 @@ def track_covariance(res: SicpResult, source_xy: np.ndarray, track: np.ndarray,
 
     source_xy (N, 2) m and track (N,) the id of the track each source point came from (the
     points of :func:`sicp`'s call); targets: its target, with driving directions (lane lines:
-    each match's residual is taken along its lane's normal, point to line). Model, for the
-    matched points i of track j: ``r_i = a_i dT + b_j + e_i`` -- ``r_i`` the residual along
-    the normal, ``a_i`` its Jacobian w.r.t. (tx, ty, yaw), ``b_j ~ N(0, tau^2)`` the track's
-    common offset, ``e_i ~ N(0, sigma^2 / w_i)`` (``w_i`` the final alignment weight,
-    normalised to mean 1). ``sigma^2`` is the scatter of the residuals about their track's
-    weighted mean, ``tau^2`` the spread of those means beyond what ``sigma`` explains (at
-    least ``cfg.offset_sigma_floor^2``). Marginalizing ``b_j`` (Woodbury) gives the
-    information ``S = sum_j (A_j^T W_j A_j - g_j (A_j^T w_j)(A_j^T w_j)^T) / sigma^2``,
-    ``g_j = tau^2 / (sigma^2 + tau^2 sum_j w)``, and per track the score of its residuals;
-    the result is :func:`track_robust_covariance` of them (the scores centred: SICP minimises
-    the point-to-point cost, so they need not sum to zero). None without target directions,
-    with fewer than 3 matched points or a singular information."""
+    each match's residual is taken along its lane's normal, point to line). SICP's solution
+    is, linearized there, the weighted least-squares one ``dT = H^-1 sum_i w_i a_i r_i``,
+    ``H = sum_i w_i a_i a_i^T`` (``r_i`` the residual along the normal, ``a_i`` its Jacobian
+    w.r.t. (tx, ty, yaw), ``w_i`` the final alignment weight normalised to mean 1). Its
+    errors are not independent: for the matched points i of track j, ``r_i = b_j + e_i``
+    with a common offset ``b_j ~ N(0, tau^2)`` and ``e_i ~ N(0, sigma^2 / w_i)``. ``sigma^2``
+    is the scatter of the residuals about their track's weighted mean, ``tau^2`` the spread
+    of those means beyond what ``sigma`` explains (at least ``cfg.offset_sigma_floor^2``).
+    The model covariance is then ``sigma^2 H^-1 + tau^2 H^-1 (sum_j u_j u_j^T) H^-1``,
+    ``u_j = sum_{i in j} w_i a_i``: a track's points count as one offset's worth along their
+    summed Jacobian, whatever their number. The reported one is the cluster-robust sandwich
+    ``H^-1 (c/(c-3) sum_j s_j s_j^T) H^-1`` over the c tracks (``s_j = sum_{i in j} w_i a_i
+    r_i``, centred: SICP minimises the point-to-point cost, so they need not sum to zero),
+    which counts how far the tracks actually disagree, clipped from below at the model
+    (:func:`clipped_below`). None without target directions, with fewer than 3 matched
+    points or a singular ``H``."""
     ok = (res.target_index >= 0) & (res.weights > 0.0)
     if targets.direction is None or np.count_nonzero(ok) < 3:
         return None
@@ -631,21 +639,22 @@ def track_covariance(res: SicpResult, source_xy: np.ndarray, track: np.ndarray,
     a = np.column_stack([n[:, 0], n[:, 1], n[:, 1] * arm[:, 0] - n[:, 0] * arm[:, 1]])
     r = np.einsum("ij,ij->i", n, moved - targets.xy[idx])
     w = res.weights[ok] / res.weights[ok].mean()
+    H = (w[:, None] * a).T @ a
+    if np.linalg.cond(H) > _SINGULAR_COND:
+        return None
     _, j = np.unique(np.asarray(track)[ok], return_inverse=True)
     j = j.reshape(-1)
     k = int(j.max()) + 1
     w_sum = np.bincount(j, w, k)
-    wr_sum = np.bincount(j, w * r, k)
-    mean = wr_sum / w_sum
+    mean = np.bincount(j, w * r, k) / w_sum
     sigma2 = max(float(w @ (r - mean[j]) ** 2) / max(len(r) - k, 1), cfg.sigma_floor**2)
     tau2 = max(float(np.mean(mean**2 - sigma2 / w_sum)), cfg.offset_sigma_floor**2)
-    g = tau2 / (sigma2 + tau2 * w_sum)
-    wa_sum = np.zeros((k, 3))
-    np.add.at(wa_sum, j, w[:, None] * a)
-    info = ((w[:, None] * a).T @ a - (wa_sum * g[:, None]).T @ wa_sum) / sigma2
-    if np.linalg.cond(info) > _SINGULAR_COND:
-        return None
-    war_sum = np.zeros((k, 3))
-    np.add.at(war_sum, j, (w * r)[:, None] * a)
-    scores = (war_sum - (g * wr_sum)[:, None] * wa_sum) / sigma2
-    return track_robust_covariance(info, scores - scores.mean(axis=0), np.zeros(3))
+    u = np.zeros((k, 3))
+    np.add.at(u, j, w[:, None] * a)
+    scores = np.zeros((k, 3))
+    np.add.at(scores, j, (w * r)[:, None] * a)
+    scores -= scores.mean(axis=0)
+    Hi = np.linalg.inv(H)
+    model = sigma2 * Hi + tau2 * Hi @ (u.T @ u) @ Hi
+    sandwich = Hi @ (scores.T @ scores) @ Hi * (k / max(k - 3, 1))
+    return clipped_below(sandwich, model)
