@@ -209,7 +209,9 @@ class CoarseConfig:
     modes resolve is still reported ``ambiguous`` when the std. dev. of the sensor position
     along its least determined horizontal direction (the covariance's largest x-y eigenvalue)
     exceeds it -- the data do not pin the pose to it (a T-junction's main road whose position
-    only a few turning vehicles fix). Set it to the tolerance you need; ``inf`` = never."""
+    only a few turning vehicles fix). Applies to icp, filter-sicp and smoother-sicp (the
+    joint's conservative covariance warns of its weak directions instead, ``[joint]
+    weak_sigma``). Set it to the tolerance you need; ``inf`` = never."""
     min_fitness: float = 0.5
     """A final fitness below this marks the result as not converged."""
     default_height: float = 6.0

@@ -48,7 +48,9 @@ placed by the best mode, moved rigidly by the mode's start) and hands its final 
   vehicles fix a direction (a T-junction's main road, fixed by the turning ones) the data
   may not pin the pose to the accuracy asked. When the reported covariance's std. dev. along
   its least determined horizontal direction exceeds ``coarse.resolved_max_std``, the result
-  is ``ambiguous`` too (:class:`WeakDirection`), with that covariance.
+  is ``ambiguous`` too (:class:`WeakDirection`), with that covariance (icp, filter-sicp,
+  smoother-sicp; the joint's conservative covariance reports its weak directions as a
+  warning instead, :func:`fgloc.registration.joint.joint_from_tracks`).
 * **Ambiguous**: the reported pose is the selected mode's (above), and the covariance covers
   every mode not ruled out: ``mean_k (C_k + e_k e_k^T)``, ``e_k`` the mode's (x, y, yaw) minus the
   reported one and ``C_k`` its own covariance (where the method has one), so the truth at any
@@ -409,19 +411,23 @@ def coarse_choice(coarse: CoarseResult, cfg: CoarseConfig,
 
 def choose_mode(fits: list[ModeFit], cfg: CoarseConfig,
                 starts: list[ModeFit] | None = None,
-                prior: PositionPrior | None = None) -> ModeChoice:
+                prior: PositionPrior | None = None, tolerance: bool = True) -> ModeChoice:
     """Merge the fits, pick the least cost and rule out modes by ``cfg.mode_z`` (module
     docstring). ``starts``: the fits the ``fits`` were refined from (their track costs on the
     same tracks); each one distinct from every merged fit is added after them as a mode of
     its own (``origin = "start"``), so the best final fit must rule it out. ``prior``: selects
-    the reported mode of an ambiguous result (:meth:`ModeChoice.selected_by`)."""
+    the reported mode of an ambiguous result (:meth:`ModeChoice.selected_by`). ``tolerance``:
+    whether one mode left must also be pinned to ``cfg.resolved_max_std``
+    (:meth:`ModeChoice.with_tolerance`; the joint's is False, see
+    :func:`fgloc.registration.joint.joint_from_tracks`)."""
     merged = merge_modes(fits, cfg)
     merged += [replace(s, origin="start") for s in merge_modes(starts or [], cfg)
                if distinct(s, merged, cfg)]
     best = merged[0].track_cost
     z = np.array([separation_z(f.track_cost, best) for f in merged])
     tied = [k for k in range(len(merged)) if k == 0 or z[k] < cfg.mode_z]
-    return ModeChoice(merged, z, tied).selected_by(prior).with_tolerance(cfg)
+    choice = ModeChoice(merged, z, tied).selected_by(prior)
+    return choice.with_tolerance(cfg) if tolerance else choice
 
 
 def track_valley(choice: ModeChoice, cost_at: Callable[[ModeFit, np.ndarray], np.ndarray],
