@@ -336,7 +336,7 @@ def test_a_main_road_few_turning_vehicles_fix_is_not_reported_resolved():
     the position along the main road. Before, every method resolved it: icp 0.48 m off (inside
     a 5.5 m lane-score tie), filter-sicp 0.31 m, smoother-sicp 0.32 m. Now a method resolves
     it only within 0.3 m; one that does not is ambiguous along the main road with the truth
-    within 2 std. devs. of its pose along it, and its covariance holds the truth."""
+    within 0.5 m of its pose +-2 std. devs. along it, and its covariance holds the truth."""
     from bench.sparse import truth_distance
 
     scn = sparse("tjunction", 5, 10.0)
@@ -352,7 +352,7 @@ def test_a_main_road_few_turning_vehicles_fix_is_not_reported_resolved():
         else:
             assert res.weak_direction is not None, method
             assert res.to_json()["weak_direction"] == res.weak_direction, method
-            assert truth_distance(res, truth) < 0.1, method
+            assert truth_distance(res, truth) < 0.5, method
     assert out["icp"].status == AMBIGUOUS and out["filter-sicp"].status == AMBIGUOUS
 
 
