@@ -204,6 +204,14 @@ class CoarseConfig:
     about 10 m: 2 sigma) as a prior on the sensor's position. It decides only which of the
     modes the data cannot tell apart is reported (``ambiguous`` results), and where on a line of
     tied poses (a road no vehicle turns off) the sensor is reported, with what std. dev."""
+    resolved_max_std: float = 0.3
+    """The tolerance (m) a ``resolved`` pose must meet, as one standard deviation: a pose the
+    modes resolve is still reported ``ambiguous`` when the std. dev. of the sensor position
+    along its least determined horizontal direction (the covariance's largest x-y eigenvalue)
+    exceeds it -- the data do not pin the pose to it (a T-junction's main road whose position
+    only a few turning vehicles fix). Applies to icp, filter-sicp and smoother-sicp (the
+    joint's conservative covariance warns of its weak directions instead, ``[joint]
+    weak_sigma``). Set it to the tolerance you need; ``inf`` = never."""
     min_fitness: float = 0.5
     """A final fitness below this marks the result as not converged."""
     default_height: float = 6.0
@@ -213,6 +221,8 @@ class CoarseConfig:
         if not 0.0 <= self.lane_doppler_gate_deg <= 90.0:
             raise ValueError("lane_doppler_gate_deg must be in [0, 90], got "
                              f"{self.lane_doppler_gate_deg}")
+        if not self.resolved_max_std > 0.0:
+            raise ValueError(f"resolved_max_std must be > 0 (m), got {self.resolved_max_std}")
         if not self.approx_position_sigma > 0.0:
             raise ValueError("approx_position_sigma must be > 0 (m), got "
                              f"{self.approx_position_sigma}")

@@ -171,20 +171,22 @@ def track(
 def _icp(scn: Scenario, cfg: Config, timer: Timer, coarse_stage: tuple[TargetCloud, CoarseResult]
          ) -> LocalizationResult:
     """``--method icp``, coarse-only localization (the paper's Table II baseline): the best
-    coarse mode, ``ambiguous`` when the coarse stage kept several (the covariance then spans
-    them). No stage of its own (``timer`` unused)."""
-    from fgloc.registration.modes import RESOLVED, coarse_choice, position_prior
+    coarse mode with the covariance of its lane-score tie, ``ambiguous`` when the coarse stage
+    kept several (the covariance then spans them) or the tie is wider than the tolerance
+    (:func:`fgloc.registration.modes.coarse_choice`). No stage of its own (``timer``
+    unused)."""
+    from fgloc.registration.modes import coarse_choice, position_prior
 
     target, coarse = coarse_stage
     src = transform_points(coarse.T_coarse, coarse.source_xyz)
     diag = {k: v for k, v in asdict(coarse).items() if k not in ("T_coarse", "source_xyz")}
-    choice = coarse_choice(coarse, position_prior(scn, cfg.coarse))
+    choice = coarse_choice(coarse, cfg.coarse, position_prior(scn, cfg.coarse))
     res = LocalizationResult(
         method="icp",
         frame=scn.frame,
         T_local=choice.best.T_local,
         converged=coarse.converged,
-        covariance=None if choice.status == RESOLVED else choice.covariance(cfg.coarse),
+        covariance=choice.covariance(cfg.coarse),
         diagnostics={"target": target.summary(), "coarse": json_ready(diag)},
         warnings=[*target.warnings, *coarse.warnings, *choice.warnings("icp")],
         config=cfg,
@@ -195,6 +197,7 @@ def _icp(scn: Scenario, cfg: Config, timer: Timer, coarse_stage: tuple[TargetClo
         modes=json_ready(choice.summary(scn.frame)),
         mode_fits=choice.fits,
         z_std=choice.best.z_std,
+        weak_direction=choice.weak_summary(scn.frame),
     )
     return valley_result(res, replace(choice, valley=coarse.valley), cfg.coarse, coarse)
 
@@ -248,10 +251,10 @@ def _with_valley(scn: Scenario, cfg: Config, coarse_stage: tuple[TargetCloud, Co
     against each mode's fine targets, with the measured visible sides when ``visible_side``)
     when they are samples of one; else ``res`` itself."""
     from fgloc.registration.fine import mode_targets
-    from fgloc.registration.modes import RESOLVED, position_prior, track_costs, track_valley
+    from fgloc.registration.modes import position_prior, track_costs, track_valley
     from fgloc.registration.source import build_source_cloud
 
-    if res.status == RESOLVED:
+    if sum(bool(m["tied"]) for m in res.modes) < 2:
         return res
     target, coarse = coarse_stage
     src = build_source_cloud(scn, tracks, coarse.T_coarse, cfg)

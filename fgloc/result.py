@@ -50,7 +50,9 @@ class LocalizationResult:
     (:class:`fgloc.registration.modes.ModeFit`, best first; the joint starts from them).
     z_std: std. dev. (m) of the sensor height, or None when the method gives none. valley:
     JSON-ready line the tied modes are samples of, along which the data do not fix the pose
-    (:meth:`fgloc.registration.modes.ModeChoice.valley_summary`), or None.
+    (:meth:`fgloc.registration.modes.ModeChoice.valley_summary`), or None. weak_direction:
+    JSON-ready direction in which the only mode left is not pinned to ``coarse.
+    resolved_max_std`` (:meth:`fgloc.registration.modes.ModeChoice.weak_summary`), or None.
     """
 
     method: str
@@ -71,6 +73,7 @@ class LocalizationResult:
     mode_fits: list[ModeFit] = field(default_factory=list)
     z_std: float | None = None
     valley: dict[str, Any] | None = None
+    weak_direction: dict[str, Any] | None = None
 
     @property
     def crs(self) -> str:
@@ -107,6 +110,7 @@ class LocalizationResult:
             "z_std_m": self.z_std,
             "modes": self.modes,
             "valley": self.valley,
+            "weak_direction": self.weak_direction,
             "local_origin": list(self.frame.origin),
             "diagnostics": self.diagnostics,
             "timings_s": self.timings,

@@ -204,9 +204,11 @@ def test_short_scenario_within_bars(stages):
     err = pose_error(res.T_local, scn.truth.sensor_pose)
     assert err.d2d < 0.7 and err.dyaw_deg < 0.4
     d = res.diagnostics
-    # SICP's covariance treats points as independent: diagnostics only, not the pose covariance
-    assert res.converged and res.covariance is None
-    assert np.asarray(d["sicp"]["sensor_covariance_uncalibrated"]).shape == (3, 3)
+    # the covariance counts the evidence per track: wider than SICP's per-point one (which
+    # treats every point as independent, diagnostics only) along the least determined direction
+    cov, per_point = res.covariance, np.asarray(d["sicp"]["sensor_covariance_uncalibrated"])
+    assert res.converged and cov.shape == per_point.shape == (3, 3)
+    assert np.linalg.eigvalsh(cov[:2, :2])[-1] > 2.0 * np.linalg.eigvalsh(per_point[:2, :2])[-1]
     assert d["sicp"]["stop_reason"] == "rmse_converged" and d["source"]["n_points"] > 100
     assert d["tracking"]["n_tracks"] == len(tracks)
     assert res.source_xyz.shape == (len(res.source_label), 3)

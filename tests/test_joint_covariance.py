@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fgloc.registration.joint_solver import track_robust_covariance
+from fgloc.registration.sicp import track_robust_covariance
 
 SIGMA = 0.1                           # modelled per-point noise
 PRIOR = np.array([1e-6, 1e-6, 1.0 / 20.0**2])   # prior information; the third is unobserved

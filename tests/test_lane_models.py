@@ -43,12 +43,15 @@ def test_auto_finds_the_lane_model_of_the_traffic(traffic: str) -> None:
     """One scenario per kind of traffic (seed 1): ``auto`` resolves to the traffic's model
     (centre-line traffic was ambiguous before the coarse stage's Doppler gate) and ends well
     closer to the truth than the other model fixed (1.0 / 2.7 m off on keep-right /
-    centre-line traffic at writing)."""
+    centre-line traffic at writing). One mode of that model is left; keep-right may still be
+    ``ambiguous`` along the nearly flat main street (0.31 m off, std. dev. 0.41 m along it:
+    not pinned to ``coarse.resolved_max_std``)."""
     scn = _scenario(traffic, 1)
     assert lane_models(scn.lanelets.lanelets, MapConfig()) == MODELS
-    res, chosen, _, err = _filter_sicp(scn, "auto")
+    res, chosen, tied, err = _filter_sicp(scn, "auto")
     _, _, _, err_wrong = _filter_sicp(scn, KEEP_RIGHT if traffic == CENTRE else CENTRE)
-    assert res.status == "resolved" and chosen == traffic
+    assert sum(m["tied"] for m in res.modes) == 1 and tied == {traffic} and chosen == traffic
+    assert res.status == "resolved" or res.weak_direction is not None
     assert err_wrong > 0.9 and err < err_wrong - 0.5
 
 
@@ -67,11 +70,12 @@ def test_auto_over_seeds(traffic: str) -> None:
     errs, errs_right, errs_wrong = [], [], []
     for seed in range(1, 6):
         scn = _scenario(traffic, seed)
-        res, chosen, _, err = _filter_sicp(scn, "auto")
+        res, chosen, tied, err = _filter_sicp(scn, "auto")
         errs.append(err)
         errs_right.append(_filter_sicp(scn, traffic)[3])
         errs_wrong.append(_filter_sicp(scn, KEEP_RIGHT if traffic == CENTRE else CENTRE)[3])
-        assert res.status == "resolved" and chosen == traffic
+        assert tied == {traffic} and chosen == traffic
+        assert res.status == "resolved" or res.weak_direction is not None
     assert sum(errs) / 5 <= sum(errs_right) / 5 + 0.05
     assert sum(errs_wrong) / 5 > sum(errs) / 5 + 1.0
 

@@ -62,6 +62,10 @@ class SicpConfig:
     with a warning (its points take no part)."""
     sigma_floor: float = 0.05
     """Lower bound (m) of the residual standard deviation used for the information matrix."""
+    offset_sigma_floor: float = 0.1
+    """Lower bound (m) of the standard deviation of a track's common offset from its lane in
+    the track covariance (:func:`fgloc.registration.sicp.track_covariance`; the joint's
+    ``min_sigma`` likewise): with a handful of tracks the offsets' spread is no estimate."""
     direction_gate_deg: float = 90.0
     """When the source points and the target carry driving directions (filter-sicp: the tracks'
     headings and the lanes' directions), a source point is matched only to target points whose

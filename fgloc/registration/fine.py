@@ -36,14 +36,13 @@ from fgloc.map.lane_models import KEEP_RIGHT, min_width
 from fgloc.progress import Timer
 from fgloc.registration.config import FineConfig, SicpConfig
 from fgloc.registration.modes import (
-    RESOLVED,
     ModeFit,
     choose_mode,
     placed_where_ended,
     position_prior,
     track_costs,
 )
-from fgloc.registration.sicp import SemanticTargets, SicpResult, sicp
+from fgloc.registration.sicp import SemanticTargets, SicpResult, sicp, track_covariance
 from fgloc.registration.source import SourceCloud, build_source_cloud, check_fine_config
 from fgloc.registration.visible_side import VisibleSide
 from fgloc.result import LocalizationResult, json_ready
@@ -213,19 +212,20 @@ def register_tracks(
 
     A label with too few source or target points is dropped with a warning; a SICP that stops
     on its iteration limit or finds too few correspondences leaves ``converged`` False (with
-    too few correspondences the pose stays the coarse one). The sensor's (x, y, yaw) covariance
-    from SICP's information treats every source point as independent, which it is not (points
-    of one vehicle share its track's errors): it is reported in the diagnostics as
-    ``sicp.sensor_covariance_uncalibrated`` and the result's ``covariance`` stays None until a
-    calibrated one exists (the joint method). The source cloud is in L after the final pose and
-    the tracks carry ``T_frame_to_L = T_fine``.
+    too few correspondences the pose stays the coarse one). The result's ``covariance`` is the
+    sensor's (x, y, yaw) covariance that counts the evidence per track
+    (:func:`fgloc.registration.sicp.track_covariance`) plus the coarse tilt's
+    (:func:`coarse_tilt_covariance`: the fine stage keeps the coarse roll and pitch); the one
+    from SICP's information, which treats every source point as independent, is in the
+    diagnostics as ``sicp.sensor_covariance_uncalibrated``. The source cloud is in L after the
+    final pose and the tracks carry ``T_frame_to_L = T_fine``.
 
     Every coarse mode (``coarse.modes``) is registered, from its start (the tracks placed by
     the best mode moved rigidly onto it), against the targets seen from its sensor position;
     the fits are compared on the same source cloud (:mod:`fgloc.registration.modes`) and the
-    best one is reported; when they cannot be told apart the result is ``ambiguous`` and its
-    covariance covers the modes (their spread plus the mode set's resolution per mode: SICP's own
-    covariance is not calibrated).
+    best one is reported; when they cannot be told apart, or the one left is not pinned to
+    ``coarse.resolved_max_std``, the result is ``ambiguous`` and its covariance covers the
+    modes (their spread plus each one's own covariance).
     """
 
     with timer.stage("source cloud"):
@@ -233,6 +233,8 @@ def register_tracks(
     scfg = fine_sicp_config(cfg)
     runs: list[tuple[SicpResult, SemanticTargets]] = []
     fits: list[ModeFit] = []
+    sensor_c = coarse.T_coarse[:2, 3]
+    tilt = coarse_tilt_covariance(coarse)
     with timer.stage("SICP"):
         for start, mode in zip(coarse.mode_starts(), coarse.modes or [None]):
             lanes = KEEP_RIGHT if mode is None else mode.lanes
@@ -240,12 +242,16 @@ def register_tracks(
             res = sicp(src.xy, src.label, targets, None, start, scfg,
                        weights=src.weight, source_direction=src.direction)
             T_local, z_std = placed_where_ended(coarse, se2_to_se3(res.T) @ coarse.T_coarse)
-            fits.append(ModeFit(res.T, T_local, None,
+            cov = sensor_covariance(track_covariance(res, src.xy, src.track_id, targets, scfg),
+                                    res.T, sensor_c)
+            if cov is not None and tilt is not None:
+                cov = cov + tilt
+            fits.append(ModeFit(res.T, T_local, cov,
                                 track_costs(src, targets, res.T, cfg.coarse.mode_cost_scale,
                                             cfg.sicp.direction_gate_deg),
                                 1.0 if mode is None else mode.lane_score, res.converged,
                                 start, z_std, lanes))
-            runs.append((res, targets))      # SICP's covariance is not calibrated: None
+            runs.append((res, targets))
     choice = choose_mode(fits, cfg.coarse, prior=position_prior(scn, cfg.coarse))
     res, targets = runs[next(i for i, f in enumerate(fits) if f is choice.best)]
     T_fine = res.T
@@ -264,7 +270,7 @@ def register_tracks(
         frame=scn.frame,
         T_local=choice.best.T_local,
         converged=coarse.converged and res.converged,
-        covariance=None if choice.status == RESOLVED else choice.covariance(cfg.coarse),
+        covariance=choice.covariance(cfg.coarse),
         diagnostics=json_ready({
             "target": target.summary(),
             "coarse": coarse_diag,
@@ -273,7 +279,7 @@ def register_tracks(
             "sicp": {
                 **_sicp_diagnostics(res, scfg, targets, cfg.fine),
                 "sensor_covariance_uncalibrated": sensor_covariance(
-                    res.covariance, T_fine, coarse.T_coarse[:2, 3]),
+                    res.covariance, T_fine, sensor_c),
             },
         }),
         warnings=warnings,
@@ -286,4 +292,5 @@ def register_tracks(
         modes=json_ready(choice.summary(scn.frame)),
         mode_fits=choice.fits,
         z_std=choice.best.z_std,
+        weak_direction=choice.weak_summary(scn.frame),
     )

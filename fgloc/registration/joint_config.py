@@ -149,7 +149,7 @@ class JointConfig:
     covariance: str = "track-robust"
     """Pose covariance: "model" = the inverse of the pose's reduced information (the factors'
     noise model taken as true); "track-robust" = the cluster-robust sandwich over tracks
-    (:func:`fgloc.registration.joint_solver.track_robust_covariance`), never below the model
+    (:func:`fgloc.registration.sicp.track_robust_covariance`), never below the model
     one: errors a whole track shares (its shape, its driver's line) and that the noise model
     misses widen it by as much as the tracks disagree."""
     weak_sigma: float = 0.3

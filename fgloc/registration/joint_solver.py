@@ -233,28 +233,3 @@ def _track_sums(row_track: np.ndarray, values: np.ndarray, T: int) -> np.ndarray
     out = np.zeros((T, values.shape[1]))
     np.add.at(out, row_track, values)
     return out
-
-
-def track_robust_covariance(info: np.ndarray, scores: np.ndarray,
-                            prior_info: np.ndarray) -> np.ndarray:
-    """Covariance (G, G) of the global parameters robust to errors shared within a track.
-
-    info (G, G): their reduced information at the solution (``S``, the model covariance is
-    ``S^-1``); scores (T, G): each track's point rows' share of their gradient there
-    (:attr:`ArrowSystem.gp_track`; a track's own variables are stationary, so this is the
-    track's whole influence); prior_info (G,): the prior's diagonal information. The
-    cluster-robust sandwich ``S^-1 (c/(c-G) sum_t g_t g_t^T + P) S^-1`` over the c tracks
-    with points counts how far the tracks actually disagree, whatever their points' noise
-    and correlation; it is clipped from below at the model covariance (generalized
-    eigenvalues at least 1), so it never claims more than the factors' noise model."""
-    G = len(info)
-    model = np.linalg.inv(0.5 * (info + info.T))
-    used = scores[np.any(scores != 0.0, axis=1)]
-    c = len(used)
-    meat = used.T @ used * (c / max(c - G, 1)) + np.diag(prior_info)
-    sandwich = model @ meat @ model
-    L = np.linalg.cholesky(model)
-    A = np.linalg.solve(L, np.linalg.solve(L, sandwich).T)
-    w, V = np.linalg.eigh(0.5 * (A + A.T))
-    LV = L @ V
-    return (LV * np.maximum(w, 1.0)) @ LV.T

@@ -44,6 +44,13 @@ placed by the best mode, moved rigidly by the mode's start) and hands its final 
   "resolved". So a start that ended farther than the mode separation from every final fit
   stays a mode at its own pose with its own cost (``origin = "start"``), compared with the
   best final fit like any other (:func:`choose_mode`'s ``starts``).
+* **Pinned to the tolerance?** One mode left is not yet a resolved pose: where only a few
+  vehicles fix a direction (a T-junction's main road, fixed by the turning ones) the data
+  may not pin the pose to the accuracy asked. When the reported covariance's std. dev. along
+  its least determined horizontal direction exceeds ``coarse.resolved_max_std``, the result
+  is ``ambiguous`` too (:class:`WeakDirection`), with that covariance (icp, filter-sicp,
+  smoother-sicp; the joint's conservative covariance reports its weak directions as a
+  warning instead, :func:`fgloc.registration.joint.joint_from_tracks`).
 * **Ambiguous**: the reported pose is the selected mode's (above), and the covariance covers
   every mode not ruled out: ``mean_k (C_k + e_k e_k^T)``, ``e_k`` the mode's (x, y, yaw) minus the
   reported one and ``C_k`` its own covariance (where the method has one), so the truth at any
@@ -201,23 +208,61 @@ def position_prior(scn: Scenario, cfg: CoarseConfig) -> PositionPrior:
     return PositionPrior(approx_position_local(scn), cfg.approx_position_sigma)
 
 
+@dataclass(frozen=True)
+class WeakDirection:
+    """The least determined horizontal direction of a pose the modes resolve, when the data
+    do not pin it to the tolerance: direction (2,) unit vector in L, std (m) the sensor
+    position's std. dev. along it, tolerance (m) the ``coarse.resolved_max_std`` it exceeds."""
+
+    direction: np.ndarray
+    std: float
+    tolerance: float
+
+    @property
+    def heading_deg(self) -> float:
+        """Grid heading of ``direction`` (deg CCW from east, in (-90, 90])."""
+        h = float(np.rad2deg(np.arctan2(self.direction[1], self.direction[0])))
+        return h - 180.0 if h > 90.0 else h + 180.0 if h <= -90.0 else h
+
+
+def weak_direction(cov: np.ndarray | None, tolerance: float) -> WeakDirection | None:
+    """The :class:`WeakDirection` of the 3x3 covariance ``cov`` of (x, y, yaw) (m, m, rad):
+    the eigenvector of its largest x-y eigenvalue when that std. dev. exceeds ``tolerance``
+    (m); None when it does not, or without a covariance."""
+    if cov is None:
+        return None
+    vals, vecs = np.linalg.eigh(np.asarray(cov, float)[:2, :2])
+    std = float(np.sqrt(max(vals[-1], 0.0)))
+    return WeakDirection(vecs[:, -1], std, tolerance) if std > tolerance else None
+
+
 @dataclass
 class ModeChoice:
     """The comparison of merged fits, the reported one first (the least cost, or when
     ambiguous the tied mode :func:`choose_mode` selects with the prior): z (M,) standard errors
     by which the least-cost fit beats each (0 for itself); tied: indices of the modes not ruled
-    out (the reported one included); status "resolved" (only one) or "ambiguous". valley: the
-    line the tied modes are samples of (:mod:`fgloc.coarse.valley`), or None; with one the
-    reported pose is its posterior mean (:meth:`reported`), not the first fit's."""
+    out (the reported one included); status "resolved" (only one, pinned to the tolerance) or
+    "ambiguous". valley: the line the tied modes are samples of (:mod:`fgloc.coarse.valley`),
+    or None; with one the reported pose is its posterior mean (:meth:`reported`), not the first
+    fit's. weak: the direction in which the only mode left is not pinned to the tolerance
+    (:meth:`with_tolerance`), or None."""
 
     fits: list[ModeFit]
     z: np.ndarray
     tied: list[int]
     valley: Valley | None = None
+    weak: WeakDirection | None = None
 
     @property
     def status(self) -> str:
-        return RESOLVED if len(self.tied) == 1 else AMBIGUOUS
+        return RESOLVED if len(self.tied) == 1 and self.weak is None else AMBIGUOUS
+
+    def with_tolerance(self, cfg: CoarseConfig) -> ModeChoice:
+        """The same comparison, ambiguous when one mode is left but its covariance's std. dev.
+        along the least determined horizontal direction exceeds ``cfg.resolved_max_std``."""
+        if len(self.tied) != 1:
+            return self
+        return replace(self, weak=weak_direction(self.best.covariance, cfg.resolved_max_std))
 
     @property
     def best(self) -> ModeFit:
@@ -227,7 +272,7 @@ class ModeChoice:
     def selected_by(self, prior: PositionPrior | None) -> ModeChoice:
         """The same comparison with the tied mode of highest posterior under ``prior`` first
         (module docstring); unchanged when resolved or without a prior."""
-        if prior is None or self.status == RESOLVED:
+        if prior is None or len(self.tied) == 1:
             return self
         score = [max(float(self.z[k]), 0.0) ** 2
                  + float(np.sum((self.fits[k].sensor[:2] - prior.xy) ** 2)) / prior.sigma**2
@@ -307,10 +352,29 @@ class ModeChoice:
                 "length_m": float(v.hi - v.lo),
                 "bounded_by_prior": {"from": bool(v.open_lo), "to": bool(v.open_hi)}}
 
+    def weak_summary(self, frame: LocalFrame) -> dict[str, object] | None:
+        """JSON-ready weak direction: heading (deg CCW from grid east), the std. dev. (m) along
+        it, the tolerance it exceeds and the ends (world x, y) of the reported position +-2
+        std. devs. along it; None without one."""
+        w = self.weak
+        if w is None:
+            return None
+        ends = frame.to_world(self.reported()[:2] + np.outer([-2.0, 2.0], w.std * w.direction))
+        return {"heading_deg": w.heading_deg, "std_m": w.std, "tolerance_m": w.tolerance,
+                "from": {"x": float(ends[0, 0]), "y": float(ends[0, 1])},
+                "to": {"x": float(ends[1, 0]), "y": float(ends[1, 1])}}
+
     def warnings(self, method: str) -> list[str]:
         """The ambiguity warning (none when resolved)."""
         if self.status == RESOLVED:
             return []
+        if self.weak is not None:
+            w = self.weak
+            return [f"{method}: ambiguous pose: the position along {w.heading_deg:.0f} deg "
+                    f"(grid) is determined only to {w.std:.2f} m (std. dev.), more than the "
+                    f"tolerance coarse.resolved_max_std = {w.tolerance:g} m: the data do not pin "
+                    "it (few vehicles fix that direction); the covariance says how far it may "
+                    "be off"]
         if self.valley is not None:
             v = self.valley
             heading = float(np.rad2deg(np.arctan2(v.direction[1], v.direction[0])))
@@ -330,31 +394,40 @@ class ModeChoice:
                 f"reported one and {'; '.join(parts)} away); the covariance covers them all"]
 
 
-def coarse_choice(coarse: CoarseResult, prior: PositionPrior | None = None) -> ModeChoice:
+def coarse_choice(coarse: CoarseResult, cfg: CoarseConfig,
+                  prior: PositionPrior | None = None) -> ModeChoice:
     """The coarse stage's modes as they stand (the icp method): the lane-centre scores cannot
     rule a mode out (they are all within ``mode_margin``), so more than one is ambiguous (the
-    reported one selected by ``prior``)."""
-    fits = [ModeFit(m.start, m.placed(se2_to_se3(m.start) @ coarse.T_coarse), None,
-                    np.zeros(0), m.lane_score, coarse.converged, m.start, m.z_std, m.lanes)
-            for m in coarse.modes]
-    return ModeChoice(fits, np.zeros(len(fits)), list(range(len(fits)))).selected_by(prior)
+    reported one selected by ``prior``). The best mode carries the covariance of its lane-score
+    tie (:attr:`fgloc.coarse.CoarseResult.tie_covariance`), which decides whether one mode is
+    pinned to ``cfg.resolved_max_std`` (:meth:`ModeChoice.with_tolerance`)."""
+    fits = [ModeFit(m.start, m.placed(se2_to_se3(m.start) @ coarse.T_coarse),
+                    coarse.tie_covariance if k == 0 else None, np.zeros(0), m.lane_score,
+                    coarse.converged, m.start, m.z_std, m.lanes)
+            for k, m in enumerate(coarse.modes)]
+    choice = ModeChoice(fits, np.zeros(len(fits)), list(range(len(fits))))
+    return choice.selected_by(prior).with_tolerance(cfg)
 
 
 def choose_mode(fits: list[ModeFit], cfg: CoarseConfig,
                 starts: list[ModeFit] | None = None,
-                prior: PositionPrior | None = None) -> ModeChoice:
+                prior: PositionPrior | None = None, tolerance: bool = True) -> ModeChoice:
     """Merge the fits, pick the least cost and rule out modes by ``cfg.mode_z`` (module
     docstring). ``starts``: the fits the ``fits`` were refined from (their track costs on the
     same tracks); each one distinct from every merged fit is added after them as a mode of
     its own (``origin = "start"``), so the best final fit must rule it out. ``prior``: selects
-    the reported mode of an ambiguous result (:meth:`ModeChoice.selected_by`)."""
+    the reported mode of an ambiguous result (:meth:`ModeChoice.selected_by`). ``tolerance``:
+    whether one mode left must also be pinned to ``cfg.resolved_max_std``
+    (:meth:`ModeChoice.with_tolerance`; the joint's is False, see
+    :func:`fgloc.registration.joint.joint_from_tracks`)."""
     merged = merge_modes(fits, cfg)
     merged += [replace(s, origin="start") for s in merge_modes(starts or [], cfg)
                if distinct(s, merged, cfg)]
     best = merged[0].track_cost
     z = np.array([separation_z(f.track_cost, best) for f in merged])
     tied = [k for k in range(len(merged)) if k == 0 or z[k] < cfg.mode_z]
-    return ModeChoice(merged, z, tied).selected_by(prior)
+    choice = ModeChoice(merged, z, tied).selected_by(prior)
+    return choice.with_tolerance(cfg) if tolerance else choice
 
 
 def track_valley(choice: ModeChoice, cost_at: Callable[[ModeFit, np.ndarray], np.ndarray],
