@@ -420,6 +420,13 @@ class Tracker:
                                                 * (rax[:, 0] + rax[:, 2]))
             face = (seen[:, 0] | seen[:, 2]) & (span_la >= cfg.extent_min_cover
                                                 * (rax[:, 1] + rax[:, 3]))
+            if cfg.extent_face_min_points > 0:
+                # detections on the seen front / rear: within twice sigma_range of its
+                # outermost one along the heading
+                band = 2.0 * cfg.sigma_range
+                on = np.where((s_lo >= 0.0)[:, None], lo_max >= lo_max.max(1)[:, None] - band,
+                              lo_min <= lo_min.min(1)[:, None] + band)
+                face &= np.sum(on & vall, axis=1) >= cfg.extent_face_min_points
             enough = vall.sum(axis=1) >= cfg.extent_min_points
             zj = np.take_along_axis(zall, j[..., None], axis=1)                # (T, 4, 2)
             zm = zj
