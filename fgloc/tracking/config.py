@@ -53,11 +53,6 @@ class TrackingConfig:
     extent_edge_margin: float = 2.0
     """An extreme detection closer than this (m) to the FOV's edge or the blind range gives no
     extent row (the view of the face may be cut there)."""
-    extent_face_min_points: int = 12
-    """The width rows (a seen front or rear) need at least this many detections on that face --
-    within twice ``sigma_range`` of its outermost detection along the heading -- (0 = no such
-    test): with a few returns on it the extreme ones stop short of the corner away from the
-    sensor and narrow the contour (the smoothers' ``[smoothing] extent_face_min_points``)."""
     extent_min_cover: float = 0.5
     """... and only if its detections span at least this share of the contour's extent along
     the face (else the face is partly occluded or cut by the FOV: its extremes are not ends)."""

@@ -15,7 +15,9 @@ Per radar frame:
    along a face that is seen fix where the contour ends; see :meth:`Tracker._aware_batch`);
 5. births: unassociated detections are clustered; a cluster in a birth zone starts a tentative
    track confirmed after ``confirm_hits_zone`` updates within ``confirm_window_zone`` frames;
-   elsewhere (``birth_anywhere``) the stricter ``confirm_hits_anywhere`` / window applies;
+   elsewhere (``birth_anywhere``) the stricter ``confirm_hits_anywhere`` / window applies; its
+   heading prior is the nearest lane's that explains its Doppler, and where crossing lanes tie
+   one tentative track per heading starts (rivals: the one with most detections goes on);
 6. a track whose centre lies next to a stronger (confirmed, more updates) track's contour --
    within ``gate`` sideways, ``duplicate_long`` lengthwise -- is a duplicate and is dropped;
    confirmed tracks missed for ``delete_after`` s end (the unmeasured tail is cut).
@@ -420,13 +422,6 @@ class Tracker:
                                                 * (rax[:, 0] + rax[:, 2]))
             face = (seen[:, 0] | seen[:, 2]) & (span_la >= cfg.extent_min_cover
                                                 * (rax[:, 1] + rax[:, 3]))
-            if cfg.extent_face_min_points > 0:
-                # detections on the seen front / rear: within twice sigma_range of its
-                # outermost one along the heading
-                band = 2.0 * cfg.sigma_range
-                on = np.where((s_lo >= 0.0)[:, None], lo_max >= lo_max.max(1)[:, None] - band,
-                              lo_min <= lo_min.min(1)[:, None] + band)
-                face &= np.sum(on & vall, axis=1) >= cfg.extent_face_min_points
             enough = vall.sum(axis=1) >= cfg.extent_min_points
             zj = np.take_along_axis(zall, j[..., None], axis=1)                # (T, 4, 2)
             zm = zj
