@@ -92,23 +92,70 @@ class LaneHeadings:
         pts = np.vstack(xy) if xy else np.zeros((0, 2))
         return LaneHeadings(pts, np.concatenate(hd) if hd else np.zeros(0), cKDTree(pts))
 
-    def heading_near(self, p: np.ndarray, radius: float, los: np.ndarray,
-                     doppler: float) -> float | None:
-        """Heading (rad) of the nearest centre-line sample within radius (m) of p (2,) whose
-        direction agrees with the sign of the mean Doppler along the unit line of sight los
-        (2,) when that is informative; None if no lanelet is near."""
+    def headings_near(self, p: np.ndarray, radius: float, z: np.ndarray, doppler: np.ndarray,
+                      rng: np.ndarray, sensor: np.ndarray, sigma_doppler: float,
+                      max_speed: float, max_yawrate: float, max_hypotheses: int = 1,
+                      margin: float = 0.0, separation: float = np.pi) -> np.ndarray:
+        """Heading hypotheses (h,) (rad; h <= max_hypotheses, empty if no lanelet is near) of a
+        new cluster at p (2,) from the centre-line samples within radius (m) of it.
+
+        z (k, 2) the cluster's detections, doppler (k,) m/s, rng (k,) 3D ranges, sensor (2,).
+        A sample is ruled out when the cluster's Doppler, fitted by the best rigid motion
+        along its direction (:func:`doppler_misfit`), leaves a residual sum of squares larger
+        than the best sample's by more than ``(3 sigma_doppler)^2`` (a lane driven the other
+        way, or one across the line of sight that would need an implausible speed). The first
+        hypothesis is the nearest sample left; further ones are samples left at most
+        ``margin`` (m) farther away whose heading differs by more than ``separation`` (rad)
+        from every hypothesis before them: where lanes cross (a junction box) the cluster's
+        position cannot tell them apart, and with a free yaw rate one frame's Doppler cannot
+        either (a rotation about the sensor changes no Doppler)."""
         if len(self.xy) == 0:
-            return None
-        idx = self.tree.query_ball_point(p, radius)
-        if not idx:
-            return None
-        idx = np.asarray(idx)
+            return np.zeros(0)
+        idx = np.asarray(self.tree.query_ball_point(p, radius), dtype=np.int64)
+        if not len(idx):
+            return np.zeros(0)
         dist = np.linalg.norm(self.xy[idx] - p, axis=1)
-        along = np.cos(self.heading[idx]) * los[0] + np.sin(self.heading[idx]) * los[1]
-        agree = (np.abs(along) < 0.3) | (np.sign(along) == np.sign(doppler))
-        if agree.any():
-            dist = np.where(agree, dist, np.inf)
-        return float(self.heading[idx[np.argmin(dist)]])
+        heading = self.heading[idx]
+        rss = doppler_misfit(z, doppler, rng, sensor, heading, max_speed, max_yawrate)
+        ok = rss <= rss.min() + (3.0 * sigma_doppler) ** 2
+        order = np.argsort(np.where(ok, dist, np.inf))[: int(ok.sum())]
+        order = order[dist[order] <= dist[order[0]] + margin]
+        out = [float(heading[order[0]])]
+        for i in order[1:]:
+            if len(out) >= max_hypotheses:
+                break
+            if np.all(np.abs(wrap_angle(heading[i] - np.asarray(out))) > separation):
+                out.append(float(heading[i]))
+        return np.asarray(out)
+
+
+def doppler_misfit(z: np.ndarray, doppler: np.ndarray, rng: np.ndarray, sensor: np.ndarray,
+                   headings: np.ndarray, max_speed: float, max_yawrate: float) -> np.ndarray:
+    """(c,) residual sum of squares ((m/s)^2) of the Doppler (k,) (m/s, positive away from the
+    sensor) of the detections z (k, 2) (3D ranges rng (k,)) about the best rigid motion with
+    each heading (c,) (rad): speed v in [0, max_speed] (m/s, forwards only: a lane is driven
+    one way) and yaw rate w in [-max_yawrate, max_yawrate] (rad/s) about the detections'
+    centroid, ``doppler_i = (v u(heading) + w e_z x (z_i - centroid)) . (z_i - sensor) / rng_i``
+    (:func:`factors.measurement.range_rate`), fitted by least squares with the bounds applied
+    in turn (v, then w given v, then v given w)."""
+    z = np.asarray(z, dtype=float)
+    d = np.asarray(doppler, dtype=float)
+    los = (z - sensor) / np.asarray(rng, dtype=float)[:, None]                  # (k, 2)
+    rel = z - z.mean(axis=0)
+    w_col = rel[:, 0] * los[:, 1] - rel[:, 1] * los[:, 0]                       # (k,)
+    h = np.stack([np.cos(headings), np.sin(headings)], axis=1)                  # (c, 2)
+    g = los @ h.T                                                               # (k, c)
+    gg, gw, ww = np.sum(g * g, axis=0), g.T @ w_col, float(w_col @ w_col)
+    gd, wd = g.T @ d, float(w_col @ d)
+    det = gg * ww - gw * gw
+    ok = det > 1e-9 * np.maximum(gg * ww, 1e-12)
+    v = np.where(ok, (ww * gd - gw * wd) / np.where(ok, det, 1.0),
+                 gd / np.maximum(gg, 1e-12))
+    v = np.clip(v, 0.0, max_speed)
+    w = np.clip((wd - gw * v) / max(ww, 1e-12), -max_yawrate, max_yawrate)
+    v = np.clip((gd - gw * w) / np.maximum(gg, 1e-12), 0.0, max_speed)
+    r = d[:, None] - g * v - w_col[:, None] * w
+    return np.sum(r * r, axis=0)
 
 
 def _centreline(ll: Lanelet) -> np.ndarray:

@@ -181,7 +181,25 @@ class TrackingConfig:
     default_speed: float = 8.0
     """Initial speed (m/s) when the Doppler cannot give it (motion across the line of sight)."""
     lane_search_radius: float = 6.0
-    """A lanelet centre line within this distance (m) of a new cluster gives its heading."""
+    """A lanelet centre line within this distance (m) of a new cluster gives its heading (the
+    nearest sample that explains the cluster's Doppler; the birth zone's lane direction only
+    where no centre line is this near) ..."""
+    birth_sigma_doppler: float = 0.3
+    """... ruling out a sample when the best rigid motion along its direction (forwards, speed
+    up to max_speed, yaw rate up to max_yawrate) leaves a Doppler residual sum of squares
+    larger than the best sample's by more than (3 x this (m/s))^2: the scatter of a new
+    cluster's Doppler about a rigid motion (radar noise and height)."""
+    birth_hypotheses: int = 2
+    """Where lane samples left by that test lie at most ``birth_hypothesis_margin`` (m) farther
+    from a new cluster than the nearest one and head more than ``birth_hypothesis_sep_deg``
+    away from it (lanes crossing in a junction box), the cluster starts up to this many
+    tentative tracks, one per heading; once one of them reaches its confirmation hits, the
+    one that took the most detections since their birth goes on and the others end (1 = the
+    nearest lane's heading only) ..."""
+    birth_hypothesis_margin: float = 1.0
+    """... (m) ..."""
+    birth_hypothesis_sep_deg: float = 30.0
+    """... (deg; twice init_sigma_yaw_deg: a prior within that of the truth converges)."""
 
     max_speed: float = 40.0
     """Speeds (m/s) are clipped to [0, max_speed] after each update (no reversing)."""

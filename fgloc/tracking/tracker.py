@@ -15,7 +15,9 @@ Per radar frame:
    along a face that is seen fix where the contour ends; see :meth:`Tracker._aware_batch`);
 5. births: unassociated detections are clustered; a cluster in a birth zone starts a tentative
    track confirmed after ``confirm_hits_zone`` updates within ``confirm_window_zone`` frames;
-   elsewhere (``birth_anywhere``) the stricter ``confirm_hits_anywhere`` / window applies;
+   elsewhere (``birth_anywhere``) the stricter ``confirm_hits_anywhere`` / window applies; its
+   heading prior is the nearest lane's that explains its Doppler, and where crossing lanes tie
+   one tentative track per heading starts (rivals: the one with most detections goes on);
 6. a track whose centre lies next to a stronger (confirmed, more updates) track's contour --
    within ``gate`` sideways, ``duplicate_long`` lengthwise -- is a duplicate and is dropped;
    confirmed tracks missed for ``delete_after`` s end (the unmeasured tail is cut).
@@ -102,6 +104,11 @@ class _Record:
     side_hits: int = 0
     #: promoted to the long-vehicle prior (see :meth:`Tracker._long_vehicles`)
     long: bool = False
+    #: heading-hypothesis group (the id of its first track; -1: born alone): tracks started
+    #: from one cluster with different headings, rivals until one is confirmed
+    group: int = -1
+    #: detections associated since birth (the rivals' score)
+    n_det: int = 0
     #: lengthwise spans (m) of the associated detections of recent updates
     spans: list[float] = field(default_factory=list)
     #: lower bound (m) of the vehicle's length from ``spans`` (0: none yet)
@@ -700,6 +707,7 @@ class Tracker:
             rec.det_index.append(idx)
             rec.det_step.append(np.full(len(idx), step, dtype=np.int64))
             rec.hits += 1
+            rec.n_det += len(idx)
             rec.last_update_t = self.t
             rec.last_update_step = step
 
@@ -730,16 +738,24 @@ class Tracker:
             los = (centroid - sensor) / max(float(np.linalg.norm(centroid - sensor)), 1e-6)
             md = float(np.mean(dop))
             yaw_sigma = np.deg2rad(cfg.init_sigma_yaw_deg)
-            yaw = (float(self.zones.yaw[zone]) if zone is not None
-                   else self.lanes.heading_near(centroid, cfg.lane_search_radius, los, md))
-            if yaw is None:
-                yaw = float(np.arctan2(los[1], los[0]) + (0.0 if md > 0 else np.pi))
+            # the lane the cluster is on, else the zone's: a zone's disc may hold other
+            # lanes than the one whose entry it marks (a junction box near the sensor)
+            yaws = self.lanes.headings_near(
+                centroid, cfg.lane_search_radius, z, dop, rng, sensor, cfg.birth_sigma_doppler,
+                cfg.max_speed, cfg.max_yawrate, cfg.birth_hypotheses,
+                cfg.birth_hypothesis_margin, np.deg2rad(cfg.birth_hypothesis_sep_deg))
+            if not len(yaws) and zone is not None:
+                yaws = self.zones.yaw[[zone]]
+            if not len(yaws):
+                yaws = np.array([np.arctan2(los[1], los[0]) + (0.0 if md > 0 else np.pi)])
                 yaw_sigma = LOS_YAW_SIGMA
             # the vehicle may go on into the withheld range: born once it has left it
             near = withheld[~np.isin(withheld, k)]
-            if self._continues_into(z, md, yaw, det.z[near], det.doppler[near]):
+            if self._continues_into(z, md, float(yaws[0]), det.z[near], det.doppler[near]):
                 continue
-            self._birth(det, k, z, dop, rng, yaw, yaw_sigma, zone)
+            group = self.next_id if len(yaws) > 1 else -1
+            for yaw in yaws:
+                self._birth(det, k, z, dop, rng, float(yaw), yaw_sigma, zone, group)
 
     def _continues_into(self, z: np.ndarray, doppler: float, yaw: float,
                         near_z: np.ndarray, near_doppler: np.ndarray) -> bool:
@@ -771,8 +787,11 @@ class Tracker:
         return bool(np.any(inside & (u > u1) & (u - u0 <= cfg.mean_length + cfg.chain_reach)))
 
     def _birth(self, det: _Frame, k: np.ndarray, z: np.ndarray, dop: np.ndarray,
-               rng: np.ndarray, yaw: float, yaw_sigma: float, zone: int | None) -> None:
-        """A tentative track from the detections k (indices into the frame) z, dop, rng."""
+               rng: np.ndarray, yaw: float, yaw_sigma: float, zone: int | None,
+               group: int = -1) -> None:
+        """A tentative track from the detections k (indices into the frame) z, dop, rng with
+        the heading prior yaw (rad) +- yaw_sigma, in the heading-hypothesis group ``group``
+        (-1: none)."""
         cfg = self.cfg
         sensor = self.fov.sensor
         noise = max(cfg.sigma_range, np.deg2rad(cfg.sigma_azimuth_deg) * float(rng.mean()))
@@ -787,7 +806,8 @@ class Tracker:
             cfg.init_sigma_pos, cfg.init_sigma_pos, cfg.init_sigma_speed,
             cfg.init_sigma_accel, yaw_sigma, cfg.init_sigma_yawrate]))
         P0[N_KIN:, N_KIN:] = self.gp.K
-        rec = _Record(self.next_id, self.frame, zone is not None, self.t)
+        rec = _Record(self.next_id, self.frame, zone is not None, self.t, group=group,
+                      n_det=len(k))
         self.next_id += 1
         rec.t.append(self.t)
         rec.states.append(x0.copy())
@@ -814,13 +834,16 @@ class Tracker:
         out_long, out_lat, _, _ = self._outside(self.x[:, [X, Y]], excess=False)
         dup = (out_lat <= cfg.gate) & (out_long <= cfg.duplicate_long)
         np.fill_diagonal(dup, False)
+        group = np.array([r.group for r in self.recs])
+        dup &= ~((group[:, None] == group[None, :]) & (group[:, None] >= 0))
+        end |= self._rivals(group)
         rank = np.array([(r.confirmed, r.hits, -r.id) for r in self.recs],
                         dtype=[("c", bool), ("h", int), ("i", int)])
         order = np.argsort(rank, order=("c", "h", "i"))[::-1]          # strongest first
         pos = np.empty(n, dtype=np.int64)
         pos[order] = np.arange(n)
         for j in order:
-            end[j] = bool(np.any(dup[:, j] & ~end & (pos < pos[j])))
+            end[j] |= bool(np.any(dup[:, j] & ~end & (pos < pos[j])))
         # a duplicate followed part of a vehicle a stronger track follows: not reported
         silent = end.copy() if cfg.drop_duplicates else np.zeros(n, dtype=bool)
         blind = self.fov.blind(self.x[:, [X, Y]])
@@ -839,6 +862,27 @@ class Tracker:
             elif self.frame - rec.birth_frame >= window - 1:
                 end[i] = True
         self._end(end, silent)
+
+    def _rivals(self, group: np.ndarray) -> np.ndarray:
+        """(n,) tracks that lose their heading-hypothesis rivalry: in a group (tracks born
+        from one cluster with different headings, ``group`` (n,)) of which a track has reached
+        its confirmation hits, every track but the one with the most detections associated
+        since birth (ties: the smaller misfit) ends; the winner leaves the group. Its rivals
+        with a wrong heading drift off the vehicle and take fewer of its detections."""
+        cfg = self.cfg
+        lose = np.zeros(len(group), dtype=bool)
+        for g in np.unique(group[group >= 0]):
+            members = np.flatnonzero(group == g)
+            recs = [self.recs[i] for i in members]
+            ready = [r.hits >= (cfg.confirm_hits_zone if r.in_zone else
+                                cfg.confirm_hits_anywhere) for r in recs]
+            if len(members) > 1 and not any(ready):
+                continue
+            best = min(range(len(recs)), key=lambda a: (-recs[a].n_det, recs[a].misfit))
+            lose[members] = True
+            lose[members[best]] = False
+            recs[best].group = -1
+        return lose
 
     def _end(self, mask: np.ndarray, silent: np.ndarray | None = None) -> None:
         """End the tracks in ``mask``; report the confirmed ones with enough updates unless
