@@ -59,7 +59,7 @@ class Run:
     signed: (3,) estimate minus truth in L: x (m), y (m), yaw (rad, wrapped). cov: 3x3 (x, y,
     yaw) covariance of the result or None. along_sd: standard deviation (m) along the road
     direction given by ``road_dir`` (straight road only), weak: the result's weak-direction
-    flag, if it reports one.
+    flag, if it reports one; status: the result's status ("resolved" or "ambiguous").
     """
 
     case: str
@@ -73,6 +73,7 @@ class Run:
     signed: np.ndarray
     cov: np.ndarray | None
     weak: bool | None
+    status: str
 
     @property
     def nees(self) -> float:
@@ -99,7 +100,7 @@ def score(scn: Scenario, res: LocalizationResult, method: str, guess: bool, dt: 
     cov = None if res.covariance is None else np.asarray(res.covariance, float)[:3, :3]
     return Run(case, seed, guess, method, n_traj, bool(res.converged), dt,
                pose_error(res.T_local, scn.truth.sensor_pose).to_json(), signed, cov,
-               weak_flag(res))
+               weak_flag(res), res.status)
 
 
 def localize_scored(scn: Scenario, methods: list[str], cfg: Config, guess: bool, case: str,
@@ -144,13 +145,20 @@ def localization_runs(case: str, seed: int, duration: float, methods: list[str],
 
 
 # ---------------------------------------------------------------------------------- tables
+def run_label(r: Run) -> str:
+    """The method's name with what the run says about itself: not converged, ambiguous."""
+    notes = [n for n, on in (("not converged", not r.converged),
+                             (r.status, r.status != "resolved")) if on]
+    return r.method + (f" ({', '.join(notes)})" if notes else "")
+
+
 def table_one(runs: list[Run]) -> list[str]:
     out = ["| case | seed | yaw guess | method | \\|dx\\| m | \\|dy\\| m | 2D m | \\|dyaw\\| deg "
            "| \\|dz\\| m | time s |", "|---|---:|---|---|---:|---:|---:|---:|---:|---:|"]
     for r in runs:
         e = r.err
-        out.append(f"| {r.case} | {r.seed} | {'yes' if r.guess else 'no'} | {r.method}"
-                   f"{'' if r.converged else ' (not converged)'} | {e['dx']:.3f} | "
+        out.append(f"| {r.case} | {r.seed} | {'yes' if r.guess else 'no'} | {run_label(r)}"
+                   f" | {e['dx']:.3f} | "
                    f"{e['dy']:.3f} | {e['d2d']:.3f} | {e['dyaw_deg']:.3f} | {e['dz']:.3f} | "
                    f"{r.time_s:.1f} |")
     return out
@@ -158,8 +166,8 @@ def table_one(runs: list[Run]) -> list[str]:
 
 def table_two(runs: list[Run], methods: list[str]) -> list[str]:
     out = ["| method | case | runs | mean 2D m | worst 2D m | mean \\|dyaw\\| deg | worst "
-           "\\|dyaw\\| deg | mean NEES (x, y, yaw) | mean time s |",
-           "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+           "\\|dyaw\\| deg | ambiguous | mean NEES (x, y, yaw) | mean time s |",
+           "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     cases = sorted({r.case for r in runs})
     for m in methods:
         for case in [*cases, "all"]:
@@ -171,21 +179,22 @@ def table_two(runs: list[Run], methods: list[str]) -> list[str]:
             nees = np.array([r.nees for r in sel])
             ntxt = f"{np.nanmean(nees):.2f}" if np.isfinite(nees).any() else "-"
             out.append(f"| {m} | {case} | {len(sel)} | {d2.mean():.3f} | {d2.max():.3f} | "
-                       f"{dy.mean():.3f} | {dy.max():.3f} | {ntxt} | "
+                       f"{dy.mean():.3f} | {dy.max():.3f} | "
+                       f"{sum(r.status != 'resolved' for r in sel)}/{len(sel)} | {ntxt} | "
                        f"{np.mean([r.time_s for r in sel]):.1f} |")
     return out
 
 
 def table_straight(runs: list[Run], road_dirs: dict[int, np.ndarray]) -> list[str]:
     out = ["| seed | method | 2D m | along-road error m | \\|dyaw\\| deg | along-road sd m "
-           "| weak direction flagged |", "|---:|---|---:|---:|---:|---:|---|"]
+           "| weak direction flagged | status |", "|---:|---|---:|---:|---:|---:|---|---|"]
     for r in runs:
         u = road_dirs[r.seed]
         along = abs(float(r.signed[:2] @ u))
         sd = "-" if r.cov is None else f"{np.sqrt(u @ r.cov[:2, :2] @ u):.3f}"
         flag = "-" if r.weak is None else ("yes" if r.weak else "no")
         out.append(f"| {r.seed} | {r.method} | {r.err['d2d']:.3f} | {along:.3f} | "
-                   f"{r.err['dyaw_deg']:.3f} | {sd} | {flag} |")
+                   f"{r.err['dyaw_deg']:.3f} | {sd} | {flag} | {r.status} |")
     return out
 
 

@@ -196,9 +196,9 @@ TABLES: list[Table] = [
           "(scenario written and loaded back), with the sensor.toml yaw guess; errors against "
           "the simulated truth. The first table lists every run, the second the mean and worst "
           "run per method and case and, for methods that report a covariance, the mean NEES "
-          "of (x, y, yaw) (3 degrees of freedom: 3 is consistent; icp, filter-sicp and "
-          "smoother-sicp report a covariance only on ambiguous runs, the one covering every "
-          "mode, so their NEES is over those runs). A method's time is the sum of its stage "
+          "of (x, y, yaw) over every run (3 degrees of freedom: 3 is consistent; an "
+          "ambiguous run's covariance covers its modes) and the runs whose result says it is "
+          "ambiguous (marked in the first table). A method's time is the sum of its stage "
           "times, what a separate run spends.",
           produce_scenarios,
           {"cases": ["intersection", "tjunction", "curve"], "seeds": [1, 2, 3, 4, 5],
@@ -246,7 +246,8 @@ TABLES: list[Table] = [
     Table("straight", "Straight road without a junction", "bench/accuracy.py",
           "On a straight road nothing observes the position along the road: every method "
           "is off along it. The table shows how far, and whether a method that reports a "
-          "covariance says so (its along-road standard deviation and weak-direction flag).",
+          "covariance says so (its along-road standard deviation, the joint's weak-direction "
+          "flag, and the result's status).",
           produce_straight,
           {"seeds": [1, 2, 3], "duration": 60.0, "methods": _ALL_METHODS},
           {"seeds": [1], "duration": 30.0, "methods": _QUICK_METHODS}),
