@@ -53,13 +53,6 @@ class TrackingConfig:
     extent_edge_margin: float = 2.0
     """An extreme detection closer than this (m) to the FOV's edge or the blind range gives no
     extent row (the view of the face may be cut there)."""
-    extent_face_min_points: int = 12
-    """A width row (a seen front or rear) whose face holds n < this many detections -- within
-    twice ``sigma_range`` of its outermost detection along the heading -- has its
-    ``sigma_extent``^2 scaled by this / n (0 = no scaling): a few returns on it stop short of
-    the corner away from the sensor and would narrow the contour, yet dropping the row leaves
-    the width to the side's normal rows, which a yaw error squeezes (the smoothers drop such
-    rows, ``[smoothing] extent_face_min_points``)."""
     extent_min_cover: float = 0.5
     """... and only if its detections span at least this share of the contour's extent along
     the face (else the face is partly occluded or cut by the FOV: its extremes are not ends)."""

@@ -422,16 +422,6 @@ class Tracker:
                                                 * (rax[:, 0] + rax[:, 2]))
             face = (seen[:, 0] | seen[:, 2]) & (span_la >= cfg.extent_min_cover
                                                 * (rax[:, 1] + rax[:, 3]))
-            var_scale = np.ones((T, K + 4))
-            if cfg.extent_face_min_points > 0:
-                # detections on the seen front / rear: within twice sigma_range of its
-                # outermost one along the heading
-                band = 2.0 * cfg.sigma_range
-                on = np.where((s_lo >= 0.0)[:, None], lo_max >= lo_max.max(1)[:, None] - band,
-                              lo_min <= lo_min.min(1)[:, None] + band)
-                n_face = np.sum(on & vall, axis=1)
-                thin = cfg.extent_face_min_points / np.maximum(n_face, 1)
-                var_scale[:, K + 1] = var_scale[:, K + 3] = np.maximum(thin, 1.0)
             enough = vall.sum(axis=1) >= cfg.extent_min_points
             zj = np.take_along_axis(zall, j[..., None], axis=1)                # (T, 4, 2)
             zm = zj
@@ -461,8 +451,6 @@ class Tracker:
                     self.P[tracks, :2, :2] += ((0.25 * ex**2)[:, None, None]
                                                * ax[:, :, None] * ax[:, None, :])
         extra_var = np.where(dop_ok, 0.0, cfg.sigma_extent**2)
-        if cfg.use_extent:
-            extra_var = extra_var * var_scale
         return zr, th, nm, ok, dop_ok, extra_var, jidx
 
     def _update(self, det: _Frame, owner: np.ndarray) -> np.ndarray:
