@@ -127,8 +127,10 @@ def fine_sicp_config(cfg: Config) -> SicpConfig:
 
 
 def sensor_covariance(cov_fine: np.ndarray | None, T_fine: np.ndarray,
-                      sensor_c: np.ndarray) -> np.ndarray | None:
-    """3x3 covariance of the sensor's (x, y, yaw) in L from that of T_fine's (tx, ty, yaw).
+                      sensor_c: np.ndarray, tilt: np.ndarray | None = None
+                      ) -> np.ndarray | None:
+    """3x3 covariance of the sensor's (x, y, yaw) in L from that of T_fine's (tx, ty, yaw),
+    plus ``tilt`` (3x3, :func:`coarse_tilt_covariance`) when given.
 
     The sensor at ``sensor_c`` (2,) m in C lands at ``R p + t``; its Jacobian w.r.t. (tx, ty,
     yaw) is ``[[1, 0, -(R p)_y], [0, 1, (R p)_x], [0, 0, 1]]``.
@@ -137,7 +139,8 @@ def sensor_covariance(cov_fine: np.ndarray | None, T_fine: np.ndarray,
         return None
     rp = T_fine[:2, :2] @ sensor_c
     J = np.array([[1.0, 0.0, -rp[1]], [0.0, 1.0, rp[0]], [0.0, 0.0, 1.0]])
-    return J @ cov_fine @ J.T
+    cov = J @ cov_fine @ J.T
+    return cov if tilt is None else cov + tilt
 
 
 def coarse_tilt_covariance(coarse: CoarseResult) -> np.ndarray | None:
@@ -243,9 +246,7 @@ def register_tracks(
                        weights=src.weight, source_direction=src.direction)
             T_local, z_std = placed_where_ended(coarse, se2_to_se3(res.T) @ coarse.T_coarse)
             cov = sensor_covariance(track_covariance(res, src.xy, src.track_id, targets, scfg),
-                                    res.T, sensor_c)
-            if cov is not None and tilt is not None:
-                cov = cov + tilt
+                                    res.T, sensor_c, tilt)
             fits.append(ModeFit(res.T, T_local, cov,
                                 track_costs(src, targets, res.T, cfg.coarse.mode_cost_scale,
                                             cfg.sicp.direction_gate_deg),

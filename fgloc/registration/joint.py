@@ -835,9 +835,7 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
                                     min_width(mode.lanes, cfg.map.two_way_min_width))
             T0 = mode.T_fine if cfg.joint.start == "sicp" else mode.start
             jr = joint_refine(subset, det_xy, sensor_c, lines, T0, cfg, trusted, rates)
-            cov = sensor_covariance(jr.covariance, jr.T, sensor_c)
-            if tilt is not None and cov is not None:
-                cov = cov + tilt
+            cov = sensor_covariance(jr.covariance, jr.T, sensor_c, tilt)
             targets = mode_targets(scn, target, cfg, coarse, mode.start, mode.lanes)
             T_local, z_std = placed_where_ended(coarse, se2_to_se3(jr.T) @ coarse.T_coarse)
             cost = track_costs(cloud, targets, jr.T, cfg.coarse.mode_cost_scale,

@@ -855,13 +855,20 @@ class Tracker:
                 patience = cfg.delete_after_blind if blind[i] else cfg.delete_after
                 end[i] |= t - rec.last_update_t > patience
                 continue
-            hits, window = ((cfg.confirm_hits_zone, cfg.confirm_window_zone) if rec.in_zone
-                            else (cfg.confirm_hits_anywhere, cfg.confirm_window_anywhere))
+            hits, window = self._confirmation(rec)
             if rec.hits >= hits:
                 rec.confirmed = True
             elif self.frame - rec.birth_frame >= window - 1:
                 end[i] = True
         self._end(end, silent)
+
+    def _confirmation(self, rec: _Record) -> tuple[int, int]:
+        """(hits, window frames) that confirm the tentative track ``rec``: born in a birth
+        zone or anywhere else."""
+        cfg = self.cfg
+        if rec.in_zone:
+            return cfg.confirm_hits_zone, cfg.confirm_window_zone
+        return cfg.confirm_hits_anywhere, cfg.confirm_window_anywhere
 
     def _rivals(self, group: np.ndarray) -> np.ndarray:
         """(n,) tracks that lose their heading-hypothesis rivalry: in a group (tracks born
@@ -869,13 +876,11 @@ class Tracker:
         its confirmation hits, every track but the one with the most detections associated
         since birth (ties: the smaller misfit) ends; the winner leaves the group. Its rivals
         with a wrong heading drift off the vehicle and take fewer of its detections."""
-        cfg = self.cfg
         lose = np.zeros(len(group), dtype=bool)
         for g in np.unique(group[group >= 0]):
             members = np.flatnonzero(group == g)
             recs = [self.recs[i] for i in members]
-            ready = [r.hits >= (cfg.confirm_hits_zone if r.in_zone else
-                                cfg.confirm_hits_anywhere) for r in recs]
+            ready = [r.hits >= self._confirmation(r)[0] for r in recs]
             if len(members) > 1 and not any(ready):
                 continue
             best = min(range(len(recs)), key=lambda a: (-recs[a].n_det, recs[a].misfit))
