@@ -64,6 +64,13 @@ class TrackingConfig:
     growth test (``grow_margin``) uses the extreme detection itself."""
     extent_gap_max: float = 0.6
     """Cap (m) of that sampling-gap correction."""
+    extent_width_gap: bool = True
+    """The same across the heading, at a side that is not seen: its extreme detection is one of
+    the n_f detections on the seen front or rear (within 0.5 m of it), so the side is measured
+    ``width / (n_f + 1)`` beyond it (the expected gap of uniform samples with the contour's
+    width; not their span, mostly azimuth noise far out), at most ``extent_gap_max``. Without
+    it sparse returns leave cars 0.17 m narrow with their centres 0.1-0.2 m towards the seen
+    side (issue 20); the seen side's own row takes no gap (its detections lie along it)."""
     chain_fov_margin: float = 1.0
     """Contour points up to this far (m) outside the field of view still belong to the visible
     chain the detections are matched to (a detection is inside it, the track's contour may
@@ -99,9 +106,11 @@ class TrackingConfig:
     """Length (m) of the rectangle that is the prior mean contour (and the decay target)."""
     mean_width: float = 1.9
     """Width (m) of that rectangle."""
-    long_trigger_width: float = 2.3
+    long_trigger_width: float = 2.8
     """Long-vehicle hypothesis: a track whose contour is at least this wide (m) less half the std.
-    dev. of its width (cars and vans are narrower, trucks and buses about 2.5 m) ..."""
+    dev. of its width (cars and vans are narrower, trucks and buses about 2.5 m; above 2.5 m
+    since ``extent_width_gap``: cars with dense returns come out 0.1-0.2 m wide and the gap
+    adds to that, 2.3 m promoted cars far out to 5-6 m trucks) ..."""
     long_wide_updates: int = 10
     """... in this many updates in a row with a misfit (median |radial excess|, see
     diverge_excess) of at most ..."""

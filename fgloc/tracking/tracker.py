@@ -431,6 +431,17 @@ class Tracker:
                 gap = np.where(np.isfinite(span_lo), span_lo, 0.0) / n_det
                 gap = np.clip(gap, 0.0, cfg.extent_gap_max)[:, None] * np.array([1, 0, 1, 0])
                 zm = zj + axes * gap[..., None]
+            if cfg.extent_width_gap:
+                # across the heading, at a side that is not seen: its extreme detection is one
+                # of the n_f on the seen front / rear (within 0.5 m of it), about
+                # width / (n_f + 1) short of the corner (uniform samples; the contour's width,
+                # not their span, which is azimuth noise far out)
+                end_lo = np.where(seen[:, 0], rax[:, 0], -rax[:, 2])
+                n_f = (vall & (np.abs(lo - end_lo[:, None]) < 0.5)).sum(axis=1)
+                g = np.clip((rax[:, 1] + rax[:, 3]) / (n_f + 1.0), 0.0, cfg.extent_gap_max)
+                wgap = np.zeros((T, 4))
+                wgap[:, 1::2] = np.where(seen[:, 1::2], 0.0, g[:, None])
+                zm = zm + axes * wgap[..., None]
             # an extreme detection next to the FOV's edge (or the blind range) may be where
             # the view is cut, not where the vehicle ends
             zin = ((self.fov.outside_distance(zj) < -cfg.extent_edge_margin)
