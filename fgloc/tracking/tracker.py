@@ -72,6 +72,8 @@ from fgloc.tracks import (
 MODELS = ("sensor-aware", "plain")
 #: yaw std. dev. (rad) of a new track whose heading only comes from the Doppler sign
 LOS_YAW_SIGMA = np.deg2rad(45.0)
+#: detections within this distance (m) along the heading of a seen front / rear lie on it
+FACE_BAND = 0.5
 
 
 def kappa_labels(states: np.ndarray, eta: float, min_speed: float) -> np.ndarray:
@@ -424,24 +426,23 @@ class Tracker:
                                                 * (rax[:, 1] + rax[:, 3]))
             enough = vall.sum(axis=1) >= cfg.extent_min_points
             zj = np.take_along_axis(zall, j[..., None], axis=1)                # (T, 4, 2)
-            zm = zj
+            # sampling gap (m) between each row's extreme detection and the end it measures
+            gap = np.zeros((T, 4))
             if cfg.extent_gap_correction:
-                # lengthwise only: a wider contour would trip the long-vehicle hypothesis
+                # lengthwise: n detections spanning span_lo leave span_lo / (n - 1) per end
                 n_det = np.maximum(vall.sum(axis=1) - 1, 1)
-                gap = np.where(np.isfinite(span_lo), span_lo, 0.0) / n_det
-                gap = np.clip(gap, 0.0, cfg.extent_gap_max)[:, None] * np.array([1, 0, 1, 0])
-                zm = zj + axes * gap[..., None]
+                g_lo = np.where(np.isfinite(span_lo), span_lo, 0.0) / n_det
+                gap[:, 0::2] = np.clip(g_lo, 0.0, cfg.extent_gap_max)[:, None]
             if cfg.extent_width_gap:
                 # across the heading, at a side that is not seen: its extreme detection is one
-                # of the n_f on the seen front / rear (within 0.5 m of it), about
+                # of the n_f on the seen front / rear (within FACE_BAND of it), about
                 # width / (n_f + 1) short of the corner (uniform samples; the contour's width,
                 # not their span, which is azimuth noise far out)
                 end_lo = np.where(seen[:, 0], rax[:, 0], -rax[:, 2])
-                n_f = (vall & (np.abs(lo - end_lo[:, None]) < 0.5)).sum(axis=1)
-                g = np.clip((rax[:, 1] + rax[:, 3]) / (n_f + 1.0), 0.0, cfg.extent_gap_max)
-                wgap = np.zeros((T, 4))
-                wgap[:, 1::2] = np.where(seen[:, 1::2], 0.0, g[:, None])
-                zm = zm + axes * wgap[..., None]
+                n_f = (vall & (np.abs(lo - end_lo[:, None]) < FACE_BAND)).sum(axis=1)
+                g_la = np.clip((rax[:, 1] + rax[:, 3]) / (n_f + 1.0), 0.0, cfg.extent_gap_max)
+                gap[:, 1::2] = np.where(seen[:, 1::2], 0.0, g_la[:, None])
+            zm = zj + axes * gap[..., None]
             # an extreme detection next to the FOV's edge (or the blind range) may be where
             # the view is cut, not where the vehicle ends
             zin = ((self.fov.outside_distance(zj) < -cfg.extent_edge_margin)
