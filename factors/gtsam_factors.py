@@ -31,6 +31,7 @@ from factors.measurement import (
     normal_offset,
     normal_offset_jacobian,
     unit,
+    visibility_slack,
 )
 from factors.state import N_CONTOUR, N_KIN, N_STATE, YAW, YAWRATE, V, X, Y
 
@@ -323,10 +324,12 @@ class ContourMeasurement(_FrameRows):
     the state is sampled at ``n_candidates`` equally spaced object-frame angles (GP
     conditional mean); the samples visible from the sensor (outward normal facing it, not
     self-occluded: :func:`factors.measurement.contour_candidates`) form the visible chain,
-    each detection is matched to its closest point on that chain (:func:`closest_on_chain`),
-    giving a contour angle ``theta*`` and a unit normal ``n``; the row is ``n . (z - c -
-    u(theta* + yaw) f(theta*))`` (m), ``f(theta*)`` the GP conditional mean. Field-of-view
-    limits are not applied (the caller should pass only detections it trusts).
+    each detection is matched to its closest point on that chain (:func:`closest_on_chain`;
+    on the whole contour when that is closer by more than :func:`visibility_slack` of
+    ``visible_slack`` m and the radar noise), giving a contour angle ``theta*`` and a unit
+    normal ``n``; the row is ``n . (z - c - u(theta* + yaw) f(theta*))`` (m), ``f(theta*)``
+    the GP conditional mean. Field-of-view limits are not applied (the caller should pass
+    only detections it trusts).
 
     The association (theta*, n) is **re-done at every evaluation** (each linearization of the
     optimizer, like point-to-plane ICP); the Jacobian treats it as fixed, which is exact up to
@@ -348,7 +351,7 @@ class ContourMeasurement(_FrameRows):
                  sigma: float = 0.3, huber_k: float = 1.345, n_candidates: int = 48,
                  sigma_range: float = 0.0, sigma_azimuth: float = 0.0,
                  gp_variance: bool = False, table: ConditionalTable | None = None,
-                 valid: np.ndarray | None = None) -> None:
+                 valid: np.ndarray | None = None, visible_slack: float = np.inf) -> None:
         _check_gp(gp)
         super().__init__(detections, valid)
         z = self.z
@@ -361,6 +364,8 @@ class ContourMeasurement(_FrameRows):
             raise ValueError("non-finite detections or sensor position")
         self.sensor, self.gp = s, gp
         self.sigma, self.huber_k = float(sigma), float(huber_k)
+        sig_r, sig_a = (float(sigma_range), float(sigma_azimuth))
+        self.slack = visibility_slack(z, s, sig_r, sig_a, float(visible_slack))
         self.gp_variance = bool(gp_variance)
         self.radar_var = None
         if sigma_range > 0 or sigma_azimuth > 0:
@@ -399,7 +404,7 @@ class ContourMeasurement(_FrameRows):
         r = self.cand_mean + (x[:, N_KIN:] - self.gp.mu) @ self.cand_H.T       # (F, c)
         pts = contour_point(x[:, [X, Y]], x[:, YAW], r, self.cand_theta)       # (F, c, 2)
         vis = contour_candidates(pts, self.sensor)
-        return closest_on_chain(self.z, pts, self.cand_theta, vis)
+        return closest_on_chain(self.z, pts, self.cand_theta, vis, self.slack)
 
     def conditional(self, theta: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(H (..., n), prior mean (...), variance (...))`` of the GP at ``theta`` (...):
@@ -690,7 +695,7 @@ def contour_measurement_factor(key: int, detections_xy: np.ndarray, sensor_xy: n
                                extent_detections: np.ndarray | None = None,
                                extent_trusted: np.ndarray | None = None,
                                range_rate: tuple[np.ndarray, np.ndarray] | None = None,
-                               sigma_doppler: float = 1.0
+                               sigma_doppler: float = 1.0, visible_slack: float = np.inf
                                ) -> gtsam.CustomFactor:
     """One factor for all ``m`` detections (m, 2) (m, tracking frame) of one track in one
     frame, seen from ``sensor_xy`` (2,) (m): ``m`` stacked normal-offset rows of
@@ -711,7 +716,8 @@ def contour_measurement_factor(key: int, detections_xy: np.ndarray, sensor_xy: n
     if table is not None and table.gp is not gp:
         raise ValueError("table was built for another ContourGP")
     meas = ContourMeasurement(detections_xy, sensor_xy, gp, sigma, huber_k, n_candidates,
-                              sigma_range, sigma_azimuth, gp_variance, table)
+                              sigma_range, sigma_azimuth, gp_variance, table,
+                              visible_slack=visible_slack)
     if extent_detections is not None:
         extent_detections = np.asarray(extent_detections, dtype=float)
         if extent_detections.ndim != 2 or extent_detections.shape[1:] != (2,):

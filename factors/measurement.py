@@ -168,15 +168,38 @@ def project_on_contour(z: np.ndarray, points: np.ndarray, theta: np.ndarray,
     return out, direction
 
 
+#: a detection leaves the visible chain only when it lies this many std. devs. of its position
+#: noise farther from it than from the whole contour (:func:`visibility_slack`)
+SLACK_SIGMAS = 3.0
+
+
+def visibility_slack(z: np.ndarray, sensor: np.ndarray, sigma_range: float,
+                     sigma_azimuth: float, floor: float) -> np.ndarray:
+    """Per-detection ``slack`` (m) of :func:`closest_on_chain` for detections z (..., k, 2)
+    seen from ``sensor`` (2,): at least ``floor`` (m) and ``SLACK_SIGMAS`` times the
+    detection's position std. dev. ``sqrt(sigma_range^2 + (sigma_azimuth r)^2)`` (m; range
+    noise ``sigma_range`` m, azimuth noise ``sigma_azimuth`` rad, r its 2D range in m): far
+    out the cross-range noise scatters a face's returns metres off it, and only a detection
+    beyond that is taken off the visible part. ``floor`` = inf gives inf (never)."""
+    r = np.linalg.norm(np.asarray(z, dtype=float) - sensor, axis=-1)
+    return np.maximum(floor, SLACK_SIGMAS * np.hypot(sigma_range, sigma_azimuth * r))
+
+
 def closest_on_chain(z: np.ndarray, points: np.ndarray, theta: np.ndarray,
-                     visible: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                     visible: np.ndarray, slack: float | np.ndarray = np.inf
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """Closest point of the visible part of a closed CCW polygon to each detection.
 
     z (..., k, 2) detections; points (..., m, 2) the polygon sampled at the equally spaced
     angles theta (m,); visible (..., m) mask (leading axes are a batch). The chain is every
-    edge (j, j + 1) with both ends visible (all edges if there is none). Returns the contour
-    angle (..., k) of the closest point (linear in the edge parameter) and the unit outward
-    normal (..., k, 2) of that edge."""
+    edge (j, j + 1) with both ends visible (all edges if there is none). A detection whose
+    closest point on the chain is more than ``slack`` (m; scalar or (..., k), e.g.
+    :func:`visibility_slack`) farther than its closest point on the whole polygon takes the
+    latter: it cannot come from the part the polygon's pose
+    shows (a contour whose heading lags a turning vehicle hides the side that the sensor
+    sees, and that side's returns, metres behind the front, would pull the front round).
+    Returns the contour angle (..., k) of the closest point (linear in the edge parameter)
+    and the unit outward normal (..., k, 2) of that edge."""
     p = np.asarray(points, dtype=float)
     z = np.asarray(z, dtype=float)
     m = p.shape[-2]
@@ -196,8 +219,13 @@ def closest_on_chain(z: np.ndarray, points: np.ndarray, theta: np.ndarray,
     dx -= u * ex_
     dy -= u * ey_
     dist = dx * dx + dy * dy
+    anywhere = np.argmin(dist, axis=-1)                             # (..., k)
+    d_any = np.take_along_axis(dist, anywhere[..., None], axis=-1)[..., 0]
     dist[~np.broadcast_to(chain[..., None, :], dist.shape)] = np.inf
     best = np.argmin(dist, axis=-1)                                 # (..., k)
+    if np.isfinite(slack).any():
+        d_vis = np.take_along_axis(dist, best[..., None], axis=-1)[..., 0]
+        best = np.where(np.sqrt(d_vis) - np.sqrt(d_any) > slack, anywhere, best)
     out = theta[best] + np.take_along_axis(u, best[..., None], axis=-1)[..., 0] * step
     nb = np.sqrt(np.take_along_axis(ee, best, axis=-1))
     normal = np.empty((*best.shape, 2))

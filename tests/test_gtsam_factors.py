@@ -394,3 +394,27 @@ def test_extent_rows_need_enough_detections_on_the_face_they_measure() -> None:
     np.testing.assert_array_equal(use(sparse_side, 0), [True, True, True, True])
     np.testing.assert_array_equal(use(sparse_side, 12), [False, True, False, True])
     np.testing.assert_array_equal(use(car(14, 14), 12), [True, True, True, True])
+
+
+def test_smoother_rows_match_side_returns_hidden_by_a_lagging_heading() -> None:
+    """The smoother's contour factor uses the tracker's ``visible_slack``: a contour 40 m
+    ahead of the sensor, seen head-on (its front face only), and returns on its right side,
+    1.5-3.5 m behind the front (a turning car shows that side while the contour's heading
+    lags). With the slack their rows measure them about that side (0.05 m); without, about
+    the front face's corner, metres away."""
+    x = np.zeros(N_STATE)
+    x[N_KIN:] = rectangle_radius(GP.angles, 4.6, 1.9)
+    sensor = np.array([40.0, 0.3])
+    z = np.array([[0.8, -1.0], [-0.2, -1.0], [-1.2, -1.0]])
+    key = track_key(0, 0)
+    rows = {}
+    for slack in (np.inf, 1.0):
+        meas = ContourMeasurement(z, sensor, GP, sigma=0.3, huber_k=np.inf,
+                                  visible_slack=slack)
+        rows[slack] = meas.rows(x)[0]
+        fac = contour_measurement_factor(key, z, sensor, GP, sigma=0.3, huber_k=np.inf,
+                                         visible_slack=slack)
+        np.testing.assert_allclose(fac.unwhitenedError(values_of({key: x})), rows[slack],
+                                   atol=1e-9)
+    np.testing.assert_allclose(np.abs(rows[1.0]), 0.05, atol=0.05)
+    assert np.all(np.abs(rows[np.inf]) > 1.0), rows[np.inf]

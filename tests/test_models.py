@@ -17,6 +17,7 @@ from factors.measurement import (
     normal_offset_jacobian,
     plain_angles,
     range_rate,
+    visibility_slack,
 )
 
 ANGLES = 2.0 * np.pi * np.arange(20) / 20
@@ -256,6 +257,40 @@ def test_closest_on_visible_chain() -> None:
     np.testing.assert_allclose(np.linalg.norm(normal, axis=1), 1.0)
     # nothing of the hidden back face is matched
     assert np.all(q[:, 0] > 1.7)
+
+
+def test_detections_far_from_the_visible_chain_take_the_whole_contour() -> None:
+    """A 4 x 2 m box seen head-on shows its front face only; returns 1.5-3.5 m behind that
+    face on its right side (the side a turning vehicle shows while its contour's heading
+    lags) are 0.05 m from the side and 1.5 m or more from the front face. Matched to the
+    visible chain they pull on the front face (normal +x); with ``slack`` they go to the
+    side they lie on (normal -y), and a return on the front face stays there."""
+    n = 48
+    theta = 2 * np.pi * np.arange(n) / n
+    pts = contour_point(np.zeros(2), 0.0, rectangle_radius(theta, 4.0, 2.0), theta)
+    vis = contour_candidates(pts, np.array([30.0, 0.0]))
+    z = np.array([[0.5, -1.05], [-0.5, -1.05], [-1.5, -1.05], [2.05, 0.3]])
+    _, chain = closest_on_chain(z, pts, theta, vis)
+    assert np.all(chain[:3, 0] > 0.3)                     # pulled on by the front
+    th, normal = closest_on_chain(z, pts, theta, vis, slack=1.0)
+    np.testing.assert_allclose(normal[:3], [[0.0, -1.0]] * 3, atol=1e-9)
+    np.testing.assert_allclose(normal[3], [1.0, 0.0], atol=1e-9)
+    q = contour_point(np.zeros(2), 0.0, rectangle_radius(th, 4.0, 2.0), th)
+    np.testing.assert_allclose(q[:3], [[0.5, -1.0], [-0.5, -1.0], [-1.5, -1.0]], atol=0.05)
+    # a slack wider than their distance to the chain changes nothing
+    _, wide = closest_on_chain(z, pts, theta, vis, slack=5.0)
+    np.testing.assert_allclose(wide, chain)
+
+
+def test_visibility_slack_grows_with_the_cross_range_noise() -> None:
+    """max(floor, 3 sqrt(sigma_r^2 + (sigma_az r)^2)): the floor 20 m out (0.92 m < 1 m),
+    2.72 m 100 m out with the tracker's 0.25 m / 0.5 deg; inf stays inf."""
+    z = np.array([[20.0, 0.0], [0.0, 100.0]]) + [5.0, -3.0]
+    sensor = np.array([5.0, -3.0])
+    slack = visibility_slack(z, sensor, 0.25, np.deg2rad(0.5), 1.0)
+    np.testing.assert_allclose(slack, [1.0, 3.0 * np.hypot(0.25, np.deg2rad(0.5) * 100.0)])
+    assert slack[1] == pytest.approx(2.72, abs=0.01)
+    assert np.all(np.isinf(visibility_slack(z, sensor, 0.25, 0.01, np.inf)))
 
 
 def test_visibility_and_chain_batched_match_single() -> None:

@@ -87,7 +87,8 @@ def _truck_length(ts) -> float:
 # 6 / 8: 7.9 / 10.7 m against 11.3 / 11.3 m; centre RMS 2.03 / 0.65 m against 0.45 / 0.39 m).
 # Since the extent rows need 12 detections on their face (``extent_face_min_points``) the
 # smoother alone shortens less: without the floor seeds 6 / 8 9.4 / 11.2 m (with it 11.3 /
-# 11.4 m), so the cause is checked on seed 6 only
+# 11.4 m), so the cause is checked on seed 6 only. Since ``tracking.visible_slack`` the
+# smoother keeps seed 6's length without the floor too (11.4 m)
 @pytest.mark.parametrize("seed", [6, pytest.param(8, marks=pytest.mark.slow)])
 def test_batch_keeps_the_length_of_a_truck_seen_end_on(seed: int) -> None:
     table = {**TRUCK_12M, "radar": SPARSE}
@@ -101,8 +102,13 @@ def test_batch_keeps_the_length_of_a_truck_seen_end_on(seed: int) -> None:
     off = copy.deepcopy(cfg)
     off.smoothing.length_floor_sigma = 0.0
     free = smooth_tracks(scn, run.tracks, run.T_placement, "batch", off)
-    # the cause: without the floor the smoother shortens the truck (to its grazing returns)
-    assert seed != 6 or _truck_length(free) < _truck_length(batch) - 0.5
+    assert abs(_truck_length(free) - 12.0) <= 1.5, _truck_length(free)
+    # the cause: its grazing side returns, matched to the front face (the contour's heading
+    # a little off hides that side), shortened the truck without the floor (seed 6: 9.8 m);
+    # matched to the side they lie on (``tracking.visible_slack``) they do not (11.4 m)
+    off.tracking.visible_slack = np.inf
+    hidden = smooth_tracks(scn, run.tracks, run.T_placement, "batch", off)
+    assert seed != 6 or _truck_length(hidden) < _truck_length(batch) - 0.5
 
 
 def test_a_track_with_an_occupied_length_gets_the_long_model() -> None:

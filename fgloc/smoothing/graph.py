@@ -202,7 +202,8 @@ class TrackModel:
                                           gp_variance=s.radar_noise, table=self.table,
                                           extent=self.extent, extent_detections=z_all,
                                           extent_trusted=trusted, range_rate=rr,
-                                          sigma_doppler=c.sigma_doppler)
+                                          sigma_doppler=c.sigma_doppler,
+                                          visible_slack=c.visible_slack)
 
     def measurement_batch(self, z: np.ndarray, valid: np.ndarray, z_all: np.ndarray,
                           valid_all: np.ndarray, trusted: np.ndarray, sensor_xy: np.ndarray,
@@ -216,7 +217,8 @@ class TrackModel:
         c, s = self.tracking, self.smoothing
         meas = ContourMeasurement(z, sensor_xy, self.gp, c.sigma_contour, s.huber_k,
                                   c.n_candidates, *self._radar_noise(),
-                                  gp_variance=s.radar_noise, table=self.table, valid=valid)
+                                  gp_variance=s.radar_noise, table=self.table, valid=valid,
+                                  visible_slack=c.visible_slack)
         ext = (None if self.extent is None else
                ExtentRows(z_all, sensor_xy, self.extent, meas.sigma, trusted & valid_all,
                           valid_all))

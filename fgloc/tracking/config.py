@@ -77,6 +77,16 @@ class TrackingConfig:
     be a little off: a car driving along the FOV's edge had its seen side just outside, and
     its side returns went to the front face 1.5-3 m away, turning the yaw 10 deg in one
     update)."""
+    visible_slack: float = 1.0
+    """A detection is matched to the part of the contour visible from the sensor (facing
+    it, not self-occluded) unless that part is farther from it than the rest of the contour
+    by more than this (m) and three std. devs. of its position noise (``sigma_range``,
+    ``sigma_azimuth_deg``: :func:`factors.measurement.visibility_slack`): then to its
+    closest point on the whole contour (inf = never). The
+    visible part follows from the track's pose; a contour whose heading lags a turning
+    vehicle seen head-on hides the side that comes into view, and that side's returns,
+    metres behind the front face, pulled the front round (the heading a further 7 deg off
+    in one update, the track lost). Smoother alike."""
     extent_min_incidence: float = 0.25
     """A face gives extent rows only if sin(angle between the line of sight and the face) is at
     least this (a face seen at grazing incidence holds too few detections to reach its ends)."""

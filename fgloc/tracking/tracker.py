@@ -39,6 +39,7 @@ from factors.measurement import (
     contour_point,
     range_rate,
     unit,
+    visibility_slack,
 )
 from fgloc.labels import LEFT, RIGHT, STRAIGHT
 from fgloc.scenario import Scenario
@@ -390,7 +391,9 @@ class Tracker:
         use_fov = (vis & in_fov).any(axis=1, keepdims=True)
         vis = np.where(use_fov, vis & in_fov, vis)
         vis |= ~vis.any(axis=1, keepdims=True)
-        theta, normal = closest_on_chain(z, pts, self.cand_theta, vis)
+        slack = visibility_slack(z, sensor, cfg.sigma_range, np.deg2rad(cfg.sigma_azimuth_deg),
+                                 cfg.visible_slack)
+        theta, normal = closest_on_chain(z, pts, self.cand_theta, vis, slack)
         zr = np.concatenate([z, np.zeros((T, 4, 2))], axis=1)
         th = np.concatenate([theta, np.zeros((T, 4))], axis=1)
         nm = np.concatenate([normal, np.zeros((T, 4, 2))], axis=1)
