@@ -106,6 +106,37 @@ def test_measured_offsets_fix_the_pose_along_a_street_seen_head_on():
     assert errors["aspect"] < 0.05
 
 
+def test_offsets_beyond_half_a_width_are_the_tracked_centres_bias():
+    """Tracked centres 0.35 m away from the sensor on the cross street seen broadside (the
+    filter's, where it overestimates a broadside vehicle's width): relative to them the
+    detections lie 0.35 m farther towards the sensor than half a width allows, and the cross
+    street's target, shifted by that, moves the pose along the main street; clipped to half
+    the mean width (0.95 m; the true broadside offset here is 0.9 m) it holds. Head-on
+    offsets below 0 (noise) are clipped to 0."""
+    lanes = _junction()
+    tracks, det = _tracks(lanes, every=1)
+    for tr in tracks:
+        c = tr.states[0, :2]
+        normal = np.array([-np.sin(tr.states[0, YAW]), np.cos(tr.states[0, YAW])])
+        towards = np.sign((SENSOR - c) @ normal)
+        if abs((c - SENSOR) @ normal) / np.linalg.norm(c - SENSOR) > 0.6:
+            tr.states[0, :2] = c - 0.35 * towards * normal
+    label = np.zeros(len(det), np.int64)
+    cfg = SicpConfig(max_correspondence=5.0, min_correspondence=1.5, info_window=0.0)
+    errors = {}
+    for name, bound in [("unbounded", np.inf), ("half a width", 0.95)]:
+        side = measure_visible_side(tracks, det, SENSOR, fallback=0.3, bound=bound)
+        assert np.nanmax(side.offset) <= bound
+        target = SemanticTargets.build(lanes.towards(SENSOR, side.at(lanes.aspect(SENSOR))).xy,
+                                       np.zeros(len(lanes.xy)))
+        errors[name] = np.hypot(*sicp(det, label, target, None, np.eye(3), cfg).T[:2, 2])
+    assert errors["unbounded"] > 0.25
+    assert errors["half a width"] < 0.08
+    # head-on detections on the far side of the centre line on average: 0, not negative
+    mirrored = 2.0 * np.vstack([tr.states[0, :2] for tr in tracks]) - det
+    assert np.nanmin(measure_visible_side(tracks, mirrored, SENSOR, 0.3, 0.95).offset) == 0.0
+
+
 def _arc_lanelet(lid: int, centre: tuple[float, float], radius: float, a0: float, a1: float
                  ) -> Lanelet:
     """A 3.5 m wide lanelet along the arc of ``radius`` m about ``centre`` from angle ``a0``

@@ -118,12 +118,13 @@ class FineConfig:
     the lane), the mean offset of the tracks' detections from their tracks' centre lines at
     that aspect, measured on this run's tracks (:mod:`fgloc.registration.visible_side`), the
     detections moved along their tracks' headings onto the cross-sections through the
-    tracked centres and the source voxels weighted by the detections they average. "aspect"
-    halves the real map's filter-sicp / smoother-sicp error (3 junctions x 3 seeds x both
-    kinds of two-way traffic: 0.29 / 0.25 m -> 0.13 / 0.14 m mean, yaw 0.18 -> 0.05 deg) but
-    not the synthetic layouts' (intersection / T-junction / curve x seeds 1-5: 0.14 / 0.13 m
-    -> 0.18 / 0.18 m; the curves lose, curve 4 smoother-sicp 1.29 m): not the default
-    (docs/experiments.md, issue 22)."""
+    tracked centres and the source voxels weighted by the detections they average, each
+    aspect's offset clipped to [0, ``tracking.mean_width`` / 2]. "aspect" halves the real
+    map's filter-sicp / smoother-sicp error (3 junctions x 3 seeds x both kinds of two-way
+    traffic: 0.27 / 0.25 m -> 0.135 / 0.132 m mean, yaw 0.18 -> 0.05 deg) and lowers the
+    synthetic filter-sicp's (0.147 -> 0.099 m), but curve 4 smoother-sicp ends 1.27 m off
+    (ambiguous either way) and two synthetic runs resolve just beyond 0.3 m: not the default
+    yet (docs/experiments.md, issue 22)."""
     lane_sample_step: float = 0.25
     """Spacing (m) of the samples on the lanelet centre lines (target "lane-centres")."""
     n_trajectories: int | None = None

@@ -194,7 +194,8 @@ def build_source_cloud(
     if per_aspect:
         placed = transform_points(T_coarse, np.asarray(scn.radar.xyz, float))[:, :2]
         side = measure_visible_side([tracks.tracks[i] for i in used], placed,
-                                    np.asarray(T_coarse)[:2, 3], cfg.coarse.visible_side_offset)
+                                    np.asarray(T_coarse)[:2, 3], cfg.coarse.visible_side_offset,
+                                    cfg.tracking.mean_width / 2.0)
     return SourceCloud(cent, lab, track_id[first], fine.source, int(used.size), len(tracks),
                        int(xy.shape[0]), direction, count if side is not None else None, side)
 

@@ -96,10 +96,18 @@ def onto_cross_section(xy: np.ndarray, centre: np.ndarray, yaw: np.ndarray) -> n
 
 
 def measure_visible_side(tracks: list[Track], detections_xy: np.ndarray, sensor_xy: np.ndarray,
-                         fallback: float) -> VisibleSide:
+                         fallback: float, bound: float = np.inf) -> VisibleSide:
     """The visible-side offsets of ``tracks`` (module docstring). detections_xy: (N, 2) m, the
     scenario's detections placed in the tracks' frame (indexed by ``det_index``); sensor_xy:
-    (2,) m, the sensor in that frame; fallback: m, the offset without measurements."""
+    (2,) m, the sensor in that frame; fallback: m, the offset without measurements.
+
+    Each bin's mean is clipped to ``[0, bound]`` (m; the caller passes half the mean vehicle
+    width): a detection lies on its vehicle, so the mean offset from the vehicle's centre line
+    is 0 seen head-on (the faces seen are symmetric about it) and at most half a width seen
+    broadside. A mean beyond that is the tracked centre's own bias, which the offsets relative
+    to it carry (the filter's centre lies away from the sensor where it overestimates a
+    broadside vehicle's width: 1.19-1.24 m at aspects 0.6-1 on junction 2 of the real map,
+    docs/experiments.md, issue 22)."""
     parts = [aspect_and_offset(detections_xy[tr.det_index], tr.states[tr.det_step, :2],
                                tr.states[tr.det_step, YAW], sensor_xy) for tr in tracks]
     aspect = np.concatenate([p[0] for p in parts] + [np.zeros(0)])
@@ -109,4 +117,4 @@ def measure_visible_side(tracks: list[Track], detections_xy: np.ndarray, sensor_
     count = np.bincount(b, minlength=nbin).astype(float)
     total = np.bincount(b, weights=offset, minlength=nbin)
     mean = np.where(count >= MIN_DETECTIONS, total / np.maximum(count, 1.0), np.nan)
-    return VisibleSide(mean, count, fallback)
+    return VisibleSide(np.clip(mean, 0.0, bound), count, fallback)
