@@ -364,8 +364,8 @@ class ContourMeasurement(_FrameRows):
             raise ValueError("non-finite detections or sensor position")
         self.sensor, self.gp = s, gp
         self.sigma, self.huber_k = float(sigma), float(huber_k)
-        sig_r, sig_a = (float(sigma_range), float(sigma_azimuth))
-        self.slack = visibility_slack(z, s, sig_r, sig_a, float(visible_slack))
+        self.slack = visibility_slack(z, s, float(sigma_range), float(sigma_azimuth),
+                                      float(visible_slack))
         self.gp_variance = bool(gp_variance)
         self.radar_var = None
         if sigma_range > 0 or sigma_azimuth > 0:

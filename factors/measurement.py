@@ -195,9 +195,9 @@ def closest_on_chain(z: np.ndarray, points: np.ndarray, theta: np.ndarray,
     edge (j, j + 1) with both ends visible (all edges if there is none). A detection whose
     closest point on the chain is more than ``slack`` (m; scalar or (..., k), e.g.
     :func:`visibility_slack`) farther than its closest point on the whole polygon takes the
-    latter: it cannot come from the part the polygon's pose
-    shows (a contour whose heading lags a turning vehicle hides the side that the sensor
-    sees, and that side's returns, metres behind the front, would pull the front round).
+    latter: it cannot come from the part the polygon's pose shows (a contour whose heading
+    lags a turning vehicle hides the side that the sensor sees, and that side's returns,
+    metres behind the front, would pull the front round).
     Returns the contour angle (..., k) of the closest point (linear in the edge parameter)
     and the unit outward normal (..., k, 2) of that edge."""
     p = np.asarray(points, dtype=float)
