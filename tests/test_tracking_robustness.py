@@ -65,7 +65,7 @@ def _side_lengths(tracks, sensor: np.ndarray) -> np.ndarray:
 KNOWN_TRUCK_FAILURES = (5,)
 #: seed 5 as KNOWN_TRUCK_FAILURES; seed 6 13.53 m, just above the 13.5 m bar, since
 #: ``tracking.visible_slack`` (issue-20m; the retrodicted length, the longest 20-step median);
-#: seed 4 (13.59 m with issue-20l's width gap) passes again since
+#: seed 4 (13.59 m with issue-20l's width gap) passes again since then
 KNOWN_SIDE_LENGTH_FAILURES = (5, 6)
 
 

@@ -82,11 +82,12 @@ class TrackingConfig:
     it, not self-occluded) unless that part is farther from it than the rest of the contour
     by more than this (m) and three std. devs. of its position noise (``sigma_range``,
     ``sigma_azimuth_deg``: :func:`factors.measurement.visibility_slack`): then to its
-    closest point on the whole contour (inf = never). The
-    visible part follows from the track's pose; a contour whose heading lags a turning
-    vehicle seen head-on hides the side that comes into view, and that side's returns,
-    metres behind the front face, pulled the front round (the heading a further 7 deg off
-    in one update, the track lost). Smoother alike."""
+    closest point on the whole contour (inf = never). The visible part follows from the
+    track's pose; a contour whose heading lags a turning vehicle seen head-on hides the side
+    that comes into view, and that side's returns, metres behind the front face, pulled the
+    front round (the heading a further 7 deg off in one update, the track lost). The
+    smoothers alike, with their own radar noise (none with ``smoothing.radar_noise`` off:
+    then the slack is this floor alone)."""
     extent_min_incidence: float = 0.25
     """A face gives extent rows only if sin(angle between the line of sight and the face) is at
     least this (a face seen at grazing incidence holds too few detections to reach its ends)."""
