@@ -117,10 +117,13 @@ class _Record:
     #: lower bound (m) of the vehicle's length from ``spans`` (0: none yet)
     span_length: float = 0.0
     #: per recent end-on update: (end seen: +1 front / -1 rear, distances (m) behind that end
-    #: of its detections and of the others in its lengthwise corridor)
-    occupancy: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    #: of its detections and of the others in its lengthwise corridor, which of them are its
+    #: own)
+    occupancy: list[tuple[int, np.ndarray, np.ndarray]] = field(default_factory=list)
     #: lower bound (m) of the vehicle's length from ``occupancy`` (0: none yet)
     occupied_length: float = 0.0
+    #: farthest (m) behind the seen end its own pooled end-on detections reach (0: none yet)
+    reached_length: float = 0.0
     t: list[float] = field(default_factory=list)
     states: list[np.ndarray] = field(default_factory=list)
     covs: list[np.ndarray] = field(default_factory=list)
@@ -604,8 +607,10 @@ class Tracker:
         shorter than it by more than ``span_margin`` by ``span_gain`` of the shortfall,
         towards the end beyond which the detections reach farther (centre moved by half the
         growth, radii to the rectangle of the new length). The occupied length of
-        :meth:`_occupied_length` grows a contour the same way, away from the end seen.
-        Sensor-aware model only (the plain model has no extent rows to hold the seen end)."""
+        :meth:`_occupied_length` grows a contour the same way, away from the end seen; the
+        length its own detections reach there shrinks a contour longer than every bound
+        towards the end seen (``occupancy_bound``). Sensor-aware model only (the plain model
+        has no extent rows to hold the seen end)."""
         cfg = self.cfg
         if cfg.span_history <= 0 or not len(updated) or cfg.measurement_model != "sensor-aware":
             return
@@ -640,7 +645,13 @@ class Tracker:
                                       > rec.span_length + cfg.span_margin):
                 short, direction = short_occ, -end * h
             if short <= cfg.span_margin:
-                continue
+                over = length - max(rec.reached_length, rec.occupied_length, rec.span_length)
+                if not (end and cfg.occupancy_bound and over > cfg.span_margin
+                        and rec.reached_length >= max(cfg.extent_min_cover * length,
+                                                      cfg.mean_length)
+                        and not (rec.long and rec.side_hits < cfg.long_side_updates)):
+                    continue
+                short, direction = -over, -end * h
             grow = cfg.span_gain * short
             self.x[i, [X, Y]] += 0.5 * grow * direction
             self.x[i, N_KIN:] += (rectangle_radius(self.gp.angles, length + grow, width)
@@ -658,10 +669,11 @@ class Tracker:
         the occupied length is where the sorted distances first leave a gap wider than
         ``occupancy_gap`` (a following vehicle leaves an empty band that no frame fills),
         less its last ``occupancy_min_points`` detections (``rec.occupied_length``: reached
-        by that many; 0 without). End-on: the sensor beyond the front or rear and sin(angle
-        between the line of sight and the heading) at most ``occupancy_max_incidence``
-        (there the lengthwise position is the precise range). Returns the end seen (+1
-        front, -1 rear) or 0 (not end-on, or off)."""
+        by that many; 0 without); ``rec.reached_length``: the distance that many of the
+        track's own pooled detections reach, gaps or not. End-on: the sensor beyond the
+        front or rear and sin(angle between the line of sight and the heading) at most
+        ``occupancy_max_incidence`` (there the lengthwise position is the precise range).
+        Returns the end seen (+1 front, -1 rear) or 0 (not end-on, or off)."""
         cfg = self.cfg
         if cfg.occupancy_gap <= 0.0 or self._corridor is None:
             return 0
@@ -675,15 +687,22 @@ class Tracker:
         if not end or abs(rel[0] * h[1] - rel[1] * h[0]) > (
                 cfg.occupancy_max_incidence * float(np.linalg.norm(rel))):
             return 0
-        lo = (det.z[(owner == i) | (self._corridor[i] & (owner != -2))] - c) @ h
-        rec.occupancy.append((end, front - lo if end > 0 else lo + rear))
+        sel = (owner == i) | (self._corridor[i] & (owner != -2))
+        lo = (det.z[sel] - c) @ h
+        rec.occupancy.append((end, front - lo if end > 0 else lo + rear, owner[sel] == i))
         del rec.occupancy[:-cfg.span_history]
-        d = np.concatenate([[0.0]] + [v for e, v in rec.occupancy if e == end])
-        d = np.sort(d[d >= 0.0])
+        d = np.concatenate([[0.0]] + [v for e, v, _ in rec.occupancy if e == end])
+        own = np.concatenate([[True]] + [o for e, _, o in rec.occupancy if e == end])
+        keep = d >= 0.0
+        d, own = d[keep], own[keep]
+        order = np.argsort(d)
+        d, own = d[order], own[order]
         gap = np.flatnonzero(np.diff(d) > cfg.occupancy_gap)
         occupied = d[: gap[0] + 1] if len(gap) else d
         k = cfg.occupancy_min_points
         rec.occupied_length = float(occupied[-k]) if len(occupied) > k else 0.0
+        reached = d[own]
+        rec.reached_length = float(reached[-k]) if len(reached) > k else 0.0
         return end
 
     def _plausible(self, x: np.ndarray) -> np.ndarray:
