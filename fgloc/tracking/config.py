@@ -265,7 +265,12 @@ class TrackingConfig:
     chain_gap: float = 1.0
     """Free detections beside a track's contour (within its sideways gate, Doppler-consistent)
     beyond its ends join it when they continue its detections lengthwise with no gap wider
-    than this (m): the rest of a vehicle longer than its contour (0 = off)."""
+    than this (m): the rest of a vehicle longer than its contour. Beyond the contour's end by
+    more than the gate before its growth with the centre's std. dev. (gate, plus
+    gate_long_extra for a large track), detections join only this way or when a shift of the
+    contour explains them (the track's detections then span at most its length plus that
+    gate at both ends), and seed no birth in that frame (0 = off: the grown gate takes
+    them)."""
     chain_reach: float = 8.0
     """... up to this far (m) beyond the contour's end."""
     large_length: float = 6.5
