@@ -7,6 +7,7 @@ from collections.abc import Callable
 import numpy as np
 import pytest
 
+from factors.gp import rectangle_radius
 from fgloc.evaluation.tracking import iou_polygon_rectangle
 from fgloc.geo import LocalFrame, rot_from_ypr, se3, se3_inv, transform_points, wrap_angle
 from fgloc.labels import LEFT, RIGHT, STRAIGHT
@@ -203,6 +204,59 @@ def test_doppler_gate_keeps_an_oncoming_vehicle_apart(gate_doppler: float) -> No
     for dop, joins in ((receding, True), (-receding, gate_doppler == 0.0)):
         owner, _ = tracker._associate(_Frame(z, rng, dop, np.arange(4)))
         assert np.all(owner == (0 if joins else -1))
+
+
+@pytest.mark.parametrize("sigma_pos", [1.5, 0.05])
+def test_a_young_tracks_wide_gate_does_not_take_the_vehicle_behind(sigma_pos: float) -> None:
+    """An 11 x 2.5 m truck track heading +x 30 m out, its near side (y = -1.25) seen from the
+    sensor at the origin. A young track's centre std. dev. (1.5 m per axis) widens its gate
+    to gate_max + gate_long_extra = 5.5 m along the heading; a car 5 m behind the truck (an
+    empty gap) is inside it but does not join, while the rest of a truck longer than its
+    contour, continuing its returns with no gap, does (the chain). A settled track (0.05 m)
+    gates both out by its width alone, and the chain takes the contiguous returns."""
+    cfg = TrackingConfig()
+    fov = FieldOfView.of(np.eye(4), 120.0, 200.0)
+    none = BirthZones(np.zeros((0, 2)), np.zeros(0), np.zeros(0))
+    tracker = Tracker(cfg, fov, none, LaneHeadings.of([]))
+    x = np.zeros(N_STATE)
+    x[[0, 1, 2]] = 0.0, 30.0, 10.0                                 # x, y, v; yaw 0
+    x[6:] = rectangle_radius(tracker.gp.angles, 11.0, 2.5)
+    P = np.diag(np.r_[sigma_pos**2, sigma_pos**2, np.full(N_STATE - 2, 1e-4)])
+    tracker.x, tracker.P = x[None], P[None]
+    tracker.recs = [_Record(0, 0, True, 0.0)]
+    side = np.column_stack([np.linspace(-5.0, 5.0, 11), np.full(11, 28.75)])
+    car = np.column_stack([np.linspace(-14.5, -10.5, 5), np.full(5, 28.9)])   # 5 m gap
+    rest = np.column_stack([np.linspace(-6.2, -9.8, 5), np.full(5, 28.75)])   # 0.9 m steps
+    for behind, joins in ((car, False), (rest, True)):
+        z = np.vstack([side, behind])
+        rng = np.linalg.norm(z, axis=1)
+        dop = 10.0 * z[:, 0] / rng                                 # the track's range rate
+        owner, _ = tracker._associate(_Frame(z, rng, dop, np.arange(len(z))))
+        assert np.all(owner[:11] == 0)
+        assert np.all(owner[11:] == (0 if joins else -1)), owner
+
+
+def test_a_young_track_misplaced_along_its_vehicle_keeps_its_returns() -> None:
+    """A young car track (4.6 x 1.9 m contour, centre std. dev. 1.5 m) placed 2.5 m ahead of
+    its car: the car's returns behind the contour's rear, 2 m beyond the returns inside it
+    (a gap: corner and wheel returns), join it -- a shift of the contour within its
+    uncertainty explains them (the returns span 4.4 m, at most the contour's length plus the
+    ungrown gate at both ends); they are neither left free for a second birth."""
+    cfg = TrackingConfig()
+    fov = FieldOfView.of(np.eye(4), 120.0, 200.0)
+    none = BirthZones(np.zeros((0, 2)), np.zeros(0), np.zeros(0))
+    tracker = Tracker(cfg, fov, none, LaneHeadings.of([]))
+    x = np.zeros(N_STATE)
+    x[[0, 1, 2]] = 0.0, 30.0, 10.0
+    x[6:] = rectangle_radius(tracker.gp.angles, 4.6, 1.9)
+    P = np.diag(np.r_[2.25, 2.25, np.full(N_STATE - 2, 1e-4)])
+    tracker.x, tracker.P = x[None], P[None]
+    tracker.recs = [_Record(0, 0, True, 0.0)]
+    z = np.column_stack([[-1.6, -1.9, -2.2, -4.4, -5.2, -6.0], np.full(6, 29.05)])
+    rng = np.linalg.norm(z, axis=1)
+    owner, _ = tracker._associate(_Frame(z, rng, 10.0 * z[:, 0] / rng, np.arange(6)))
+    assert np.all(owner == 0), owner
+    assert not tracker._held.any()
 
 
 @pytest.mark.parametrize(("size", "long"), [((11.0, 2.55), True), ((4.5, 1.8), False)])

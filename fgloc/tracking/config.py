@@ -164,6 +164,17 @@ class TrackingConfig:
     """... in the updates where sin(angle between the line of sight and the heading) is at most
     this (about 20 deg: end-on, the long side at grazing incidence, where the lengthwise
     position is the radar's precise range)."""
+    occupancy_bound: bool = True
+    """End-on, the distance (m) behind the seen end that ``occupancy_min_points`` of the
+    track's own detections, pooled like the occupied length's (no gap rule: a side sampled at
+    its corners and wheels has gaps), reach or exceed bounds its length from above once it is
+    at least ``mean_length`` and ``extent_min_cover`` of the contour's length (the long side
+    is in view: a face seen alone bounds nothing; nor while the long-vehicle prior holds an
+    unseen side). A contour longer than that bound, the occupied and the span length by more
+    than ``span_margin`` shrinks by ``span_gain`` of the excess per update, the seen end
+    staying put. Seen at grazing incidence the far end gets no rows of its own and drifts
+    with the seen face's (the robustness matrix's default seed 4: a receding 10.1 m truck
+    came out 12.6 m)."""
     retrodict_window: int = 20
     """Length retrodiction of a finished track (:mod:`fgloc.tracking.retrodict`): a vehicle's
     length is constant, so the longest it was measured -- the largest median of its contour
@@ -254,7 +265,12 @@ class TrackingConfig:
     chain_gap: float = 1.0
     """Free detections beside a track's contour (within its sideways gate, Doppler-consistent)
     beyond its ends join it when they continue its detections lengthwise with no gap wider
-    than this (m): the rest of a vehicle longer than its contour (0 = off)."""
+    than this (m): the rest of a vehicle longer than its contour. Beyond the contour's end by
+    more than the gate before its growth with the centre's std. dev. (gate, plus
+    gate_long_extra for a large track), detections join only this way or when a shift of the
+    contour explains them (the track's detections then span at most its length plus that
+    gate at both ends), and seed no birth in that frame (0 = off: the grown gate takes
+    them)."""
     chain_reach: float = 8.0
     """... up to this far (m) beyond the contour's end."""
     large_length: float = 6.5

@@ -117,10 +117,13 @@ class _Record:
     #: lower bound (m) of the vehicle's length from ``spans`` (0: none yet)
     span_length: float = 0.0
     #: per recent end-on update: (end seen: +1 front / -1 rear, distances (m) behind that end
-    #: of its detections and of the others in its lengthwise corridor)
-    occupancy: list[tuple[int, np.ndarray]] = field(default_factory=list)
+    #: of its detections and of the others in its lengthwise corridor, which of them are its
+    #: own)
+    occupancy: list[tuple[int, np.ndarray, np.ndarray]] = field(default_factory=list)
     #: lower bound (m) of the vehicle's length from ``occupancy`` (0: none yet)
     occupied_length: float = 0.0
+    #: farthest (m) behind the seen end its own pooled end-on detections reach (0: none yet)
+    reached_length: float = 0.0
     t: list[float] = field(default_factory=list)
     states: list[np.ndarray] = field(default_factory=list)
     covs: list[np.ndarray] = field(default_factory=list)
@@ -187,6 +190,9 @@ class Tracker:
         self.next_id = 0
         self.frame = -1
         self._corridor: np.ndarray | None = None
+        #: (D,) detections of the frame inside a track's gate only by its growth with the
+        #: centre's uncertainty that no chain took: kept from births (:meth:`_associate`)
+        self._held: np.ndarray = np.zeros(0, dtype=bool)
         self.t = 0.0
 
     # ---------------------------------------------------------------------------------------
@@ -209,7 +215,7 @@ class Tracker:
         self._long_vehicles(updated)
         self._span_length(det, owner, updated)
         self._record(t, det, owner, updated)
-        self._births(det, owner == -1)
+        self._births(det, (owner == -1) & ~self._held)
         self._manage(t)
 
     def finish(self) -> list[Track]:
@@ -286,20 +292,31 @@ class Tracker:
         vehicle longer than its contour so far, e.g. a truck, grows into it). With
         ``gate_doppler`` > 0 a detection whose Doppler differs from the track's predicted
         range rate at that point by more than gate_doppler + 3 sigma_v (m/s) is outside the
-        gate too: vehicles passing each other in opposite directions stay apart."""
+        gate too: vehicles passing each other in opposite directions stay apart. Beyond the
+        contour's end by more than the gate before its growth with sigma_centre, a detection
+        joins only through :meth:`_chain` (with ``chain_gap`` > 0), and one that does not
+        is kept from births in this frame (``_held``)."""
         z = det.z
         self._corridor = None
+        self._held = np.zeros(len(z), dtype=bool)
         if not len(self.recs) or not len(z):
             return np.full(len(z), -1, dtype=np.int64), np.zeros(len(z))
         cfg = self.cfg
         out_long, out_lat, ex, lo = self._outside(z)
         sig = np.sqrt(np.trace(self.P[:, :2, :2], axis1=1, axis2=2))
         gate = np.minimum(cfg.gate + 2.0 * sig, cfg.gate_max)[:, None]
-        long_gate = gate + np.where(self._large(), cfg.gate_long_extra, 0.0)[:, None]
+        extra = np.where(self._large(), cfg.gate_long_extra, 0.0)[:, None]
+        long_gate = gate + extra
         side = out_lat <= gate
         far = ~side | (out_long > long_gate)
         # lengthwise beyond the gate but within reach of a chain along the vehicle's axis
         reach = side & far & (out_long <= cfg.chain_reach)
+        # inside the gate only by its growth with the centre's uncertainty: along the
+        # heading, such a detection joins only as part of a chain (a young track's wide gate
+        # would take the vehicle behind across an empty gap)
+        loose = side & ~far & (out_long > cfg.gate + extra) & (cfg.chain_gap > 0.0)
+        reach |= loose
+        far |= loose
         if cfg.gate_doppler > 0.0:
             ti, di = np.nonzero(~far | reach)
             x = self.x[ti]
@@ -309,6 +326,7 @@ class Tracker:
             bad = np.abs(det.doppler[di] - pred) > dgate
             far[ti, di] |= bad
             reach[ti[bad], di[bad]] = False
+        loose_ex = np.where(loose, ex, np.inf)
         ex[far] = np.inf
         #: (T, D) detections beside a track beyond its gate lengthwise, up to chain_reach
         #: (Doppler-consistent), for :meth:`_occupied_length`
@@ -317,34 +335,48 @@ class Tracker:
         best = ex[owner, np.arange(len(z))]
         owner = np.where(np.isfinite(best), owner, -1)
         if cfg.chain_gap > 0.0:
-            self._chain(owner, best, reach, lo)
+            span = contour_length_width(self.x)[0] + 2.0 * (cfg.gate + extra[:, 0])
+            self._chain(owner, best, reach, lo, loose_ex, span)
+            self._held = (owner == -1) & np.isfinite(loose_ex).any(axis=0)
         return owner, best
 
     def _chain(self, owner: np.ndarray, excess: np.ndarray, reach: np.ndarray,
-               lo: np.ndarray) -> None:
+               lo: np.ndarray, loose_ex: np.ndarray, span: np.ndarray) -> None:
         """Grow associations along each track's axis (in place): free detections beside the
         contour (within the sideways gate, Doppler-consistent, up to ``chain_reach`` beyond
         its ends: ``reach`` (T, D)) join a track when they continue its associated detections
         lengthwise without a gap wider than ``chain_gap`` (m) -- the rest of a vehicle longer
         than its contour (a truck coming into view), never a vehicle behind it with a gap.
-        lo (T, D): longitudinal offsets (m). A joined detection's excess is set to 0 (it is
-        explained by the growth, not a misfit)."""
+        lo (T, D): longitudinal offsets (m). loose_ex (T, D): the radial excess (m) of the
+        detections in ``reach`` that are inside the gate only by its growth with the
+        centre's uncertainty (inf for the others). Those join before the chain, gap or not,
+        when the track's detections still span at most ``span`` (T,) (m: the contour's length
+        plus the ungrown gate at both ends) lengthwise -- a shift of the contour within its
+        uncertainty explains them; a track without associated detections starts from the one
+        of them nearest its contour. A joined detection keeps that excess; beyond the gate
+        it gets 0 (explained by the growth, not a misfit)."""
         gap = self.cfg.chain_gap
         for i in np.flatnonzero(reach.any(axis=1)):
-            mine = owner == i
-            if not mine.any():
-                continue
             cand = np.flatnonzero(reach[i] & (owner < 0))
             if not len(cand):
                 continue
+            if not np.any(owner == i):
+                first = cand[np.argmin(loose_ex[i, cand])]
+                if not np.isfinite(loose_ex[i, first]):
+                    continue
+                owner[first], excess[first] = i, loose_ex[i, first]
             for sign in (1.0, -1.0):
-                end = float(np.max(sign * lo[i, mine]))
-                c = cand[sign * lo[i, cand] > end]
+                own = sign * lo[i, owner == i]
+                c = cand[(owner[cand] < 0) & (sign * lo[i, cand] > own.max())]
+                shift = np.isfinite(loose_ex[i, c]) & (sign * lo[i, c] <= own.min() + span[i])
+                owner[c[shift]], excess[c[shift]] = i, loose_ex[i, c[shift]]
+                end = max(float(own.max()), float(np.max(sign * lo[i, c[shift]], initial=-np.inf)))
+                c = c[~shift & (sign * lo[i, c] > end)]
                 c = c[np.argsort(sign * lo[i, c])]
                 steps = np.diff(np.concatenate([[end], sign * lo[i, c]]))
                 n = int(np.argmax(steps > gap)) if (steps > gap).any() else len(c)
                 owner[c[:n]] = i
-                excess[c[:n]] = 0.0
+                excess[c[:n]] = np.where(np.isfinite(loose_ex[i, c[:n]]), loose_ex[i, c[:n]], 0.0)
 
     def _misfit(self, owner: np.ndarray, excess: np.ndarray, dt: float) -> None:
         """Smoothed median |radial excess| (m) of each track's associated detections about its
@@ -604,8 +636,10 @@ class Tracker:
         shorter than it by more than ``span_margin`` by ``span_gain`` of the shortfall,
         towards the end beyond which the detections reach farther (centre moved by half the
         growth, radii to the rectangle of the new length). The occupied length of
-        :meth:`_occupied_length` grows a contour the same way, away from the end seen.
-        Sensor-aware model only (the plain model has no extent rows to hold the seen end)."""
+        :meth:`_occupied_length` grows a contour the same way, away from the end seen; the
+        length its own detections reach there shrinks a contour longer than every bound
+        towards the end seen (``occupancy_bound``). Sensor-aware model only (the plain model
+        has no extent rows to hold the seen end)."""
         cfg = self.cfg
         if cfg.span_history <= 0 or not len(updated) or cfg.measurement_model != "sensor-aware":
             return
@@ -640,7 +674,13 @@ class Tracker:
                                       > rec.span_length + cfg.span_margin):
                 short, direction = short_occ, -end * h
             if short <= cfg.span_margin:
-                continue
+                over = length - max(rec.reached_length, rec.occupied_length, rec.span_length)
+                if not (end and cfg.occupancy_bound and over > cfg.span_margin
+                        and rec.reached_length >= max(cfg.extent_min_cover * length,
+                                                      cfg.mean_length)
+                        and not (rec.long and rec.side_hits < cfg.long_side_updates)):
+                    continue
+                short, direction = -over, -end * h
             grow = cfg.span_gain * short
             self.x[i, [X, Y]] += 0.5 * grow * direction
             self.x[i, N_KIN:] += (rectangle_radius(self.gp.angles, length + grow, width)
@@ -658,10 +698,11 @@ class Tracker:
         the occupied length is where the sorted distances first leave a gap wider than
         ``occupancy_gap`` (a following vehicle leaves an empty band that no frame fills),
         less its last ``occupancy_min_points`` detections (``rec.occupied_length``: reached
-        by that many; 0 without). End-on: the sensor beyond the front or rear and sin(angle
-        between the line of sight and the heading) at most ``occupancy_max_incidence``
-        (there the lengthwise position is the precise range). Returns the end seen (+1
-        front, -1 rear) or 0 (not end-on, or off)."""
+        by that many; 0 without); ``rec.reached_length``: the distance that many of the
+        track's own pooled detections reach, gaps or not. End-on: the sensor beyond the
+        front or rear and sin(angle between the line of sight and the heading) at most
+        ``occupancy_max_incidence`` (there the lengthwise position is the precise range).
+        Returns the end seen (+1 front, -1 rear) or 0 (not end-on, or off)."""
         cfg = self.cfg
         if cfg.occupancy_gap <= 0.0 or self._corridor is None:
             return 0
@@ -675,15 +716,22 @@ class Tracker:
         if not end or abs(rel[0] * h[1] - rel[1] * h[0]) > (
                 cfg.occupancy_max_incidence * float(np.linalg.norm(rel))):
             return 0
-        lo = (det.z[(owner == i) | (self._corridor[i] & (owner != -2))] - c) @ h
-        rec.occupancy.append((end, front - lo if end > 0 else lo + rear))
+        sel = (owner == i) | (self._corridor[i] & (owner != -2))
+        lo = (det.z[sel] - c) @ h
+        rec.occupancy.append((end, front - lo if end > 0 else lo + rear, owner[sel] == i))
         del rec.occupancy[:-cfg.span_history]
-        d = np.concatenate([[0.0]] + [v for e, v in rec.occupancy if e == end])
-        d = np.sort(d[d >= 0.0])
+        d = np.concatenate([[0.0]] + [v for e, v, _ in rec.occupancy if e == end])
+        own = np.concatenate([[True]] + [o for e, _, o in rec.occupancy if e == end])
+        keep = d >= 0.0
+        d, own = d[keep], own[keep]
+        order = np.argsort(d)
+        d, own = d[order], own[order]
         gap = np.flatnonzero(np.diff(d) > cfg.occupancy_gap)
         occupied = d[: gap[0] + 1] if len(gap) else d
         k = cfg.occupancy_min_points
         rec.occupied_length = float(occupied[-k]) if len(occupied) > k else 0.0
+        reached = d[own]
+        rec.reached_length = float(reached[-k]) if len(reached) > k else 0.0
         return end
 
     def _plausible(self, x: np.ndarray) -> np.ndarray:
