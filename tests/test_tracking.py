@@ -184,20 +184,29 @@ def test_two_cars_side_by_side_keep_identities() -> None:
     assert owners == {0, 1}
 
 
+def _one_track(x0: tuple[float, float, float], size: tuple[float, float] | None,
+               P: np.ndarray, cfg: TrackingConfig | None = None) -> Tracker:
+    """A tracker (``cfg``, default: the defaults; 120 deg / 200 m FOV at the origin, no birth
+    zones or lanes) holding one confirmed track at x, y, v = x0 (m, m, m/s; yaw 0) with a
+    rectangle contour of ``size`` (length, width; m; None: the GP mean) and covariance P."""
+    fov = FieldOfView.of(np.eye(4), 120.0, 200.0)
+    none = BirthZones(np.zeros((0, 2)), np.zeros(0), np.zeros(0))
+    tracker = Tracker(cfg or TrackingConfig(), fov, none, LaneHeadings.of([]))
+    x = np.zeros(N_STATE)
+    x[[0, 1, 2]] = x0
+    x[6:] = tracker.gp.mu if size is None else rectangle_radius(tracker.gp.angles, *size)
+    tracker.x, tracker.P = x[None], P[None]
+    tracker.recs = [_Record(0, 0, True, 0.0)]
+    return tracker
+
+
 @pytest.mark.parametrize("gate_doppler", [2.0, 0.0])
 def test_doppler_gate_keeps_an_oncoming_vehicle_apart(gate_doppler: float) -> None:
     """A track receding at 10 m/s 100 m out; detections on its contour with its range rate
     join it, detections at the same places moving towards the sensor (an oncoming vehicle
     passing it) do not -- unless the Doppler gate is off."""
-    cfg = TrackingConfig(gate_doppler=gate_doppler)
-    fov = FieldOfView.of(np.eye(4), 120.0, 200.0)
-    none = BirthZones(np.zeros((0, 2)), np.zeros(0), np.zeros(0))
-    tracker = Tracker(cfg, fov, none, LaneHeadings.of([]))
-    x = np.zeros(N_STATE)
-    x[[0, 1, 2]] = 100.0, -5.0, 10.0                               # x, y, v; yaw 0
-    x[6:] = tracker.gp.mu
-    tracker.x, tracker.P = x[None], 0.01 * np.eye(N_STATE)[None]
-    tracker.recs = [_Record(0, 0, True, 0.0)]
+    tracker = _one_track((100.0, -5.0, 10.0), None, 0.01 * np.eye(N_STATE),
+                         TrackingConfig(gate_doppler=gate_doppler))
     z = np.array([[97.7, -5.0], [98.5, -4.1], [99.5, -5.9], [100.0, -4.1]])
     rng = np.hypot(z[:, 0], z[:, 1])
     receding = 10.0 * z[:, 0] / rng                                # range rate of the track
@@ -214,16 +223,8 @@ def test_a_young_tracks_wide_gate_does_not_take_the_vehicle_behind(sigma_pos: fl
     empty gap) is inside it but does not join, while the rest of a truck longer than its
     contour, continuing its returns with no gap, does (the chain). A settled track (0.05 m)
     gates both out by its width alone, and the chain takes the contiguous returns."""
-    cfg = TrackingConfig()
-    fov = FieldOfView.of(np.eye(4), 120.0, 200.0)
-    none = BirthZones(np.zeros((0, 2)), np.zeros(0), np.zeros(0))
-    tracker = Tracker(cfg, fov, none, LaneHeadings.of([]))
-    x = np.zeros(N_STATE)
-    x[[0, 1, 2]] = 0.0, 30.0, 10.0                                 # x, y, v; yaw 0
-    x[6:] = rectangle_radius(tracker.gp.angles, 11.0, 2.5)
     P = np.diag(np.r_[sigma_pos**2, sigma_pos**2, np.full(N_STATE - 2, 1e-4)])
-    tracker.x, tracker.P = x[None], P[None]
-    tracker.recs = [_Record(0, 0, True, 0.0)]
+    tracker = _one_track((0.0, 30.0, 10.0), (11.0, 2.5), P)
     side = np.column_stack([np.linspace(-5.0, 5.0, 11), np.full(11, 28.75)])
     car = np.column_stack([np.linspace(-14.5, -10.5, 5), np.full(5, 28.9)])   # 5 m gap
     rest = np.column_stack([np.linspace(-6.2, -9.8, 5), np.full(5, 28.75)])   # 0.9 m steps
@@ -242,16 +243,8 @@ def test_a_young_track_misplaced_along_its_vehicle_keeps_its_returns() -> None:
     (a gap: corner and wheel returns), join it -- a shift of the contour within its
     uncertainty explains them (the returns span 4.4 m, at most the contour's length plus the
     ungrown gate at both ends); they are neither left free for a second birth."""
-    cfg = TrackingConfig()
-    fov = FieldOfView.of(np.eye(4), 120.0, 200.0)
-    none = BirthZones(np.zeros((0, 2)), np.zeros(0), np.zeros(0))
-    tracker = Tracker(cfg, fov, none, LaneHeadings.of([]))
-    x = np.zeros(N_STATE)
-    x[[0, 1, 2]] = 0.0, 30.0, 10.0
-    x[6:] = rectangle_radius(tracker.gp.angles, 4.6, 1.9)
     P = np.diag(np.r_[2.25, 2.25, np.full(N_STATE - 2, 1e-4)])
-    tracker.x, tracker.P = x[None], P[None]
-    tracker.recs = [_Record(0, 0, True, 0.0)]
+    tracker = _one_track((0.0, 30.0, 10.0), (4.6, 1.9), P)
     z = np.column_stack([[-1.6, -1.9, -2.2, -4.4, -5.2, -6.0], np.full(6, 29.05)])
     rng = np.linalg.norm(z, axis=1)
     owner, _ = tracker._associate(_Frame(z, rng, 10.0 * z[:, 0] / rng, np.arange(6)))
