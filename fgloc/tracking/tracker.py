@@ -326,6 +326,7 @@ class Tracker:
             bad = np.abs(det.doppler[di] - pred) > dgate
             far[ti, di] |= bad
             reach[ti[bad], di[bad]] = False
+            loose[ti[bad], di[bad]] = False
         loose_ex = np.where(loose, ex, np.inf)
         ex[far] = np.inf
         #: (T, D) detections beside a track beyond its gate lengthwise, up to chain_reach
