@@ -237,6 +237,33 @@ def test_a_young_tracks_wide_gate_does_not_take_the_vehicle_behind(sigma_pos: fl
         assert np.all(owner[11:] == (0 if joins else -1)), owner
 
 
+@pytest.mark.parametrize("age", [10, 40])
+def test_end_on_occupancy_forgets_updates_older_than_span_history(age: int) -> None:
+    """A car track (4.5 m) receding end-on 30 m out: its occupancy pool holds the distances
+    behind its rear of an end-on update ``age`` frames ago that reached 8.8 m (measured along
+    another heading, e.g. a young track's). Within span_history frames they bridge to the
+    new frame's returns (the occupied length reaches 8.8 m less the last points); older,
+    they are forgotten and the occupied length is the car's own."""
+    P = np.diag(np.full(N_STATE, 1e-4))
+    tracker = _one_track((32.25, 0.0, 10.0), (4.5, 1.8), P)
+    tracker.frame = 100
+    rec = tracker.recs[0]
+    old = np.linspace(0.0, 8.8, 45)
+    rec.occupancy = [(100 - age, -1, old, np.ones(len(old), dtype=bool))]
+    u = np.linspace(30.0, 34.4, 23)                          # rear face and side, 0-4.4 m
+    z = np.column_stack([u, np.where(u > 30.2, -0.9, np.linspace(-0.9, 0.9, 23))])
+    rng = np.linalg.norm(z, axis=1)
+    det = _Frame(z, rng, 10.0 * z[:, 0] / rng, np.arange(len(z)))
+    owner, _ = tracker._associate(det)
+    assert np.all(owner == 0)
+    assert tracker._occupied_length(rec, det, owner, 0) == -1           # rear seen
+    k = tracker.cfg.occupancy_min_points
+    if age < tracker.cfg.span_history:
+        assert rec.occupied_length == pytest.approx(old[-k], abs=1e-9)
+    else:
+        assert rec.occupied_length < 4.5
+
+
 @pytest.mark.parametrize("oncoming", [False, True])
 def test_a_young_tracks_loose_gate_holds_births_of_its_own_motion_only(oncoming: bool) -> None:
     """The car 5 m behind a young 11 m truck track joins it neither way. Its returns inside
