@@ -237,6 +237,56 @@ def test_a_young_tracks_wide_gate_does_not_take_the_vehicle_behind(sigma_pos: fl
         assert np.all(owner[11:] == (0 if joins else -1)), owner
 
 
+@pytest.mark.parametrize("age", [10, 40])
+def test_end_on_occupancy_forgets_updates_older_than_span_history(age: int) -> None:
+    """A car track (4.5 m) receding end-on 30 m out: its occupancy pool holds the distances
+    behind its rear of an end-on update ``age`` frames ago that reached 8.8 m (measured along
+    another heading, e.g. a young track's). Within span_history frames they bridge to the
+    new frame's returns (the occupied length reaches 8.8 m less the last points); older,
+    they are forgotten and the occupied length is the car's own."""
+    P = np.diag(np.full(N_STATE, 1e-4))
+    tracker = _one_track((32.25, 0.0, 10.0), (4.5, 1.8), P)
+    tracker.frame = 100
+    rec = tracker.recs[0]
+    old = np.linspace(0.0, 8.8, 45)
+    rec.occupancy = [(100 - age, -1, old, np.ones(len(old), dtype=bool))]
+    u = np.linspace(30.0, 34.4, 23)                          # rear face and side, 0-4.4 m
+    z = np.column_stack([u, np.where(u > 30.2, -0.9, np.linspace(-0.9, 0.9, 23))])
+    rng = np.linalg.norm(z, axis=1)
+    det = _Frame(z, rng, 10.0 * z[:, 0] / rng, np.arange(len(z)))
+    owner, _ = tracker._associate(det)
+    assert np.all(owner == 0)
+    assert tracker._occupied_length(rec, det, owner, 0) == -1           # rear seen
+    k = tracker.cfg.occupancy_min_points
+    if age < tracker.cfg.span_history:
+        assert rec.occupied_length == pytest.approx(old[-k], abs=1e-9)
+    else:
+        assert rec.occupied_length < 4.5
+
+
+@pytest.mark.parametrize("oncoming", [False, True])
+def test_a_young_tracks_loose_gate_holds_births_of_its_own_motion_only(oncoming: bool) -> None:
+    """The car 5 m behind a young 11 m truck track joins it neither way. Its returns inside
+    the truck's gate only by the gate's growth with the centre's std. dev. (1.5 m: up to
+    gate_max + gate_long_extra behind the truck's rear) are kept from births for the frame
+    when they move with the truck (they may yet be the truck's); moving towards the sensor
+    (an oncoming vehicle, outside the Doppler gate) they are free to seed a birth."""
+    P = np.diag(np.r_[2.25, 2.25, np.full(N_STATE - 2, 1e-4)])
+    tracker = _one_track((0.0, 30.0, 10.0), (11.0, 2.5), P)
+    z = np.vstack([np.column_stack([np.linspace(-5.0, 5.0, 11), np.full(11, 28.75)]),
+                   np.column_stack([np.linspace(-14.5, -10.5, 5), np.full(5, 28.9)])])
+    rng = np.linalg.norm(z, axis=1)
+    dop = 10.0 * z[:, 0] / rng
+    if oncoming:
+        dop[11:] = -dop[11:]
+    owner, _ = tracker._associate(_Frame(z, rng, dop, np.arange(len(z))))
+    assert np.all(owner[:11] == 0) and np.all(owner[11:] == -1), owner
+    cfg = tracker.cfg
+    band = z[:, 0] >= -5.5 - cfg.gate_max - cfg.gate_long_extra
+    assert band[11:].any() and not band[11:].all()
+    assert np.all(tracker._held == (band & (np.arange(len(z)) >= 11) & (not oncoming)))
+
+
 def test_a_young_track_misplaced_along_its_vehicle_keeps_its_returns() -> None:
     """A young car track (4.6 x 1.9 m contour, centre std. dev. 1.5 m) placed 2.5 m ahead of
     its car: the car's returns behind the contour's rear, 2 m beyond the returns inside it

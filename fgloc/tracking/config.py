@@ -153,7 +153,7 @@ class TrackingConfig:
     """Occupied length while an end of the vehicle faces the sensor (0 = off): the distances
     behind the seen end of a track's detections and of the Doppler-consistent ones beside it
     beyond its ends (up to ``chain_reach``; free or held by another track), pooled over
-    ``span_history`` updates,
+    the end-on updates of the last ``span_history`` frames,
     are a lower bound of its length up to their first gap wider than this (m) -- a truck's
     side seen at grazing incidence fills over the frames, a following vehicle leaves an
     empty band; a contour shorter than it by more than ``span_margin`` grows like the span

@@ -116,10 +116,10 @@ class _Record:
     spans: list[float] = field(default_factory=list)
     #: lower bound (m) of the vehicle's length from ``spans`` (0: none yet)
     span_length: float = 0.0
-    #: per recent end-on update: (end seen: +1 front / -1 rear, distances (m) behind that end
-    #: of its detections and of the others in its lengthwise corridor, which of them are its
-    #: own)
-    occupancy: list[tuple[int, np.ndarray, np.ndarray]] = field(default_factory=list)
+    #: per end-on update of the last ``span_history`` frames: (frame, end seen: +1 front /
+    #: -1 rear, distances (m) behind that end of its detections and of the others in its
+    #: lengthwise corridor, which of them are its own)
+    occupancy: list[tuple[int, int, np.ndarray, np.ndarray]] = field(default_factory=list)
     #: lower bound (m) of the vehicle's length from ``occupancy`` (0: none yet)
     occupied_length: float = 0.0
     #: farthest (m) behind the seen end its own pooled end-on detections reach (0: none yet)
@@ -326,6 +326,7 @@ class Tracker:
             bad = np.abs(det.doppler[di] - pred) > dgate
             far[ti, di] |= bad
             reach[ti[bad], di[bad]] = False
+            loose[ti[bad], di[bad]] = False
         loose_ex = np.where(loose, ex, np.inf)
         ex[far] = np.inf
         #: (T, D) detections beside a track beyond its gate lengthwise, up to chain_reach
@@ -693,9 +694,10 @@ class Tracker:
         gate of a car-sized contour). The distances (m) behind the seen end of its detections
         and of the Doppler-consistent detections in its lengthwise corridor (beside the
         contour, up to ``chain_reach`` beyond its ends; free or held by another track, e.g.
-        a second track on a truck's other end; not those in the blind range) are kept for
-        ``span_history`` end-on updates; pooled, they fill the vehicle's side densely, and
-        the occupied length is where the sorted distances first leave a gap wider than
+        a second track on a truck's other end; not those in the blind range) are kept from
+        the end-on updates of the last ``span_history`` frames; pooled, they fill the
+        vehicle's side densely, and the occupied length is where the sorted distances first
+        leave a gap wider than
         ``occupancy_gap`` (a following vehicle leaves an empty band that no frame fills),
         less its last ``occupancy_min_points`` detections (``rec.occupied_length``: reached
         by that many; 0 without); ``rec.reached_length``: the distance that many of the
@@ -718,10 +720,13 @@ class Tracker:
             return 0
         sel = (owner == i) | (self._corridor[i] & (owner != -2))
         lo = (det.z[sel] - c) @ h
-        rec.occupancy.append((end, front - lo if end > 0 else lo + rear, owner[sel] == i))
-        del rec.occupancy[:-cfg.span_history]
-        d = np.concatenate([[0.0]] + [v for e, v, _ in rec.occupancy if e == end])
-        own = np.concatenate([[True]] + [o for e, _, o in rec.occupancy if e == end])
+        rec.occupancy.append((self.frame, end, front - lo if end > 0 else lo + rear,
+                              owner[sel] == i))
+        # the last span_history frames only: an entry from before a long side-on phase
+        # (a turn, a young track's heading) measured along another heading
+        rec.occupancy = [o for o in rec.occupancy if self.frame - o[0] < cfg.span_history]
+        d = np.concatenate([[0.0]] + [v for _, e, v, _ in rec.occupancy if e == end])
+        own = np.concatenate([[True]] + [o for _, e, _, o in rec.occupancy if e == end])
         keep = d >= 0.0
         d, own = d[keep], own[keep]
         order = np.argsort(d)
