@@ -78,6 +78,14 @@ class JointConfig:
     line: the position along a lane carries no information)."""
     huber_k: float = 2.0
     """Huber threshold (in sigma_line) of the per-point robust weights; 0 = none."""
+    join_smoothing_length: float = 0.0
+    """Steering length (m) of the target lines through lanelet joins: each lane line chained
+    with the lanes before and after it (the routing graph's, or where the map has none for
+    it, the best-aligned lane whose end meets it) and smoothed by a spline that penalizes the
+    change of its curvature, so a kink of hand-mapped lanelets is spread over a few times
+    this length the way a vehicle, which cannot turn its heading at a point, drives it
+    (:mod:`fgloc.map.lane_joins`; about a vehicle's speed times its steering time constant).
+    0 = the lanelets' centre lines as mapped (default; docs/experiments.md, issue 22)."""
     offset_sigma: float = 0.3
     """Prior standard deviation (m) of each track's lateral offset from its target lines
     (shared by all of its points: models their correlation) without ``estimate_noise``;
@@ -174,6 +182,7 @@ def check_joint_config(cfg: JointConfig) -> None:
         "along_weight": not 0.0 <= cfg.along_weight <= 1.0,
         "huber_k": cfg.huber_k < 0.0,
         "offset_sigma": cfg.offset_sigma < 0.0,
+        "join_smoothing_length": cfg.join_smoothing_length < 0.0,
         "side_bias_sigma": cfg.side_bias_sigma < 0.0,
         "range_bias_sigma": cfg.range_bias_sigma < 0.0,
         "consider_side_bias_sigma": cfg.consider_side_bias_sigma < 0.0,
