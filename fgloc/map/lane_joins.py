@@ -18,9 +18,10 @@ over the chain's samples ``c_i`` (``step`` m apart). It is a linear low-pass fil
 cut-off wavelength is ``2 pi length``: a kink is spread over a few ``length`` m (a clothoid-like
 transition), a straight line and (to first order) a circular arc stay where they are, since
 their curvature does not change. ``length`` is a vehicle's steering length: the distance it
-drives while it changes its curvature (about its speed times its steering time constant, 3 m
-at 10 m/s and 0.3 s). The next lane is the routing graph's successor (per driving direction,
-:attr:`fgloc.scenario.LaneletMap.directed_successors`) whose start meets the lane's end,
+drives while it changes its curvature (about its speed times its steering time constant;
+``[joint] join_smoothing_length``, 1.5 m by default). The next lane is the routing graph's
+successor (per driving direction, :attr:`fgloc.scenario.LaneletMap.directed_successors`)
+whose start meets the lane's end,
 or, where the map has no routing graph for the lane, any lane whose start meets it; of
 several, the one that continues straightest (a fork's other branches keep their own join).
 """
@@ -103,7 +104,8 @@ def smooth_lane_joins(xy: np.ndarray, lane: np.ndarray, keys: list[tuple[int, bo
     docstring): each lane chained with up to ``3 * length`` m of its predecessor and
     successor (:func:`lane_neighbours`) and smoothed with steering length ``length`` m
     (samples about ``step`` m apart); ``length <= 0`` smooths nothing (the normals are then
-    those of the lines as given)."""
+    those of the lines as given). ``order``: the difference order of the penalty (3; 2 is a
+    cubic smoothing spline, compared in docs/experiments.md)."""
     xy = np.asarray(xy, dtype=float)
     lane = np.asarray(lane)
     if np.any(np.diff(lane) < 0):

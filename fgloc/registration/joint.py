@@ -19,7 +19,8 @@ The problem (frame C unless stated; the factor graph of docs/method.md section 7
   :func:`factors.registration_factors.point_to_point_factor`): the track's contour at the
   object-frame angles of up to ``max_points_per_frame`` of its detections in that frame (the
   sensor-aware angles of the filter's state, fixed), moved by ``T`` into L, against their
-  correspondences on the lanelet centre lines shifted towards the sensor by
+  correspondences on the lanelet centre lines (smoothed through lanelet joins,
+  ``join_smoothing_length``, :mod:`fgloc.map.lane_joins`) shifted towards the sensor by
   ``coarse.visible_side_offset`` (filter-sicp's default target), point-to-line
   (``along_weight`` 0), each point weighted by its label compatibility and a per-point Huber
   weight inside the factor.
