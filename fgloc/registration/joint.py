@@ -19,7 +19,8 @@ The problem (frame C unless stated; the factor graph of docs/method.md section 7
   :func:`factors.registration_factors.point_to_point_factor`): the track's contour at the
   object-frame angles of up to ``max_points_per_frame`` of its detections in that frame (the
   sensor-aware angles of the filter's state, fixed), moved by ``T`` into L, against their
-  correspondences on the lanelet centre lines shifted towards the sensor by
+  correspondences on the lanelet centre lines (smoothed through lanelet joins,
+  ``join_smoothing_length``, :mod:`fgloc.map.lane_joins`) shifted towards the sensor by
   ``coarse.visible_side_offset`` (filter-sicp's default target), point-to-line
   (``along_weight`` 0), each point weighted by its label compatibility and a per-point Huber
   weight inside the factor.
@@ -126,17 +127,26 @@ class LaneLines:
 
     @classmethod
     def build(cls, scn: Scenario, target: TargetCloud, step: float, sensor_xy: np.ndarray,
-              offset: float, two_way_min_width: float = TWO_WAY_MIN_WIDTH) -> LaneLines:
+              offset: float, two_way_min_width: float = TWO_WAY_MIN_WIDTH,
+              join_length: float = 0.0) -> LaneLines:
         """Lane lines of the lanelets that hold target points (:meth:`LaneCentres.build`;
         labels mirrored on a lane driven against its lanelet, ``two_way_min_width`` sets the
         lane model of two-way lanelets),
         sampled every about ``step`` m and shifted ``offset`` m towards ``sensor_xy`` (2,) (0:
-        the centre lines); ``lane`` is the index of each sample's lane line."""
+        the centre lines); ``lane`` is the index of each sample's lane line. ``join_length``
+        > 0: each lane smoothed through its joins with the lanes before and after it with
+        that steering length (m) (:func:`fgloc.map.lane_joins.smooth_lane_joins`)."""
         from fgloc.coarse import LaneCentres
+        from fgloc.map.lane_joins import lane_keys, smooth_lane_joins
         from fgloc.registration.fine import lane_labels
 
         lanelets = target.lanelets(scn.lanelets)
         lanes = LaneCentres.build(lanelets, step, two_way_min_width)
+        if join_length > 0.0 and len(lanes.xy):
+            keys = lane_keys(lanelets, lanes.lanelet, lanes.against, lanes.lane)
+            xy, normal = smooth_lane_joins(lanes.xy, lanes.lane, keys, join_length, step,
+                                           scn.lanelets)
+            lanes = dataclasses.replace(lanes, xy=xy, normal=normal)
         side = np.sign(np.einsum("ij,ij->i", np.asarray(sensor_xy) - lanes.xy, lanes.normal))
         return cls.of(lanes.xy + (offset * side)[:, None] * lanes.normal, lanes.normal,
                       lane_labels(target, lanelets, lanes), lanes.lane)
@@ -832,7 +842,8 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
                 start.converged, np.eye(3), start.z_std)]:
             mode_sensor = transform_points(mode.start, sensor_c[None])[0]
             lines = LaneLines.build(scn, target, cfg.fine.lane_sample_step, mode_sensor, offset,
-                                    min_width(mode.lanes, cfg.map.two_way_min_width))
+                                    min_width(mode.lanes, cfg.map.two_way_min_width),
+                                    cfg.joint.join_smoothing_length)
             T0 = mode.T_fine if cfg.joint.start == "sicp" else mode.start
             jr = joint_refine(subset, det_xy, sensor_c, lines, T0, cfg, trusted, rates)
             cov = sensor_covariance(jr.covariance, jr.T, sensor_c, tilt)

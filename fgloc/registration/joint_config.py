@@ -78,6 +78,17 @@ class JointConfig:
     line: the position along a lane carries no information)."""
     huber_k: float = 2.0
     """Huber threshold (in sigma_line) of the per-point robust weights; 0 = none."""
+    join_smoothing_length: float = 1.5
+    """Steering length (m) of the target lines through lanelet joins: each lane line chained
+    with the lanes before and after it (the routing graph's, or where the map has none for
+    it, the best-aligned lane whose end meets it) and smoothed by a spline that penalizes the
+    change of its curvature, so a kink of hand-mapped lanelets is spread over a few times
+    this length the way a vehicle, which cannot turn its heading at a point, drives it
+    (:mod:`fgloc.map.lane_joins`; about a vehicle's speed times its steering time constant:
+    1.5 m = 0.15 s at 10 m/s; a kink of angle theta ends about 0.3 theta length m off its
+    vertex). 0 = the lanelets' centre lines as mapped. 1.5 (of 1.5 / 2 / 3) came out best on
+    the real map's junctions under paths made three ways and changes nothing on the
+    synthetic layouts (docs/experiments.md, issue 22)."""
     offset_sigma: float = 0.3
     """Prior standard deviation (m) of each track's lateral offset from its target lines
     (shared by all of its points: models their correlation) without ``estimate_noise``;
@@ -174,6 +185,7 @@ def check_joint_config(cfg: JointConfig) -> None:
         "along_weight": not 0.0 <= cfg.along_weight <= 1.0,
         "huber_k": cfg.huber_k < 0.0,
         "offset_sigma": cfg.offset_sigma < 0.0,
+        "join_smoothing_length": cfg.join_smoothing_length < 0.0,
         "side_bias_sigma": cfg.side_bias_sigma < 0.0,
         "range_bias_sigma": cfg.range_bias_sigma < 0.0,
         "consider_side_bias_sigma": cfg.consider_side_bias_sigma < 0.0,

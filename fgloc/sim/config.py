@@ -240,11 +240,28 @@ class RealMapSimConfig:
     half of their driving direction on one at least 5 m wide (a two-way street drawn as one
     lanelet; the centre line on a narrower one), "centre" the lanelet's centre line in both
     directions (as a generator that drives lanelet centre lines makes it)."""
+    path_smoothing: str = "moving-average"
+    """How a route's concatenated lane line (kinks where hand-mapped lanelets meet) becomes
+    the path vehicles drive: "moving-average" (default) a moving average over
+    ``2 * path_half_window + 1`` m (the samples are 1 m apart); "spline" a cubic smoothing
+    spline of the line against arc length (:func:`scipy.interpolate.make_smoothing_spline`)
+    whose equivalent kernel is about ``path_spline_length`` m wide; "none" the line itself
+    (every kink driven as a 1 m arc)."""
+    path_half_window: int = 2
+    """Half window (samples, 1 m apart) of the "moving-average" path smoothing."""
+    path_spline_length: float = 3.0
+    """Length (m) of the "spline" path smoothing: its penalty ``lam = length ** 4`` (roughly
+    the width of the spline's equivalent kernel)."""
 
     def __post_init__(self) -> None:
         if self.two_way_traffic not in ("keep-right", "centre"):
             raise ValueError("two_way_traffic must be 'keep-right' or 'centre', got "
                              f"{self.two_way_traffic!r}")
+        if self.path_smoothing not in ("moving-average", "spline", "none"):
+            raise ValueError("path_smoothing must be 'moving-average', 'spline' or 'none', got "
+                             f"{self.path_smoothing!r}")
+        if self.path_half_window < 0 or not self.path_spline_length > 0:
+            raise ValueError("path_half_window must be >= 0 and path_spline_length > 0")
 
 
 @dataclass

@@ -35,6 +35,7 @@ from fgloc.sim.mounting import Mounting
 from fgloc.sim.real_roads import (
     DrivableArea,
     Junction,
+    PathSmoothing,
     Roof,
     build_map_network,
     directed_lanelets,
@@ -249,8 +250,10 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
         raise RuntimeError(f"the junction at lat {jlat:.6f}, lon {jlon:.6f} fell apart in the crop")
     by_id = {ll.id: ll for ll in directed.lanelets}
     routes = [[by_id[i] for i in r] for r in junction_routes(directed, junction, route_reach)]
-    net = build_map_network(lmap0, routes, junction.centre, cfg.als.extent,
-                            cfg.real_map.two_way_traffic)
+    rm = cfg.real_map
+    net = build_map_network(lmap0, routes, junction.centre, cfg.als.extent, rm.two_way_traffic,
+                            PathSmoothing(rm.path_smoothing, rm.path_half_window,
+                                          rm.path_spline_length))
     mount = _place_mast(rng["sensor"], cfg, net, RoadArea(net), lmap0, junction.centre)
 
     slope = site_rng.uniform(*cfg.als.slope)

@@ -37,7 +37,8 @@ from fgloc.sim.scenery import Scenery
 
 #: spacing (m) of the primitives a route is made of
 ROUTE_STEP = 1.0
-#: half window (samples at ROUTE_STEP) of the moving average that smooths a route's kinks
+#: default half window (samples at ROUTE_STEP) of the moving average that smooths a route's
+#: kinks (``SimConfig.real_map.path_half_window``)
 SMOOTH_HALF_WINDOW = 2
 #: how far (m) beside a bound the curb test looks for another drivable lanelet
 CURB_PROBE = 1.0
@@ -146,12 +147,56 @@ def junction_routes(lmap: LaneletMap, junction: Junction, reach: float) -> list[
     return routes
 
 
+@dataclass(frozen=True)
+class PathSmoothing:
+    """How a route's lane line becomes the path driven (``SimConfig.real_map.path_smoothing``):
+    ``kind`` "moving-average" (over ``2 * half_window + 1`` samples, ROUTE_STEP m apart),
+    "spline" (a cubic smoothing spline against arc length, penalty ``spline_length ** 4``) or
+    "none"."""
+
+    kind: str = "moving-average"
+    half_window: int = SMOOTH_HALF_WINDOW
+    spline_length: float = 3.0
+
+
+def smooth_path(xy: np.ndarray, smoothing: PathSmoothing = PathSmoothing()) -> np.ndarray:
+    """The path (n, 2) vehicles drive along a route's line ``xy`` (n, 2), ROUTE_STEP m
+    sampled, as ``smoothing`` says; the first and last samples stay in place (a moving
+    average keeps its first and last ``half_window + 1``)."""
+    xy = np.asarray(xy, dtype=float)
+    if smoothing.kind == "moving-average":
+        h = smoothing.half_window
+        if h < 1 or len(xy) <= 2 * h + 2:
+            return xy
+        padded = np.vstack([np.repeat(xy[:1], h, 0), xy, np.repeat(xy[-1:], h, 0)])
+        kernel = np.ones(2 * h + 1) / (2 * h + 1)
+        smooth = np.column_stack([np.convolve(padded[:, k], kernel, "valid") for k in (0, 1)])
+        smooth[:h + 1], smooth[-h - 1:] = xy[:h + 1], xy[-h - 1:]
+        return smooth
+    if smoothing.kind == "spline":
+        from scipy.interpolate import make_smoothing_spline
+
+        if len(xy) < 5:
+            return xy
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+        keep = np.concatenate([[True], np.diff(s) > 1e-9])
+        s, xy = s[keep], xy[keep]
+        lam = float(smoothing.spline_length) ** 4
+        out = np.column_stack([make_smoothing_spline(s, xy[:, k], lam=lam)(s) for k in (0, 1)])
+        out[0], out[-1] = xy[0], xy[-1]
+        return out
+    if smoothing.kind == "none":
+        return xy
+    raise ValueError(f"unknown path smoothing {smoothing.kind!r}")
+
+
 def _polyline(lanelets: list[Lanelet], attr: str,
-              two_way_min_width: float = TWO_WAY_MIN_WIDTH) -> np.ndarray:
+              two_way_min_width: float = TWO_WAY_MIN_WIDTH,
+              smoothing: PathSmoothing = PathSmoothing()) -> np.ndarray:
     """(n, 2) concatenation of the lanelets' lanes in their direction (``attr="centre"``: the
     centre line, the right half's on a two-way lanelet at least ``two_way_min_width`` m wide,
     :func:`fgloc.scenario.lane_lines`) or bounds, resampled every ROUTE_STEP m, kinks at the
-    joins smoothed."""
+    joins smoothed as ``smoothing`` says (:func:`smooth_path`)."""
     if attr == "centre":
         lines = [c for _, c, back in lane_lines(lanelets, ROUTE_STEP / 2, two_way_min_width)
                  if not back]
@@ -163,14 +208,7 @@ def _polyline(lanelets: list[Lanelet], attr: str,
     xy = np.vstack(parts)
     length = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
     xy = resample_polyline(xy, max(3, int(np.ceil(length / ROUTE_STEP)) + 1))
-    h = SMOOTH_HALF_WINDOW
-    if len(xy) > 2 * h + 2:
-        padded = np.vstack([np.repeat(xy[:1], h, 0), xy, np.repeat(xy[-1:], h, 0)])
-        kernel = np.ones(2 * h + 1) / (2 * h + 1)
-        smooth = np.column_stack([np.convolve(padded[:, k], kernel, "valid") for k in (0, 1)])
-        smooth[:h + 1], smooth[-h - 1:] = xy[:h + 1], xy[-h - 1:]
-        xy = smooth
-    return xy
+    return smooth_path(xy, smoothing)
 
 
 def piece_from_polyline(pid: int, xy: np.ndarray, width: float, curb: bool = False) -> LanePiece:
@@ -229,14 +267,17 @@ class MapRoadNetwork(RoadNetwork):
 
 
 def build_map_network(lmap: LaneletMap, routes: list[list[Lanelet]], centre: np.ndarray,
-                      radius: float, two_way_traffic: str = "keep-right") -> MapRoadNetwork:
+                      radius: float, two_way_traffic: str = "keep-right",
+                      smoothing: PathSmoothing = PathSmoothing()) -> MapRoadNetwork:
     """Route pieces for ``routes`` (lanelets in driving order, inverted ones as
     :func:`directed_lanelets` makes them) driven as ``two_way_traffic`` says
     (:func:`fgloc.map.lane_models.min_width`: a two-way lanelet at least
     :data:`fgloc.scenario.TWO_WAY_MIN_WIDTH` wide keeps right), plus curb pieces of the
-    drivable lanelets of ``lmap`` within ``radius`` m of ``centre`` (2,)."""
+    drivable lanelets of ``lmap`` within ``radius`` m of ``centre`` (2,). ``smoothing``: how
+    a route's line becomes the path driven (:func:`smooth_path`)."""
     width = min_width(two_way_traffic)
-    pieces = [piece_from_polyline(k, _polyline(r, "centre", width), _mean_width(r, width))
+    pieces = [piece_from_polyline(k, _polyline(r, "centre", width, smoothing),
+                                  _mean_width(r, width))
               for k, r in enumerate(routes)]
     near = [ll for ll in lmap.lanelets
             if np.min(np.linalg.norm(ll.polygon() - centre, axis=1)) <= radius]
