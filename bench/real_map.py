@@ -12,6 +12,7 @@ junction and method. docs/benchmarks.md's table comes from
 
     OMP_NUM_THREADS=1 python -m bench.real_map --seeds 1 2 3
     OMP_NUM_THREADS=1 python -m bench.real_map --seeds 1 --two-way-traffic centre --labels routing
+    OMP_NUM_THREADS=1 python -m bench.real_map --config variant.toml   # not the defaults
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from fgloc.config import Config  # noqa: E402
+from fgloc.config import load_config  # noqa: E402
 from fgloc.evaluation.pose import pose_error  # noqa: E402
 from fgloc.pipeline import localize_many  # noqa: E402
 from fgloc.sim.config import SimConfig  # noqa: E402
@@ -44,17 +45,19 @@ Errors = dict[tuple[str, str, int, str], list[tuple[float, float, float]]]
 
 
 def run_one(map_path: Path, kind: str, k: int, site: tuple[float, float], seed: int,
-            duration: float, labels: list[str]) -> list[dict[str, object]]:
+            duration: float, labels: list[str], config: Path | None = None
+            ) -> list[dict[str, object]]:
     """One scenario (two-way traffic ``kind``, junction index ``k`` at ``site``, ``seed``),
-    localized by every method once per ``[map] labels`` mode: one row per (labels, method)
-    with the 2D and yaw errors and the result's status."""
+    localized by every method once per ``[map] labels`` mode with the fgloc config TOML
+    ``config`` (None: the defaults): one row per (labels, method) with the 2D and yaw errors
+    and the result's status."""
     sim_cfg = SimConfig()
     sim_cfg.real_map.two_way_traffic = kind
     scn = simulate_on_map(map_path, seed, site=site, duration=duration, config=sim_cfg).scenario
     rows: list[dict[str, object]] = []
     for mode in labels:
         t0 = time.perf_counter()
-        cfg = Config()
+        cfg = load_config(config)
         cfg.map.labels = mode
         res = localize_many(scn, METHODS, cfg)
         line = [f"traffic {kind} junction {k + 1} seed {seed} labels {mode}:"]
@@ -72,15 +75,16 @@ def run_one(map_path: Path, kind: str, k: int, site: tuple[float, float], seed: 
 
 def run(map_path: Path, n_junctions: int, seeds: list[int], duration: float,
         labels: list[str], traffic: list[str] | None = None,
-        pool_map: Callable[..., Iterable[list[dict[str, object]]]] | None = None
-        ) -> tuple[list[tuple[float, float]], list[dict[str, object]]]:
-    """Junction sites (lat, lon) and the rows of :func:`run_one` for every traffic kind,
-    junction and seed (in that order). ``pool_map(fn, items)`` runs ``fn(*item)`` per item in
-    order (e.g. in worker processes; default: here, one after the other)."""
+        pool_map: Callable[..., Iterable[list[dict[str, object]]]] | None = None,
+        config: Path | None = None) -> tuple[list[tuple[float, float]], list[dict[str, object]]]:
+    """Junction sites (lat, lon) and the rows of :func:`run_one` (with ``config``) for every
+    traffic kind, junction and seed (in that order). ``pool_map(fn, items)`` runs
+    ``fn(*item)`` per item in order (e.g. in worker processes; default: here, one after the
+    other)."""
     junctions, _ = map_junctions(map_path)
     sites = [(float(j.centre[0]), float(j.centre[1])) for j in junctions[:n_junctions]]
-    items = [(map_path, kind, k, site, seed, duration, labels) for kind in traffic or TRAFFIC
-             for k, site in enumerate(sites) for seed in seeds]
+    items = [(map_path, kind, k, site, seed, duration, labels, config)
+             for kind in traffic or TRAFFIC for k, site in enumerate(sites) for seed in seeds]
     done = (pool_map or (lambda fn, its: (fn(*it) for it in its)))(run_one, items)
     return sites, [row for rows in done for row in rows]
 
@@ -130,9 +134,11 @@ def main() -> None:
     ap.add_argument("--two-way-traffic", choices=TRAFFIC, nargs="+", default=TRAFFIC,
                     help="where the simulated vehicles drive on two-way lanelets "
                     "([real_map] two_way_traffic), one row group per kind")
+    ap.add_argument("--config", type=Path, default=None,
+                    help="fgloc config TOML (default: all defaults; [map] labels is set per mode)")
     args = ap.parse_args()
     sites, rows = run(args.map, args.junctions, args.seeds, args.duration, args.labels,
-                      args.two_way_traffic)
+                      args.two_way_traffic, config=args.config)
     print(table(sites, args.seeds, args.labels, errors_of(rows)))
 
 
