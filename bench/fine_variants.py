@@ -51,7 +51,7 @@ VARIANTS: dict[str, tuple[dict, dict]] = {
     "default, labels ignored": ({}, {"mode": "none"}),
     "default, cauchy": ({}, {"kernel": "cauchy"}),
     "default, 1 m source voxel": ({"voxel_size": 1.0}, {}),
-    "default, offsets per aspect": ({"visible_side": "aspect"}, {}),
+    "default, constant offset": ({"visible_side": "constant"}, {}),
 }
 
 

@@ -56,8 +56,11 @@ def constructed() -> tuple[SimpleNamespace, TrackSet, np.ndarray]:
 
 
 def test_detections_in_c_labelled_by_their_state(constructed):
+    """The detections where T_coarse places them (the constant visible-side model; "aspect"
+    moves them onto their tracks' cross-sections, test_visible_side.py)."""
     scn, tracks, T = constructed
-    src = build_source_cloud(scn, tracks, T, _cfg(source="detections", voxel_size=0.5))
+    src = build_source_cloud(scn, tracks, T, _cfg(source="detections", voxel_size=0.5,
+                                                  visible_side="constant"))
     expect = transform_points(T, scn.radar.xyz)[:, :2]
     # detections 0 and 1 share a voxel and a label (straight, step 0 of track 7): averaged
     assert len(src) == 5 and src.n_raw == 6
@@ -268,5 +271,32 @@ def test_aspect_visible_side_weights_voxels_by_their_detections(constructed):
     assert sorted(src.weight.tolist()) == [1, 1, 1, 1, 2]   # detections 0 and 1 share a voxel
     assert src.visible_side is not None and src.visible_side.count.sum() == 6
     assert "visible_side" in src.summary()
-    plain = build_source_cloud(scn, tracks, T, _cfg(source="detections", voxel_size=0.5))
+    plain = build_source_cloud(scn, tracks, T, _cfg(source="detections", voxel_size=0.5,
+                                                    visible_side="constant"))
     assert plain.weight is None and plain.visible_side is None
+
+
+def test_model_spread_adds_the_constant_offset_fits_difference(stages):
+    """``[fine] model_spread``: the pose is the "aspect" fit's; its covariance grows by
+    ``model_spread d d^T``, ``d`` the sensor's difference to the fit with the constant offset,
+    which is what a separate ``visible_side = "constant"`` run reports."""
+    scn, cfg, target, coarse, tracks = stages
+
+    def run(**fine):
+        c = dataclasses.replace(cfg, fine=dataclasses.replace(cfg.fine, **fine))
+        return register_tracks(scn, c, target, coarse, tracks, Timer(), "filter-sicp")
+
+    alone, spread, constant = run(model_spread=0.0), run(model_spread=0.5), \
+        run(visible_side="constant")
+    assert len(alone.mode_fits) == 1                    # one coarse mode: one fit per model
+    assert "constant_offset_difference" not in alone.diagnostics["sicp"]
+    np.testing.assert_allclose(spread.T_local, alone.T_local)
+    diff = spread.diagnostics["sicp"]["constant_offset_difference"]
+    d = np.array([diff["dx_m"], diff["dy_m"], np.deg2rad(diff["dyaw_deg"])])
+    np.testing.assert_allclose(d[:2], alone.T_local[:2, 3] - constant.T_local[:2, 3],
+                               atol=1e-9)
+    yaw = [np.arctan2(r.T_local[1, 0], r.T_local[0, 0]) for r in (alone, constant)]
+    assert abs(d[2] - (yaw[0] - yaw[1])) < 1e-9
+    assert np.hypot(*d[:2]) > 0.01                      # the two models do differ here
+    np.testing.assert_allclose(spread.mode_fits[0].covariance,
+                               alone.mode_fits[0].covariance + 0.5 * np.outer(d, d), atol=1e-12)

@@ -111,20 +111,27 @@ class FineConfig:
     ``lane_sample_step`` m, each sample labelled with its lanelet's label; "visible-sides" =
     those centre lines shifted ``coarse.visible_side_offset`` m towards the sensor (where the
     radar sees a vehicle's side on average; the target for "detections")."""
-    visible_side: str = "constant"
+    visible_side: str = "aspect"
     """How far the "visible-sides" target is shifted towards the sensor, for the source
     "detections": "constant" = ``coarse.visible_side_offset`` everywhere, source voxels
-    weighted equally; "aspect" = per aspect (|sin| of the angle between the line of sight and
-    the lane), the mean offset of the tracks' detections from their tracks' centre lines at
-    that aspect, measured on this run's tracks (:mod:`fgloc.registration.visible_side`), the
-    detections moved along their tracks' headings onto the cross-sections through the
-    tracked centres and the source voxels weighted by the detections they average, each
-    aspect's offset clipped to [0, ``tracking.mean_width`` / 2]. "aspect" halves the real
-    map's filter-sicp / smoother-sicp error (3 junctions x 3 seeds x both kinds of two-way
-    traffic: 0.27 / 0.25 m -> 0.135 / 0.132 m mean, yaw 0.18 -> 0.05 deg) and lowers the
-    synthetic filter-sicp's (0.147 -> 0.099 m), but curve 4 smoother-sicp ends 1.27 m off
-    (ambiguous either way) and two synthetic runs resolve just beyond 0.3 m: not the default
-    yet (docs/experiments.md, issue 22)."""
+    weighted equally; "aspect" (the default) = per aspect (|sin| of the angle between the line
+    of sight and the lane), the mean offset of the tracks' detections from their tracks'
+    centre lines at that aspect, measured on this run's tracks
+    (:mod:`fgloc.registration.visible_side`), the detections moved along their tracks'
+    headings onto the cross-sections through the tracked centres and the source voxels
+    weighted by the detections they average, each aspect's offset clipped to [0,
+    ``tracking.mean_width`` / 2]. On the real map's junctions (bench.real_map, routing labels,
+    18 runs) "aspect" halves filter-sicp's error (0.282 -> 0.132 m mean, yaw 0.18 -> 0.06
+    deg), on the synthetic layouts it lowers it from 0.145 to 0.105 m and in sparse traffic
+    from 0.142 to 0.096 m (docs/experiments.md, issue 22)."""
+    model_spread: float = 0.5
+    """With ``visible_side = "aspect"``: each mode is also registered with the constant
+    offset (the other model of where the returns lie), and ``model_spread`` times the outer
+    product of the difference of the two fits' sensor (x, y, yaw) is added to the mode's
+    covariance: a pose the two models disagree on is not reported as pinned (equal weight on
+    both models, the estimate at the "aspect" fit: 0.5). 0 = no second fit. On a sparse
+    T-junction (10 vehicles per minute, seed 5) "aspect" alone ended 0.45 m off with a
+    largest std. dev. of 0.300 m (resolved); the constant fit lay 0.66 m from it."""
     lane_sample_step: float = 0.25
     """Spacing (m) of the samples on the lanelet centre lines (target "lane-centres")."""
     n_trajectories: int | None = None

@@ -10,9 +10,9 @@ correspondence range. Started from the coarse pose that makes the pose worse: in
 the cost is flat (any pose keeping the points on the asphalt fits) and the wide first ranges
 let off-road detections pull it by about a metre (docs/experiments.md). The default instead
 registers the same labelled detections to the labelled lanelet centre lines shifted towards
-the sensor (the radar sees a vehicle's near side) by ``coarse.visible_side_offset``, or by the
-offset measured on the tracks at each lane sample's aspect (``[fine] visible_side =
-"aspect"``, :mod:`fgloc.registration.visible_side`), from a 5 m first range: the coarse stage's lane
+the sensor (the radar sees a vehicle's near side) by the offset measured on the tracks at each
+lane sample's aspect (``[fine] visible_side = "aspect"``, :mod:`fgloc.registration.visible_side`)
+or by the constant ``coarse.visible_side_offset``, from a 5 m first range: the coarse stage's lane
 model, but with only the detections the tracker assigned to vehicles (clutter and ghost points
 left out) and with labels that keep turning vehicles on the turn lanes where lanes cross.
 Measured on simulated intersections and T-junctions it lowers the coarse pose's mean error;
@@ -30,7 +30,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from fgloc.config import Config
-from fgloc.geo import se2_params, se2_to_se3, transform_points
+from fgloc.geo import se2_params, se2_to_se3, transform_points, wrap_angle
 from fgloc.labels import NAMES, mirrored
 from fgloc.map.lane_models import KEEP_RIGHT, min_width
 from fgloc.progress import Timer
@@ -43,7 +43,12 @@ from fgloc.registration.modes import (
     track_costs,
 )
 from fgloc.registration.sicp import SemanticTargets, SicpResult, sicp, track_covariance
-from fgloc.registration.source import SourceCloud, build_source_cloud, check_fine_config
+from fgloc.registration.source import (
+    SourceCloud,
+    build_source_cloud,
+    check_fine_config,
+    measures_visible_side,
+)
 from fgloc.registration.visible_side import VisibleSide
 from fgloc.result import LocalizationResult, json_ready
 from fgloc.scenario import TWO_WAY_MIN_WIDTH, Lanelet, Scenario
@@ -205,6 +210,26 @@ def _source_xyz_local(src: SourceCloud, T_fine: np.ndarray, target: TargetCloud)
     return np.column_stack([xy, target.xyz[j, 2]])
 
 
+def model_spread(scn: Scenario, cfg: Config, target: TargetCloud, coarse: CoarseResult,
+                 start: np.ndarray, lanes: str, src_constant: SourceCloud, fit: SicpResult,
+                 scfg: SicpConfig) -> tuple[np.ndarray, np.ndarray]:
+    """``[fine] model_spread``: the 3x3 covariance term ``model_spread d d^T`` and ``d``, the
+    difference (x m, y m, yaw rad) of the sensor in L between ``fit`` (the measured
+    visible-side offsets) and a fit from the same ``start`` with the constant offset
+    ``coarse.visible_side_offset`` (source ``src_constant``: its unweighted voxels).
+
+    The two offset models bracket where a vehicle's returns lie; where they place the sensor
+    apart, the pose depends on that model choice as much as on the data, which the fit's own
+    covariance (the tracks' disagreement under one model) does not see."""
+    targets = mode_targets(scn, target, cfg, coarse, start, lanes, None)
+    other = sicp(src_constant.xy, src_constant.label, targets, None, start, scfg,
+                 source_direction=src_constant.direction)
+    sensor_c = coarse.T_coarse[None, :2, 3]
+    d = np.r_[transform_points(fit.T, sensor_c)[0] - transform_points(other.T, sensor_c)[0],
+              wrap_angle(se2_params(fit.T)[2] - se2_params(other.T)[2])]
+    return cfg.fine.model_spread * np.outer(d, d), d
+
+
 def register_tracks(
     scn: Scenario, cfg: Config, target: TargetCloud, coarse: CoarseResult, tracks: TrackSet,
     timer: Timer, method: str,
@@ -220,8 +245,10 @@ def register_tracks(
     (:func:`fgloc.registration.sicp.track_covariance`) plus the coarse tilt's
     (:func:`coarse_tilt_covariance`: the fine stage keeps the coarse roll and pitch); the one
     from SICP's information, which treats every source point as independent, is in the
-    diagnostics as ``sicp.sensor_covariance_uncalibrated``. The source cloud is in L after the
-    final pose and the tracks carry ``T_frame_to_L = T_fine``.
+    diagnostics as ``sicp.sensor_covariance_uncalibrated``. With measured visible-side offsets
+    each mode is also registered with the constant offset and ``[fine] model_spread`` times the
+    outer product of the two fits' difference is added (:func:`model_spread`). The source cloud
+    is in L after the final pose and the tracks carry ``T_frame_to_L = T_fine``.
 
     Every coarse mode (``coarse.modes``) is registered, from its start (the tracks placed by
     the best mode moved rigidly onto it), against the targets seen from its sensor position;
@@ -233,7 +260,13 @@ def register_tracks(
 
     with timer.stage("source cloud"):
         src = build_source_cloud(scn, tracks, coarse.T_coarse, cfg)
+        src_constant = None
+        if measures_visible_side(cfg.fine) and cfg.fine.model_spread > 0.0:
+            constant = dataclasses.replace(cfg, fine=dataclasses.replace(
+                cfg.fine, visible_side="constant"))
+            src_constant = build_source_cloud(scn, tracks, coarse.T_coarse, constant)
     scfg = fine_sicp_config(cfg)
+    spreads: list[np.ndarray] = []
     runs: list[tuple[SicpResult, SemanticTargets]] = []
     fits: list[ModeFit] = []
     sensor_c = coarse.T_coarse[:2, 3]
@@ -247,6 +280,11 @@ def register_tracks(
             T_local, z_std = placed_where_ended(coarse, se2_to_se3(res.T) @ coarse.T_coarse)
             cov = sensor_covariance(track_covariance(res, src.xy, src.track_id, targets, scfg),
                                     res.T, sensor_c, tilt)
+            if src_constant is not None:
+                spread, d = model_spread(scn, cfg, target, coarse, start, lanes, src_constant,
+                                         res, scfg)
+                cov = None if cov is None else cov + spread
+                spreads.append(d)
             fits.append(ModeFit(res.T, T_local, cov,
                                 track_costs(src, targets, res.T, cfg.coarse.mode_cost_scale,
                                             cfg.sicp.direction_gate_deg),
@@ -254,7 +292,8 @@ def register_tracks(
                                 start, z_std, lanes))
             runs.append((res, targets))
     choice = choose_mode(fits, cfg.coarse, prior=position_prior(scn, cfg.coarse))
-    res, targets = runs[next(i for i, f in enumerate(fits) if f is choice.best)]
+    best = next(i for i, f in enumerate(fits) if f is choice.best)
+    res, targets = runs[best]
     T_fine = res.T
     warnings = [*target.warnings, *coarse.warnings, *res.warnings, *choice.warnings(method)]
     if res.stop_reason == "max_iterations":
@@ -281,6 +320,9 @@ def register_tracks(
                 **_sicp_diagnostics(res, scfg, targets, cfg.fine),
                 "sensor_covariance_uncalibrated": sensor_covariance(
                     res.covariance, T_fine, sensor_c),
+                **({"constant_offset_difference": {
+                    "dx_m": spreads[best][0], "dy_m": spreads[best][1],
+                    "dyaw_deg": np.rad2deg(spreads[best][2])}} if spreads else {}),
             },
         }),
         warnings=warnings,

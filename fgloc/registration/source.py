@@ -95,6 +95,7 @@ def check_fine_config(cfg: FineConfig) -> None:
         "visible_side": cfg.visible_side not in VISIBLE_SIDE_MODELS,
         "lane_sample_step": not cfg.lane_sample_step > 0.0,
         "start_range": not cfg.start_range >= 0.0,
+        "model_spread": not cfg.model_spread >= 0.0,
         "n_trajectories": cfg.n_trajectories is not None and cfg.n_trajectories < 1,
         "trajectory_share": not 0.0 < cfg.trajectory_share <= 1.0,
         "voxel_size": cfg.voxel_size is not None and not cfg.voxel_size > 0.0,
