@@ -130,7 +130,8 @@ def test_subset_through_config_seed(constructed):
 def test_invalid_fine_config(constructed):
     scn, tracks, T = constructed
     for bad in ({"source": "pixels"}, {"target": "roads"}, {"trajectory_share": 0.0},
-                {"n_trajectories": 0}, {"voxel_size": -1.0}, {"start_range": -1.0}):
+                {"n_trajectories": 0}, {"voxel_size": -1.0}, {"start_range": -1.0},
+                {"visible_side": "sometimes"}, {"model_spread": -0.5}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             build_source_cloud(scn, tracks, T, _cfg(**bad))
 
