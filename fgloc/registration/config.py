@@ -123,7 +123,7 @@ class FineConfig:
     ``tracking.mean_width`` / 2]. On the real map's junctions (bench.real_map, routing labels,
     18 runs) "aspect" halves filter-sicp's error (0.282 -> 0.132 m mean, yaw 0.18 -> 0.06
     deg), on the synthetic layouts it lowers it from 0.145 to 0.105 m and in sparse traffic
-    from 0.142 to 0.096 m (docs/experiments.md, issue 22)."""
+    from 0.139 to 0.097 m (docs/experiments.md, issue 22)."""
     model_spread: float = 0.5
     """With ``visible_side = "aspect"``: each mode is also registered with the constant
     offset (the other model of where the returns lie), and ``model_spread`` times the outer
@@ -131,7 +131,7 @@ class FineConfig:
     covariance: a pose the two models disagree on is not reported as pinned (equal weight on
     both models, the estimate at the "aspect" fit: 0.5). 0 = no second fit. On a sparse
     T-junction (10 vehicles per minute, seed 5) "aspect" alone ended 0.45 m off with a
-    largest std. dev. of 0.300 m (resolved); the constant fit lay 0.66 m from it."""
+    largest std. dev. of 0.300 m (resolved); the constant fit lay 0.74 m from it."""
     lane_sample_step: float = 0.25
     """Spacing (m) of the samples on the lanelet centre lines (target "lane-centres")."""
     n_trajectories: int | None = None
