@@ -126,13 +126,17 @@ class _Record:
     span_length: float = 0.0
     #: per end-on update of the last ``span_history`` frames: (frame, end seen: +1 front /
     #: -1 rear, distances (m) behind that end of its detections and of the others in its
-    #: lengthwise corridor, which of them are its own)
-    occupancy: list[tuple[int, int, np.ndarray, np.ndarray]] = field(default_factory=list)
+    #: lengthwise corridor, which of them are its own, which lie beside its contour)
+    occupancy: list[tuple[int, int, np.ndarray, np.ndarray, np.ndarray]] = field(
+        default_factory=list)
     #: lower bound (m) of the vehicle's length from ``occupancy`` (0: none yet)
     occupied_length: float = 0.0
     #: farthest (m) image of ``occupied_length`` beyond the seen end, towards the sensor:
     #: how far the pooled detections continue the vehicle past its contour (0: none yet)
     toward_length: float = 0.0
+    #: rows recorded before the contour last grew towards the sensor (their seen end was
+    #: not the vehicle's: retrodiction anchors their far end)
+    toward_rows: int = 0
     #: farthest (m) behind the seen end its own pooled end-on detections reach (0: none yet)
     reached_length: float = 0.0
     t: list[float] = field(default_factory=list)
@@ -723,9 +727,10 @@ class Tracker:
         self.x[i, N_KIN:] += (rectangle_radius(self.gp.angles, length + grow, width)
                               - rectangle_radius(self.gp.angles, length, width))
         end = rec.occupancy[-1][1]
-        rec.occupancy = [(fr, e, v + grow if e == end else v, o)
-                         for fr, e, v, o in rec.occupancy]
+        rec.occupancy = [(fr, e, v + grow if e == end else v, o, b)
+                         for fr, e, v, o, b in rec.occupancy]
         rec.toward_length = max(rec.toward_length - grow, 0.0)
+        rec.toward_rows = len(rec.states)
         return True
 
     def _occupied_length(self, rec: _Record, det: _Frame, owner: np.ndarray, i: int) -> int:
@@ -761,15 +766,22 @@ class Tracker:
             return 0
         sel = (owner == i) | (self._corridor[i] & (owner != -2))
         lo = (det.z[sel] - c) @ h
+        # within the contour's half width and the gate sideways: its own side, not a
+        # neighbour in the next lane that a young track's wide gate takes in
+        q = self.gp.n // 4
+        beside = np.abs((det.z[sel] - c) @ np.array([-h[1], h[0]])) <= (
+            0.5 * (x[N_KIN + q] + x[N_KIN + 3 * q]) + cfg.gate)
         rec.occupancy.append((self.frame, end, front - lo if end > 0 else lo + rear,
-                              owner[sel] == i))
+                              owner[sel] == i, beside))
         # the last span_history frames only: an entry from before a long side-on phase
         # (a turn, a young track's heading) measured along another heading
         rec.occupancy = [o for o in rec.occupancy if self.frame - o[0] < cfg.span_history]
-        d = np.concatenate([[0.0]] + [v for _, e, v, _ in rec.occupancy if e == end])
-        own = np.concatenate([[True]] + [o for _, e, _, o in rec.occupancy if e == end])
+        d = np.concatenate([[0.0]] + [v for _, e, v, _, _ in rec.occupancy if e == end])
+        own = np.concatenate([[True]] + [o for _, e, _, o, _ in rec.occupancy if e == end])
+        beside = np.concatenate([[True]] + [b for _, e, _, _, b in rec.occupancy if e == end])
         k = cfg.occupancy_min_points
-        rec.toward_length = _connected_reach(np.sort(-d[d < 0.0]), cfg.occupancy_gap, k)
+        rec.toward_length = _connected_reach(np.sort(-d[(d < 0.0) & beside]),
+                                             cfg.occupancy_gap, k)
         keep = d >= 0.0
         d, own = d[keep], own[keep]
         order = np.argsort(d)
@@ -1017,7 +1029,8 @@ class Tracker:
         states = retrodict_length(np.asarray(rec.states[:n]), np.sqrt(rec.len_var[:n]),
                                   self.fov.sensor, self.cfg.retrodict_window,
                                   self.cfg.retrodict_max_sd, np.asarray(rec.held[:n]),
-                                  np.asarray(rec.occupied[:n]) > 0.0)
+                                  np.asarray(rec.occupied[:n]) > 0.0,
+                                  np.arange(n) < rec.toward_rows)
         return Track(
             id=rec.id,
             t=np.asarray(rec.t[:n]),
