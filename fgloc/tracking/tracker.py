@@ -75,6 +75,9 @@ MODELS = ("sensor-aware", "plain")
 LOS_YAW_SIGMA = np.deg2rad(45.0)
 #: detections within this distance (m) along the heading of a seen front / rear lie on it
 FACE_BAND = 0.5
+#: detections continuing a vehicle towards the sensor lie within its contour's half width
+#: and this (m) sideways (``occupancy_toward``)
+TOWARD_SIDE_MARGIN = 0.3
 
 
 def _connected_reach(d: np.ndarray, gap: float, k: int) -> float:
@@ -708,15 +711,19 @@ class Tracker:
     def _grow_toward_sensor(self, rec: _Record, i: int, toward: np.ndarray) -> bool:
         """Grow track i's contour towards the sensor (unit vector ``toward``, along its
         heading) when the pooled end-on detections continue its vehicle beyond the seen end
-        (``rec.toward_length``) by more than ``span_margin`` plus twice the range noise that
-        spreads the seen face's own returns there: by ``span_gain`` of that excess, the
+        (``rec.toward_length``: from detections within its half width and
+        TOWARD_SIDE_MARGIN sideways) by more than ``span_margin`` plus twice the range noise
+        that spreads the seen face's own returns there, once it has ``span_history``
+        updates (a young track's heading and place may still be another vehicle's): by
+        ``span_gain`` of that excess, the
         far end staying put, the pooled distances shifted to the new seen end. A track born
         on a vehicle's far part -- a truck passing the sensor enters the FOV front first and
         recedes end-on -- so takes its near part, and a second track born there becomes its
         duplicate. Returns whether the contour grew (``occupancy_toward``)."""
         cfg = self.cfg
         excess = rec.toward_length - 2.0 * cfg.sigma_range
-        if not cfg.occupancy_toward or excess <= cfg.span_margin:
+        if (not cfg.occupancy_toward or excess <= cfg.span_margin
+                or rec.hits < cfg.span_history):
             return False
         grow = cfg.span_gain * excess
         x = self.x[i]
@@ -770,7 +777,7 @@ class Tracker:
         # neighbour in the next lane that a young track's wide gate takes in
         q = self.gp.n // 4
         beside = np.abs((det.z[sel] - c) @ np.array([-h[1], h[0]])) <= (
-            0.5 * (x[N_KIN + q] + x[N_KIN + 3 * q]) + cfg.gate)
+            0.5 * (x[N_KIN + q] + x[N_KIN + 3 * q]) + TOWARD_SIDE_MARGIN)
         rec.occupancy.append((self.frame, end, front - lo if end > 0 else lo + rear,
                               owner[sel] == i, beside))
         # the last span_history frames only: an entry from before a long side-on phase
