@@ -124,3 +124,25 @@ def test_length_variance_of_front_plus_rear() -> None:
     a[N_KIN] = a[N_KIN + (N_STATE - N_KIN) // 2] = 1.0
     np.testing.assert_allclose(length_variance(P), a @ P @ a)
     np.testing.assert_allclose(length_variance(np.stack([P, 2 * P])), [a @ P @ a, 2 * a @ P @ a])
+
+
+def test_far_anchored_rows_keep_their_far_end() -> None:
+    """A truck driving at the sensor whose track was born on its far part (the rear; e.g. the
+    front was still outside the view) and later grew towards the sensor: rows flagged
+    ``far_anchored`` measured the rear, so the added length goes to the front -- the centre
+    moves towards the sensor by half of it times |cos| of the line of sight's angle to the
+    heading, the mirror of the default."""
+    xs = np.linspace(150.0, 30.0, 60)
+    lengths = np.where(np.arange(60) < 30, 4.6, TRUE_LENGTH)
+    rear = xs + 0.5 * TRUE_LENGTH
+    before = _states(xs, lengths)
+    before[:, X] = rear - 0.5 * lengths              # the contour ends at the true rear
+    anchored = np.arange(60) < 30
+    after = retrodict_length(before, _sd(lengths), SENSOR, window=20, max_sd=0.35,
+                             far_anchored=anchored)
+    end_on = np.abs(before[:, X] - SENSOR[0]) / np.hypot(before[:, X] - SENSOR[0], SENSOR[1])
+    expected = before[:, X] - 0.5 * (TRUE_LENGTH - lengths) * end_on
+    np.testing.assert_allclose(after[:, X], expected, atol=1e-9)
+    np.testing.assert_allclose(after[:, X], xs, atol=0.06)
+    plain = retrodict_length(before, _sd(lengths), SENSOR, window=20, max_sd=0.35)
+    assert np.max(np.abs(plain[:30, X] - xs[:30])) > 7.0       # the near end kept instead

@@ -249,7 +249,8 @@ def test_end_on_occupancy_forgets_updates_older_than_span_history(age: int) -> N
     tracker.frame = 100
     rec = tracker.recs[0]
     old = np.linspace(0.0, 8.8, 45)
-    rec.occupancy = [(100 - age, -1, old, np.ones(len(old), dtype=bool))]
+    rec.occupancy = [(100 - age, -1, old, np.ones(len(old), dtype=bool),
+                      np.ones(len(old), dtype=bool))]
     u = np.linspace(30.0, 34.4, 23)                          # rear face and side, 0-4.4 m
     z = np.column_stack([u, np.where(u > 30.2, -0.9, np.linspace(-0.9, 0.9, 23))])
     rng = np.linalg.norm(z, axis=1)
@@ -262,6 +263,62 @@ def test_end_on_occupancy_forgets_updates_older_than_span_history(age: int) -> N
         assert rec.occupied_length == pytest.approx(old[-k], abs=1e-9)
     else:
         assert rec.occupied_length < 4.5
+
+
+def _receding_frames(case: str, frames: int, seed: int = 0) -> list[_Frame]:
+    """Frames of returns behind a track's car-sized contour (x 32.7-37.3 m, y 0, receding
+    along +x from a sensor at the origin: its rear is seen end-on). "truck": the rest of a
+    12.3 m truck (x 25-37.3 m): 4 returns on its rear face, 3 along its side at y -1.25 m,
+    anywhere; "follower": a 4.5 m car 3 m behind the contour (rear face at 25.2 m, side
+    returns up to its front at 29.7 m) and 3 side returns on the contour's own part; a
+    "neighbour": the truck's returns 3.5 m to the side (the next lane)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(frames):
+        if case == "follower":
+            face = np.column_stack([25.2 + rng.normal(0, 0.1, 4), rng.uniform(-0.9, 0.9, 4)])
+            side = np.column_stack([np.r_[rng.uniform(25.2, 29.7, 3), rng.uniform(32.7, 37.3, 3)],
+                                    np.full(6, -0.9)])
+        else:
+            lat = -3.5 if case == "neighbour" else 0.0
+            face = np.column_stack([25.0 + rng.normal(0, 0.1, 4), lat + rng.uniform(-1.2, 1.2, 4)])
+            side = np.column_stack([rng.uniform(25.0, 37.3, 3), np.full(3, lat - 1.25)])
+        z = np.vstack([face, side])
+        r = np.linalg.norm(z, axis=1)
+        out.append(_Frame(z, r, 10.0 * z[:, 0] / r, np.arange(len(z))))
+    return out
+
+
+@pytest.mark.parametrize(("case", "toward", "reaches"), [
+    ("truck", True, True), ("truck", False, False), ("follower", True, False),
+    ("neighbour", True, False)])
+def test_a_track_on_a_vehicles_far_part_grows_towards_the_sensor(case: str, toward: bool,
+                                                                 reaches: bool) -> None:
+    """A car-sized track (4.6 x 2.5 m) on the front of a 12.3 m truck receding end-on (born
+    on its far part: a truck that passed the sensor enters the view front first). The truck's
+    side returns between the contour and its rear face, sparse in each frame (no chain), fill
+    densely pooled over the frames: the contour grows towards the sensor until its rear is
+    the truck's (``tracking.occupancy_toward``; 0.5 m short: the seen face's range noise is
+    left out), its front about in place. A following car 3 m
+    behind (an empty band) and a truck in the next lane (beside a young track's wide gate,
+    not beside its contour) do not grow it."""
+    sd = 1.5 if case == "neighbour" else 0.01            # a young track's wide gate
+    P = np.diag(np.r_[sd**2, sd**2, np.full(N_STATE - 2, 1e-4)])
+    tracker = _one_track((35.0, 0.0, 10.0), (4.6, 2.5), P, TrackingConfig(
+        occupancy_toward=toward))
+    tracker.recs[0].hits = tracker.cfg.span_history            # an established track
+    half = tracker.gp.n // 2
+    for det in _receding_frames(case, 60):
+        tracker.frame += 1
+        owner, _ = tracker._associate(det)
+        tracker._span_length(det, owner, np.array([0]))
+    x = tracker.x[0]
+    front, rear = x[0] + x[6], x[0] - x[6 + half]
+    assert front == pytest.approx(37.3, abs=0.8)      # the length bound may pull it in
+    if reaches:
+        assert rear == pytest.approx(25.0, abs=0.6), rear
+    else:
+        assert rear > 32.0, rear
 
 
 @pytest.mark.parametrize("oncoming", [False, True])

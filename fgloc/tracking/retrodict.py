@@ -12,7 +12,10 @@ with a shorter contour: the contour gets that length, and the centre moves away 
 sensor along the heading by half the change times |cos| of the angle between the heading
 and the line of sight: seen end-on (a truck approaching from far away) the end facing the
 sensor stays where it was measured and all the length goes to the far, unseen end; seen
-broadside both ends were seen alike and the contour grows about its centre.
+broadside both ends were seen alike and the contour grows about its centre. A track that was
+born on a vehicle's far part and later grew towards the sensor (the tracker's
+``occupancy_toward``) measured the far end before that growth: there the length goes to the
+end facing the sensor.
 Contours are never shortened: the detections lie on or inside the vehicle, so a contour is
 short where its returns were sparse (far out, partly occluded, leaving the view), rarely too
 long.
@@ -36,7 +39,8 @@ def length_variance(P: np.ndarray) -> np.ndarray:
 
 def retrodict_length(states: np.ndarray, length_sd: np.ndarray, sensor: np.ndarray,
                      window: int, max_sd: float, prior: np.ndarray | None = None,
-                     occupied: np.ndarray | None = None) -> np.ndarray:
+                     occupied: np.ndarray | None = None,
+                     far_anchored: np.ndarray | None = None) -> np.ndarray:
     """States (n, N_STATE) of one track with its longest measured length carried back.
 
     The track's length (m) is the largest median contour length over ``window`` consecutive
@@ -53,8 +57,10 @@ def retrodict_length(states: np.ndarray, length_sd: np.ndarray, sensor: np.ndarr
     rectangle_radius(L, W)`` added to its radii, so the GP's shape detail stays); such a
     row's centre moves along the heading, away from the sensor position ``sensor`` (2,), by
     half the added length times |cos| of the angle between the heading and the line of sight
-    (the end facing the sensor stays put when seen end-on). Returns a new array; ``window``
-    <= 0 returns a copy unchanged.
+    (the end facing the sensor stays put when seen end-on). Rows flagged in ``far_anchored``
+    (n,) move towards the sensor instead: their far end is the measured one (the track,
+    born on the far part of its vehicle, later grew towards the sensor). Returns a new
+    array; ``window`` <= 0 returns a copy unchanged.
     """
     out = np.array(states, dtype=float, copy=True)
     measured = np.asarray(length_sd) <= max_sd
@@ -76,6 +82,8 @@ def retrodict_length(states: np.ndarray, length_sd: np.ndarray, sensor: np.ndarr
     # the line of sight (1 end-on, 0 broadside, where both ends are seen alike)
     end_on = np.abs(s_lo) / np.maximum(np.linalg.norm(rel, axis=1), 1e-6)
     shift = -np.sign(s_lo) * 0.5 * grow * end_on
+    if far_anchored is not None:
+        shift = np.where(far_anchored, -shift, shift)
     out[:, [X, Y]] += shift[:, None] * h
     ang = contour_angles()[None, :]
     L, W = length[:, None], width[:, None]

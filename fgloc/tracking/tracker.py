@@ -75,6 +75,17 @@ MODELS = ("sensor-aware", "plain")
 LOS_YAW_SIGMA = np.deg2rad(45.0)
 #: detections within this distance (m) along the heading of a seen front / rear lie on it
 FACE_BAND = 0.5
+#: detections continuing a vehicle towards the sensor lie within its contour's half width
+#: and this (m) sideways (``occupancy_toward``)
+TOWARD_SIDE_MARGIN = 0.3
+
+
+def _connected_reach(d: np.ndarray, gap: float, k: int) -> float:
+    """How far (m) sorted non-negative distances d reach from 0 before their first step wider
+    than ``gap`` (m), less their last k (0 when no more than k are connected)."""
+    steps = np.flatnonzero(np.diff(np.concatenate([[0.0], d])) > gap)
+    connected = d[: steps[0]] if len(steps) else d
+    return float(connected[-k]) if len(connected) > k else 0.0
 
 
 def kappa_labels(states: np.ndarray, eta: float, min_speed: float) -> np.ndarray:
@@ -118,10 +129,17 @@ class _Record:
     span_length: float = 0.0
     #: per end-on update of the last ``span_history`` frames: (frame, end seen: +1 front /
     #: -1 rear, distances (m) behind that end of its detections and of the others in its
-    #: lengthwise corridor, which of them are its own)
-    occupancy: list[tuple[int, int, np.ndarray, np.ndarray]] = field(default_factory=list)
+    #: lengthwise corridor, which of them are its own, which lie beside its contour)
+    occupancy: list[tuple[int, int, np.ndarray, np.ndarray, np.ndarray]] = field(
+        default_factory=list)
     #: lower bound (m) of the vehicle's length from ``occupancy`` (0: none yet)
     occupied_length: float = 0.0
+    #: farthest (m) image of ``occupied_length`` beyond the seen end, towards the sensor:
+    #: how far the pooled detections continue the vehicle past its contour (0: none yet)
+    toward_length: float = 0.0
+    #: rows recorded before the contour last grew towards the sensor (their seen end was
+    #: not the vehicle's: retrodiction anchors their far end)
+    toward_rows: int = 0
     #: farthest (m) behind the seen end its own pooled end-on detections reach (0: none yet)
     reached_length: float = 0.0
     t: list[float] = field(default_factory=list)
@@ -653,6 +671,9 @@ class Tracker:
             f = x[N_KIN:]
             length, width = f[0] + f[2 * q], f[q] + f[3 * q]
             end = self._occupied_length(rec, det, owner, i)
+            if end and self._grow_toward_sensor(rec, i, end * h):
+                f = x[N_KIN:]
+                length, width = f[0] + f[2 * q], f[q] + f[3 * q]
             short_occ = rec.occupied_length - length if end else -np.inf
             z = det.z[owner == i]
             short = -np.inf
@@ -687,6 +708,38 @@ class Tracker:
             self.x[i, N_KIN:] += (rectangle_radius(self.gp.angles, length + grow, width)
                                   - rectangle_radius(self.gp.angles, length, width))
 
+    def _grow_toward_sensor(self, rec: _Record, i: int, toward: np.ndarray) -> bool:
+        """Grow track i's contour towards the sensor (unit vector ``toward``, along its
+        heading) when the pooled end-on detections continue its vehicle beyond the seen end
+        (``rec.toward_length``: from detections within its half width and
+        TOWARD_SIDE_MARGIN sideways) by more than ``span_margin`` plus twice the range noise
+        that spreads the seen face's own returns there, once it has ``span_history``
+        updates (a young track's heading and place may still be another vehicle's): by
+        ``span_gain`` of that excess, the
+        far end staying put, the pooled distances shifted to the new seen end. A track born
+        on a vehicle's far part -- a truck passing the sensor enters the FOV front first and
+        recedes end-on -- so takes its near part, and a second track born there becomes its
+        duplicate. Returns whether the contour grew (``occupancy_toward``)."""
+        cfg = self.cfg
+        excess = rec.toward_length - 2.0 * cfg.sigma_range
+        if (not cfg.occupancy_toward or excess <= cfg.span_margin
+                or rec.hits < cfg.span_history):
+            return False
+        grow = cfg.span_gain * excess
+        x = self.x[i]
+        f = x[N_KIN:]
+        q = self.gp.n // 4
+        length, width = f[0] + f[2 * q], f[q] + f[3 * q]
+        self.x[i, [X, Y]] += 0.5 * grow * toward
+        self.x[i, N_KIN:] += (rectangle_radius(self.gp.angles, length + grow, width)
+                              - rectangle_radius(self.gp.angles, length, width))
+        end = rec.occupancy[-1][1]
+        rec.occupancy = [(fr, e, v + grow if e == end else v, o, b)
+                         for fr, e, v, o, b in rec.occupancy]
+        rec.toward_length = max(rec.toward_length - grow, 0.0)
+        rec.toward_rows = len(rec.states)
+        return True
+
     def _occupied_length(self, rec: _Record, det: _Frame, owner: np.ndarray, i: int) -> int:
         """Occupied length of track i while one end of its vehicle faces the sensor (the
         sensor beyond its front or rear: the length is unobservable in one frame, a truck's
@@ -720,21 +773,27 @@ class Tracker:
             return 0
         sel = (owner == i) | (self._corridor[i] & (owner != -2))
         lo = (det.z[sel] - c) @ h
+        # within the contour's half width and the gate sideways: its own side, not a
+        # neighbour in the next lane that a young track's wide gate takes in
+        q = self.gp.n // 4
+        beside = np.abs((det.z[sel] - c) @ np.array([-h[1], h[0]])) <= (
+            0.5 * (x[N_KIN + q] + x[N_KIN + 3 * q]) + TOWARD_SIDE_MARGIN)
         rec.occupancy.append((self.frame, end, front - lo if end > 0 else lo + rear,
-                              owner[sel] == i))
+                              owner[sel] == i, beside))
         # the last span_history frames only: an entry from before a long side-on phase
         # (a turn, a young track's heading) measured along another heading
         rec.occupancy = [o for o in rec.occupancy if self.frame - o[0] < cfg.span_history]
-        d = np.concatenate([[0.0]] + [v for _, e, v, _ in rec.occupancy if e == end])
-        own = np.concatenate([[True]] + [o for _, e, _, o in rec.occupancy if e == end])
+        d = np.concatenate([[0.0]] + [v for _, e, v, _, _ in rec.occupancy if e == end])
+        own = np.concatenate([[True]] + [o for _, e, _, o, _ in rec.occupancy if e == end])
+        beside = np.concatenate([[True]] + [b for _, e, _, _, b in rec.occupancy if e == end])
+        k = cfg.occupancy_min_points
+        rec.toward_length = _connected_reach(np.sort(-d[(d < 0.0) & beside]),
+                                             cfg.occupancy_gap, k)
         keep = d >= 0.0
         d, own = d[keep], own[keep]
         order = np.argsort(d)
         d, own = d[order], own[order]
-        gap = np.flatnonzero(np.diff(d) > cfg.occupancy_gap)
-        occupied = d[: gap[0] + 1] if len(gap) else d
-        k = cfg.occupancy_min_points
-        rec.occupied_length = float(occupied[-k]) if len(occupied) > k else 0.0
+        rec.occupied_length = _connected_reach(d, cfg.occupancy_gap, k)
         reached = d[own]
         rec.reached_length = float(reached[-k]) if len(reached) > k else 0.0
         return end
@@ -977,7 +1036,8 @@ class Tracker:
         states = retrodict_length(np.asarray(rec.states[:n]), np.sqrt(rec.len_var[:n]),
                                   self.fov.sensor, self.cfg.retrodict_window,
                                   self.cfg.retrodict_max_sd, np.asarray(rec.held[:n]),
-                                  np.asarray(rec.occupied[:n]) > 0.0)
+                                  np.asarray(rec.occupied[:n]) > 0.0,
+                                  np.arange(n) < rec.toward_rows)
         return Track(
             id=rec.id,
             t=np.asarray(rec.t[:n]),
