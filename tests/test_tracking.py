@@ -312,6 +312,7 @@ def test_a_track_on_a_vehicles_far_part_grows_towards_the_sensor(case: str, towa
         tracker.frame += 1
         owner, _ = tracker._associate(det)
         tracker._span_length(det, owner, np.array([0]))
+        tracker.recs[0].states.append(tracker.x[0].copy())         # the row of the frame
     x = tracker.x[0]
     front, rear = x[0] + x[6], x[0] - x[6 + half]
     assert front == pytest.approx(37.3, abs=0.8)      # the length bound may pull it in
@@ -319,6 +320,35 @@ def test_a_track_on_a_vehicles_far_part_grows_towards_the_sensor(case: str, towa
         assert rear == pytest.approx(25.0, abs=0.6), rear
     else:
         assert rear > 32.0, rear
+    # a young track that grew: its earlier rows are retrodicted from their far end
+    assert (tracker.recs[0].toward_rows > 0) == reaches
+
+
+@pytest.mark.parametrize("reach_now", [False, True])
+def test_toward_growth_goes_no_farther_than_this_frames_returns(reach_now: bool) -> None:
+    """A car track (4.5 m) receding end-on whose pool holds an update of 10 frames ago with
+    returns up to 3 m beyond its rear (measured before its updates moved the rear there):
+    this frame's returns end at its rear face, so it does not grow towards the sensor; with
+    this frame's returns 3 m beyond the rear too, it does."""
+    P = np.diag(np.full(N_STATE, 1e-4))
+    tracker = _one_track((32.25, 0.0, 10.0), (4.5, 1.8), P)
+    tracker.frame = 100
+    rec = tracker.recs[0]
+    rec.hits = tracker.cfg.span_history
+    old = np.linspace(-3.0, 4.4, 40)
+    rec.occupancy = [(90, -1, old, old >= 0.0, np.ones(len(old), dtype=bool))]
+    u = np.linspace(27.0 if reach_now else 30.0, 34.4, 23)
+    z = np.column_stack([u, np.where(u > 30.2, -0.9, np.linspace(-0.9, 0.9, 23))])
+    rng = np.linalg.norm(z, axis=1)
+    det = _Frame(z, rng, 10.0 * z[:, 0] / rng, np.arange(len(z)))
+    owner, _ = tracker._associate(det)
+    rear = tracker.x[0, 0] - tracker.x[0, 6 + tracker.gp.n // 2]
+    tracker._span_length(det, owner, np.array([0]))
+    moved = rear - (tracker.x[0, 0] - tracker.x[0, 6 + tracker.gp.n // 2])
+    if reach_now:
+        assert moved > 0.5, moved
+    else:
+        assert moved == pytest.approx(0.0, abs=1e-9)
 
 
 @pytest.mark.parametrize("oncoming", [False, True])

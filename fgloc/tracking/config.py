@@ -162,10 +162,12 @@ class TrackingConfig:
     """... Pooled the same way, the distances beyond the seen end towards the sensor (up to
     their first gap wider than ``occupancy_gap``) say how far the vehicle continues past the
     contour on the sensor's side (of the detections beside the contour, within its half
-    width and 0.3 m); beyond ``span_margin`` plus twice ``sigma_range`` (the seen face's own
-    range noise) the contour of a track with ``span_history`` updates grows towards the
-    sensor by ``span_gain`` of the excess per update, the far end staying put; its earlier
-    rows' lengths are retrodicted from their far end: a track born on the far part of a truck that
+    width and 0.3 m; no farther than the frame's own detections reach); beyond
+    ``span_margin`` plus twice ``sigma_range`` (the seen face's own range noise) the contour
+    of a track with ``span_history`` updates grows towards the sensor by ``span_gain`` of
+    the excess per update, the far end staying put; when that first happens within its
+    first 2 ``span_history`` updates, its earlier rows' lengths are retrodicted from their
+    far end: a track born on the far part of a truck that
     passed the sensor and recedes end-on takes its near part (robustness combined seed 5: a
     10.7 m truck followed by two tracks, 4.1 and 5.5 m) ..."""
     occupancy_min_points: int = 5

@@ -137,8 +137,9 @@ class _Record:
     #: farthest (m) image of ``occupied_length`` beyond the seen end, towards the sensor:
     #: how far the pooled detections continue the vehicle past its contour (0: none yet)
     toward_length: float = 0.0
-    #: rows recorded before the contour last grew towards the sensor (their seen end was
-    #: not the vehicle's: retrodiction anchors their far end)
+    #: rows recorded before the contour first grew towards the sensor, if it did so within
+    #: its first 2 ``span_history`` updates (born on the far part of its vehicle, their
+    #: seen end was not the vehicle's: retrodiction anchors their far end)
     toward_rows: int = 0
     #: farthest (m) behind the seen end its own pooled end-on detections reach (0: none yet)
     reached_length: float = 0.0
@@ -737,7 +738,8 @@ class Tracker:
         rec.occupancy = [(fr, e, v + grow if e == end else v, o, b)
                          for fr, e, v, o, b in rec.occupancy]
         rec.toward_length = max(rec.toward_length - grow, 0.0)
-        rec.toward_rows = len(rec.states)
+        if not rec.toward_rows and rec.hits <= 2 * cfg.span_history:
+            rec.toward_rows = len(rec.states)       # a young track: born on the far part
         return True
 
     def _occupied_length(self, rec: _Record, det: _Frame, owner: np.ndarray, i: int) -> int:
@@ -783,12 +785,17 @@ class Tracker:
         # the last span_history frames only: an entry from before a long side-on phase
         # (a turn, a young track's heading) measured along another heading
         rec.occupancy = [o for o in rec.occupancy if self.frame - o[0] < cfg.span_history]
-        d = np.concatenate([[0.0]] + [v for _, e, v, _, _ in rec.occupancy if e == end])
-        own = np.concatenate([[True]] + [o for _, e, _, o, _ in rec.occupancy if e == end])
-        beside = np.concatenate([[True]] + [b for _, e, _, _, b in rec.occupancy if e == end])
+        same = [o for o in rec.occupancy if o[1] == end]
+        d = np.concatenate([[0.0]] + [o[2] for o in same])
+        own = np.concatenate([[True]] + [o[3] for o in same])
+        beyond = np.concatenate([[0.0]] + [o[2][o[4]] for o in same])
         k = cfg.occupancy_min_points
-        rec.toward_length = _connected_reach(np.sort(-d[(d < 0.0) & beside]),
-                                             cfg.occupancy_gap, k)
+        # pooled, up to the first gap; no farther than this frame's detections reach (the
+        # pool's older entries were measured from a seen end the updates have moved since)
+        now = same[-1][2][same[-1][4]]
+        rec.toward_length = min(
+            _connected_reach(np.sort(-beyond[beyond < 0.0]), cfg.occupancy_gap, k),
+            float(-np.min(now, initial=0.0)))
         keep = d >= 0.0
         d, own = d[keep], own[keep]
         order = np.argsort(d)
