@@ -351,6 +351,35 @@ def test_toward_growth_goes_no_farther_than_this_frames_returns(reach_now: bool)
         assert moved == pytest.approx(0.0, abs=1e-9)
 
 
+@pytest.mark.parametrize(("width", "misfit", "ends"), [
+    (2.5, 0.2, False), (4.5, 0.2, True), (2.5, 1.2, True)])
+def test_a_diverged_track_ends_and_is_reported_up_to_its_last_calm_row(
+        width: float, misfit: float, ends: bool) -> None:
+    """A confirmed track with 30 rows whose last calm row (misfit at most half
+    ``diverge_excess``) is row 19: a contour wider than ``max_width`` (no single road
+    vehicle) or a misfit beyond ``diverge_excess`` ends it, and it is reported up to row 19
+    with only the detections of those rows; a plausible, fitting track lives on."""
+    tracker = _one_track((30.0, 0.0, 10.0), (10.0, width), np.diag(np.full(N_STATE, 1e-4)))
+    rec = tracker.recs[0]
+    rec.confirmed, rec.hits, rec.misfit = True, 30, misfit
+    for step in range(30):
+        rec.t.append(0.05 * step)
+        rec.states.append(tracker.x[0].copy())
+        rec.len_var.append(0.01)
+        rec.held.append(False)
+        rec.occupied.append(0.0)
+        rec.det_index.append(np.array([2 * step, 2 * step + 1]))
+        rec.det_step.append(np.array([step, step]))
+    rec.last_update_step, rec.calm_step, rec.last_update_t = 29, 19, 1.45
+    tracker.t = 1.45
+    tracker._manage(1.45)
+    assert (len(tracker.recs) == 0) == ends
+    if ends:
+        (tr,) = tracker.done
+        assert len(tr.t) == 20
+        assert np.array_equal(tr.det_step, np.repeat(np.arange(20), 2))
+
+
 @pytest.mark.parametrize("oncoming", [False, True])
 def test_a_young_tracks_loose_gate_holds_births_of_its_own_motion_only(oncoming: bool) -> None:
     """The car 5 m behind a young 11 m truck track joins it neither way. Its returns inside

@@ -322,6 +322,14 @@ class TrackingConfig:
     """Divergence: a track whose associated detections lie farther than this (m, median of the
     absolute radial excess about its predicted contour, smoothed over ``diverge_time``) from
     its contour no longer fits its vehicle and is ended (its detections start a new track)."""
+    max_width: float = 4.0
+    """A contour wider than this (m) covers more than one road vehicle (the widest are about
+    2.6 m; a far car's azimuth noise widens its contour to about 3 m): the track has
+    diverged like one whose misfit exceeds ``diverge_excess`` -- it ends, its detections
+    start new tracks, and a diverged track is reported up to its last row whose misfit was
+    at most half ``diverge_excess`` (a truck's track that took in a car crossing its path
+    near the sensor grew to 40 x 8.5 m, and its length retrodiction carried 16.4 m back
+    over the 17 s it had followed the 11 m truck)."""
     diverge_time: float = 0.5
     """Time constant (s) of the exponential smoothing of that misfit."""
     birth_blind_margin: float = 8.0

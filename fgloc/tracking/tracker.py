@@ -111,6 +111,9 @@ class _Record:
     hits: int = 0
     confirmed: bool = False
     last_update_step: int = -1
+    #: the last row recorded while its misfit was at most half ``diverge_excess`` (a track
+    #: that diverges is reported up to there)
+    calm_step: int = 0
     misfit: float = 0.0
     #: updates in a row with a contour at least ``long_trigger_width`` wide
     wide_run: int = 0
@@ -832,6 +835,8 @@ class Tracker:
                        and rec.span_length + self.cfg.span_margin < occ
                        <= length[i] + self.cfg.span_margin)
             rec.occupied.append(occ if reached else 0.0)
+            if rec.misfit <= 0.5 * self.cfg.diverge_excess:
+                rec.calm_step = len(rec.t) - 1
             if Ps is not None:
                 rec.covs.append(Ps[i])
         for i in updated:
@@ -981,8 +986,11 @@ class Tracker:
         # a duplicate followed part of a vehicle a stronger track follows: not reported
         silent = end.copy() if cfg.drop_duplicates else np.zeros(n, dtype=bool)
         blind = self.fov.blind(self.x[:, [X, Y]])
+        wide = contour_length_width(self.x)[1] > cfg.max_width
         for i, rec in enumerate(self.recs):
-            if rec.misfit > cfg.diverge_excess:
+            if rec.misfit > cfg.diverge_excess or wide[i]:
+                # diverged: no longer one vehicle; reported up to its last calm row
+                rec.last_update_step = min(rec.last_update_step, rec.calm_step)
                 end[i] = True
                 continue
             if rec.confirmed:
@@ -1024,15 +1032,16 @@ class Tracker:
         return lose
 
     def _end(self, mask: np.ndarray, silent: np.ndarray | None = None) -> None:
-        """End the tracks in ``mask``; report the confirmed ones with enough updates unless
-        ``silent``."""
+        """End the tracks in ``mask``; report the confirmed ones with enough updates up to
+        their last reported row unless ``silent``."""
         if not mask.any():
             return
         for i in np.flatnonzero(mask):
             rec = self.recs[i]
             if silent is not None and silent[i]:
                 continue
-            if rec.confirmed and rec.hits >= self.cfg.min_output_hits:
+            hits = sum(len(s) > 0 and s[0] <= rec.last_update_step for s in rec.det_step)
+            if rec.confirmed and hits >= self.cfg.min_output_hits:
                 self.done.append(self._to_track(rec))
         keep = ~mask
         self.recs = [r for r, k in zip(self.recs, keep) if k]
@@ -1045,14 +1054,16 @@ class Tracker:
                                   self.cfg.retrodict_max_sd, np.asarray(rec.held[:n]),
                                   np.asarray(rec.occupied[:n]) > 0.0,
                                   np.arange(n) < rec.toward_rows)
+        det_step = np.concatenate(rec.det_step).astype(np.int64)
+        kept = det_step < n
         return Track(
             id=rec.id,
             t=np.asarray(rec.t[:n]),
             states=states,
             labels=kappa_labels(states, self.cfg.eta, self.cfg.label_min_speed),
             covariances=np.asarray(rec.covs[:n]) if self.cfg.store_covariances else None,
-            det_index=np.concatenate(rec.det_index).astype(np.int64),
-            det_step=np.concatenate(rec.det_step).astype(np.int64),
+            det_index=np.concatenate(rec.det_index).astype(np.int64)[kept],
+            det_step=det_step[kept],
             length_floor=max(rec.occupied[:n], default=0.0),
         )
 
