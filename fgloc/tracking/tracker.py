@@ -137,8 +137,8 @@ class _Record:
         default_factory=list)
     #: lower bound (m) of the vehicle's length from ``occupancy`` (0: none yet)
     occupied_length: float = 0.0
-    #: farthest (m) image of ``occupied_length`` beyond the seen end, towards the sensor:
-    #: how far the pooled detections continue the vehicle past its contour (0: none yet)
+    #: how far (m) the pooled end-on detections continue the vehicle beyond the seen end,
+    #: towards the sensor (the mirror of ``occupied_length``; 0: none yet)
     toward_length: float = 0.0
     #: rows recorded before the contour first grew towards the sensor, if it did so within
     #: its first 2 ``span_history`` updates (born on the far part of its vehicle, their
@@ -672,12 +672,11 @@ class Tracker:
         for i in updated:
             rec, x = self.recs[i], self.x[i]
             h = unit(np.asarray(x[YAW]))
-            f = x[N_KIN:]
-            length, width = f[0] + f[2 * q], f[q] + f[3 * q]
             end = self._occupied_length(rec, det, owner, i)
-            if end and self._grow_toward_sensor(rec, i, end * h):
-                f = x[N_KIN:]
-                length, width = f[0] + f[2 * q], f[q] + f[3 * q]
+            if end:
+                self._grow_toward_sensor(rec, i, end * h)
+            f = x[N_KIN:]
+            length = f[0] + f[2 * q]
             short_occ = rec.occupied_length - length if end else -np.inf
             z = det.z[owner == i]
             short = -np.inf
@@ -707,12 +706,19 @@ class Tracker:
                         and not (rec.long and rec.side_hits < cfg.long_side_updates)):
                     continue
                 short, direction = -over, -end * h
-            grow = cfg.span_gain * short
-            self.x[i, [X, Y]] += 0.5 * grow * direction
-            self.x[i, N_KIN:] += (rectangle_radius(self.gp.angles, length + grow, width)
-                                  - rectangle_radius(self.gp.angles, length, width))
+            self._lengthen(i, cfg.span_gain * short, direction)
 
-    def _grow_toward_sensor(self, rec: _Record, i: int, toward: np.ndarray) -> bool:
+    def _lengthen(self, i: int, grow: float, direction: np.ndarray) -> None:
+        """Lengthen track i's contour by ``grow`` (m; < 0 shortens) towards the unit vector
+        ``direction`` along its heading: the centre moves by half of it, the radii by the
+        change of the rectangle of that length and the contour's width (the other end stays
+        put)."""
+        length, width = contour_length_width(self.x[i:i + 1])
+        self.x[i, [X, Y]] += 0.5 * grow * direction
+        self.x[i, N_KIN:] += (rectangle_radius(self.gp.angles, length[0] + grow, width[0])
+                              - rectangle_radius(self.gp.angles, length[0], width[0]))
+
+    def _grow_toward_sensor(self, rec: _Record, i: int, toward: np.ndarray) -> None:
         """Grow track i's contour towards the sensor (unit vector ``toward``, along its
         heading) when the pooled end-on detections continue its vehicle beyond the seen end
         (``rec.toward_length``: from detections within its half width and
@@ -723,27 +729,19 @@ class Tracker:
         far end staying put, the pooled distances shifted to the new seen end. A track born
         on a vehicle's far part -- a truck passing the sensor enters the FOV front first and
         recedes end-on -- so takes its near part, and a second track born there becomes its
-        duplicate. Returns whether the contour grew (``occupancy_toward``)."""
+        duplicate (``occupancy_toward``)."""
         cfg = self.cfg
         excess = rec.toward_length - 2.0 * cfg.sigma_range
         if (not cfg.occupancy_toward or excess <= cfg.span_margin
                 or rec.hits < cfg.span_history):
-            return False
+            return
         grow = cfg.span_gain * excess
-        x = self.x[i]
-        f = x[N_KIN:]
-        q = self.gp.n // 4
-        length, width = f[0] + f[2 * q], f[q] + f[3 * q]
-        self.x[i, [X, Y]] += 0.5 * grow * toward
-        self.x[i, N_KIN:] += (rectangle_radius(self.gp.angles, length + grow, width)
-                              - rectangle_radius(self.gp.angles, length, width))
+        self._lengthen(i, grow, toward)
         end = rec.occupancy[-1][1]
         rec.occupancy = [(fr, e, v + grow if e == end else v, o, b)
                          for fr, e, v, o, b in rec.occupancy]
-        rec.toward_length = max(rec.toward_length - grow, 0.0)
         if not rec.toward_rows and rec.hits <= 2 * cfg.span_history:
             rec.toward_rows = len(rec.states)       # a young track: born on the far part
-        return True
 
     def _occupied_length(self, rec: _Record, det: _Frame, owner: np.ndarray, i: int) -> int:
         """Occupied length of track i while one end of its vehicle faces the sensor (the
@@ -778,11 +776,11 @@ class Tracker:
             return 0
         sel = (owner == i) | (self._corridor[i] & (owner != -2))
         lo = (det.z[sel] - c) @ h
-        # within the contour's half width and the gate sideways: its own side, not a
-        # neighbour in the next lane that a young track's wide gate takes in
-        q = self.gp.n // 4
+        # within the contour's half width and TOWARD_SIDE_MARGIN sideways: its own side, not
+        # a neighbour in the next lane that a young track's wide gate takes in
+        width = contour_length_width(x[None])[1][0]
         beside = np.abs((det.z[sel] - c) @ np.array([-h[1], h[0]])) <= (
-            0.5 * (x[N_KIN + q] + x[N_KIN + 3 * q]) + TOWARD_SIDE_MARGIN)
+            0.5 * width + TOWARD_SIDE_MARGIN)
         rec.occupancy.append((self.frame, end, front - lo if end > 0 else lo + rear,
                               owner[sel] == i, beside))
         # the last span_history frames only: an entry from before a long side-on phase
