@@ -233,6 +233,7 @@ class Tracker:
             blind = self.fov.blind(self.x[:, [X, Y]])
             owner = np.where((owner >= 0) & blind[np.maximum(owner, 0)], -2, owner)
         self._misfit(owner, excess, dt)
+        self._reanchor(det, owner)
         updated = self._update(det, owner)
         self._long_vehicles(updated)
         self._span_length(det, owner, updated)
@@ -522,6 +523,40 @@ class Tracker:
                                                * ax[:, :, None] * ax[:, None, :])
         extra_var = np.where(dop_ok, 0.0, cfg.sigma_extent**2)
         return zr, th, nm, ok, dop_ok, extra_var, jidx
+
+    def _reanchor(self, det: _Frame, owner: np.ndarray) -> None:
+        """Re-place the box of each track in its first update (``birth_reanchor``): with at
+        least twice its birth cluster's detections and ``extent_min_points``, those of them
+        with a neighbour within ``cluster_eps`` (lone false alarms out) give the box a birth
+        would give it along the track's heading (:func:`initial_kinematics`: the sensor-side
+        edges at the detections', the size at least the contour's); it replaces the
+        contour's rectangle when the centres lie more than ``init_sigma_pos`` (m) apart
+        (within that, the update moves it). Not for tracks in a heading-hypothesis group:
+        re-placed, a wrong heading fitted the returns better and won the rivalry."""
+        cfg = self.cfg
+        if not cfg.birth_reanchor:
+            return
+        sig_az = np.deg2rad(cfg.sigma_azimuth_deg)
+        for i, rec in enumerate(self.recs):
+            if rec.hits != 1 or rec.group >= 0:
+                continue
+            need = max(2 * rec.n_det, cfg.extent_min_points)
+            k = np.flatnonzero(owner == i)
+            if len(k) >= need:
+                k = k[cluster_labels(det.z[k], cfg.cluster_eps, 2) >= 0]
+            if len(k) < need:
+                continue
+            x = self.x[i]
+            length, width = contour_length_width(x[None])
+            noise = max(cfg.sigma_range, sig_az * float(det.rng[k].mean()))
+            centre, _, _, size = initial_kinematics(
+                det.z[k], det.doppler[k], det.rng[k], float(x[YAW]), self.fov.sensor,
+                float(length[0]), float(width[0]), float(x[V]), noise)
+            if np.linalg.norm(centre - x[[X, Y]]) <= cfg.init_sigma_pos:
+                continue
+            self.x[i, [X, Y]] = centre
+            self.x[i, N_KIN:] += (rectangle_radius(self.gp.angles, size[0], size[1])
+                                  - rectangle_radius(self.gp.angles, length[0], width[0]))
 
     def _update(self, det: _Frame, owner: np.ndarray) -> np.ndarray:
         """UKF update of every track owning detections; returns their indices."""
