@@ -343,7 +343,9 @@ class TrackingConfig:
     (:func:`fgloc.tracking.birth.initial_kinematics` along the track's heading: the
     sensor-side edges at the detections', the size at least the contour's); it replaces the
     contour's rectangle when the centres lie more than ``init_sigma_pos`` apart (not in a
-    heading-hypothesis group: re-placed, a wrong heading fitted the returns better). A few
+    heading-hypothesis group: re-placed, a wrong heading fitted the returns better), and the
+    track's birth row moves with it (the smoothers' and the joint's prior on a track's first
+    state). A few
     returns on a vehicle's far part (its near part withheld next to the blind range) put
     the box's sensor-side end metres ahead of the vehicle's; the UKF then turned the box
     by up to 40 deg instead of moving it and the contour grew to 7-8 m (robustness combined

@@ -531,8 +531,10 @@ class Tracker:
         would give it along the track's heading (:func:`initial_kinematics`: the sensor-side
         edges at the detections', the size at least the contour's); it replaces the
         contour's rectangle when the centres lie more than ``init_sigma_pos`` (m) apart
-        (within that, the update moves it). Not for tracks in a heading-hypothesis group:
-        re-placed, a wrong heading fitted the returns better and won the rivalry."""
+        (within that, the update moves it); the birth row moves by the same change (the
+        smoothers and the joint put their prior on a track's first state). Not for tracks in
+        a heading-hypothesis group: re-placed, a wrong heading fitted the returns better and
+        won the rivalry."""
         cfg = self.cfg
         if not cfg.birth_reanchor:
             return
@@ -554,9 +556,12 @@ class Tracker:
                 float(length[0]), float(width[0]), float(x[V]), noise)
             if np.linalg.norm(centre - x[[X, Y]]) <= cfg.init_sigma_pos:
                 continue
-            self.x[i, [X, Y]] = centre
-            self.x[i, N_KIN:] += (rectangle_radius(self.gp.angles, size[0], size[1])
-                                  - rectangle_radius(self.gp.angles, length[0], width[0]))
+            change = np.zeros(N_STATE)
+            change[[X, Y]] = centre - x[[X, Y]]
+            change[N_KIN:] = (rectangle_radius(self.gp.angles, size[0], size[1])
+                              - rectangle_radius(self.gp.angles, length[0], width[0]))
+            self.x[i] += change
+            rec.states[0] = rec.states[0] + change      # the birth row: the box re-placed
 
     def _update(self, det: _Frame, owner: np.ndarray) -> np.ndarray:
         """UKF update of every track owning detections; returns their indices."""
