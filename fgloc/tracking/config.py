@@ -345,11 +345,10 @@ class TrackingConfig:
     contour's rectangle when the centres lie more than ``init_sigma_pos`` apart (not in a
     heading-hypothesis group: re-placed, a wrong heading fitted the returns better), and the
     track's birth row moves with it (the smoothers' and the joint's prior on a track's first
-    state). A few
-    returns on a vehicle's far part (its near part withheld next to the blind range) put
-    the box's sensor-side end metres ahead of the vehicle's; the UKF then turned the box
-    by up to 40 deg instead of moving it and the contour grew to 7-8 m (robustness combined
-    seed 5: a 4 m car tracked 8 m long for 14 s, 2.1 m centre RMS)."""
+    state). A few returns on a vehicle's far part (its near part withheld next to the blind
+    range) put the box's sensor-side end metres ahead of the vehicle's; the UKF then turned
+    the box by up to 40 deg instead of moving it and the contour grew to 7-8 m (robustness
+    combined seed 5: a 4 m car tracked 8 m long for 14 s, 2.1 m centre RMS)."""
     fov_margin: float = 2.0
     """A track whose centre is this far (m) outside the field of view is ended."""
 

@@ -538,7 +538,6 @@ class Tracker:
         cfg = self.cfg
         if not cfg.birth_reanchor:
             return
-        sig_az = np.deg2rad(cfg.sigma_azimuth_deg)
         for i, rec in enumerate(self.recs):
             if rec.hits != 1 or rec.group >= 0:
                 continue
@@ -550,10 +549,9 @@ class Tracker:
                 continue
             x = self.x[i]
             length, width = contour_length_width(x[None])
-            noise = max(cfg.sigma_range, sig_az * float(det.rng[k].mean()))
             centre, _, _, size = initial_kinematics(
                 det.z[k], det.doppler[k], det.rng[k], float(x[YAW]), self.fov.sensor,
-                float(length[0]), float(width[0]), float(x[V]), noise)
+                float(length[0]), float(width[0]), float(x[V]), self._cluster_noise(det.rng[k]))
             if np.linalg.norm(centre - x[[X, Y]]) <= cfg.init_sigma_pos:
                 continue
             change = np.zeros(N_STATE)
@@ -562,6 +560,12 @@ class Tracker:
                               - rectangle_radius(self.gp.angles, length[0], width[0]))
             self.x[i] += change
             rec.states[0] = rec.states[0] + change      # the birth row: the box re-placed
+
+    def _cluster_noise(self, rng: np.ndarray) -> float:
+        """Position noise std. dev. (m) of detections at the 3D ranges ``rng`` (m): the range
+        noise or the azimuth noise's lateral spread at their mean range, the larger."""
+        cfg = self.cfg
+        return max(cfg.sigma_range, np.deg2rad(cfg.sigma_azimuth_deg) * float(np.mean(rng)))
 
     def _update(self, det: _Frame, owner: np.ndarray) -> np.ndarray:
         """UKF update of every track owning detections; returns their indices."""
@@ -971,9 +975,9 @@ class Tracker:
         (-1: none)."""
         cfg = self.cfg
         sensor = self.fov.sensor
-        noise = max(cfg.sigma_range, np.deg2rad(cfg.sigma_azimuth_deg) * float(rng.mean()))
         centre, yaw, v, size = initial_kinematics(z, dop, rng, yaw, sensor, cfg.mean_length,
-                                                  cfg.mean_width, cfg.default_speed, noise)
+                                                  cfg.mean_width, cfg.default_speed,
+                                                  self._cluster_noise(rng))
         x0 = np.zeros(N_STATE)
         x0[[X, Y]] = centre
         x0[V], x0[YAW] = v, yaw
