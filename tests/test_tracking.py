@@ -419,14 +419,14 @@ def test_a_young_track_misplaced_along_its_vehicle_keeps_its_returns() -> None:
 
 
 def _born_on_the_far_part(reanchor: bool, seed: int, group: int = -1
-                          ) -> tuple[float, float, float]:
+                          ) -> tuple[float, float, float, float]:
     """A 4 x 1.8 m car receding along +x at 10 m/s, 3 m beside the sensor at the origin,
     whose track was born from 3 returns on its front part: a birth's box (4.6 x 1.9 m, the
     birth covariance) with its sensor-side end there, the car's front 1 m inside it and its
-    rear 3.3 m behind it. 20 frames of 20 returns on the car's visible edges follow.
-    Returns the largest centre error along the heading (m) and |yaw| (deg) over the first 5
-    updates, the contour's final length (m) and the birth row's centre error along the
-    heading (m)."""
+    rear 3 m behind it (the centres 3.3 m apart). 20 frames of 20 returns on the car's
+    visible edges follow. Returns the largest centre error along the heading (m) and |yaw|
+    (deg) over the first 5 updates, the contour's final length (m) and the birth row's
+    centre error along the heading (m)."""
     cfg = TrackingConfig(birth_reanchor=reanchor)
     P = np.zeros((N_STATE, N_STATE))
     P[:6, :6] = np.diag(np.square([1.0, 1.0, 3.0, 1.0, np.deg2rad(15.0), 0.15]))
@@ -459,10 +459,11 @@ def test_a_track_born_on_a_vehicles_far_part_is_replaced_at_its_first_update(see
     the blind range), a track's box is metres ahead of the car. Its first update, with
     7 times the birth's returns, re-places the box (``birth_reanchor``): it follows the car
     within 0.5 m and 5 deg from then on and keeps a car's length, and its birth row holds
-    the re-placed box (the smoothers' and the joint's prior on a track's first state; the
-    box 3.3 m off pulled the joint 0.2 m off on the real map). Without it the UKF turned the
-    box by 15-38 deg to reach the returns and the contour grew (robustness combined seed 5:
-    8 m for 14 s). A track in a heading-hypothesis group is left to the rivalry."""
+    the re-placed box (the smoothers' and the joint's prior on a track's first state: a
+    truck's birth row left 7.8 m off pulled the joint 0.2 m off on the real map). Without
+    it the UKF turned the box by 15-38 deg to reach the returns and the contour grew
+    (robustness combined seed 5: 8 m for 14 s). A track in a heading-hypothesis group is
+    left to the rivalry."""
     along, yaw, length, birth = _born_on_the_far_part(True, seed)
     assert along < 0.5 and yaw < 5.0 and length < 4.8, (along, yaw, length)
     assert birth < 0.5, birth
