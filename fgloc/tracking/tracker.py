@@ -825,8 +825,8 @@ class Tracker:
         width = contour_length_width(x[None])[1][0]
         beside = np.abs((det.z[sel] - c) @ np.array([-h[1], h[0]])) <= (
             0.5 * width + TOWARD_SIDE_MARGIN)
-        rec.occupancy.append((self.frame, end, front - lo if end > 0 else lo + rear,
-                              owner[sel] == i, beside))
+        behind = front - lo if end > 0 else lo + rear      # this frame's, behind the seen end
+        rec.occupancy.append((self.frame, end, behind, owner[sel] == i, beside))
         # the last span_history frames only: an entry from before a long side-on phase
         # (a turn, a young track's heading) measured along another heading
         rec.occupancy = [o for o in rec.occupancy if self.frame - o[0] < cfg.span_history]
@@ -837,10 +837,9 @@ class Tracker:
         k = cfg.occupancy_min_points
         # pooled, up to the first gap; no farther than this frame's detections reach (the
         # pool's older entries were measured from a seen end the updates have moved since)
-        now = same[-1][2][same[-1][4]]
         rec.toward_length = min(
             _connected_reach(np.sort(-beyond[beyond < 0.0]), cfg.occupancy_gap, k),
-            float(-np.min(now, initial=0.0)))
+            float(-np.min(behind[beside], initial=0.0)))
         keep = d >= 0.0
         d, own = d[keep], own[keep]
         order = np.argsort(d)
