@@ -362,16 +362,23 @@ def test_traffic_that_never_turns_leaves_the_along_road_position_open():
     4): none of its 32 vehicles turns, so nothing fixes the position along the main road; the
     coarse modes are tied samples along it, all on one side of the truth (2.8-10.7 m from it).
     Before, the result reported the sampled modes only: the truth 2.8 m from every one. Now it
-    reports the valley they lie on (the truth within 0.5 m of it), the pose the approximate
-    position (3.6 m from the truth) puts on it, no farther from the truth than that prior, and
-    a covariance over the valley that holds the truth (chi2(3) 99 %); for every method."""
+    reports the valley they lie on (the truth within 0.5 m of it), a covariance over the valley
+    that holds the truth (chi2(3) 99 %), and along it the mean of the approximate position's
+    prior truncated to the valley (closed form, within half a scan step): the prior's
+    projection moved away from the end that cuts the prior off, so no farther from the truth
+    than the approximate position plus that move; for every method."""
+    from scipy.stats import truncnorm
+
     from bench.robustness import sim_config
     from bench.sparse import truth_distance
     from fgloc.map import approx_position_local
 
+    cfg = Config()
     scn = simulate("tjunction", 4, duration=60.0, config=sim_config("combined"))
     truth = scn.truth.sensor_pose
-    prior_error = float(np.hypot(*(approx_position_local(scn) - truth[:2, 3])))
+    prior_xy = approx_position_local(scn)
+    prior_error = float(np.hypot(*(prior_xy - truth[:2, 3])))
+    sigma = cfg.coarse.approx_position_sigma
     for method, res in localize_many(scn, ["icp", "filter-sicp", "joint"]).items():
         assert res.status == AMBIGUOUS, method
         assert res.valley is not None and res.to_json()["valley"] == res.valley, method
@@ -380,4 +387,12 @@ def test_traffic_that_never_turns_leaves_the_along_road_position_open():
                       np.arctan2(res.T_local[1, 0], res.T_local[0, 0])
                       - np.arctan2(truth[1, 0], truth[0, 0])])
         assert e @ np.linalg.solve(res.covariance, e) < 11.34, method
-        assert _error_2d(res.T_local, truth) < prior_error + 0.3, method
+        ends = res.frame.to_local(np.array([[res.valley[k]["x"], res.valley[k]["y"]]
+                                            for k in ("from", "to")]))
+        u = (ends[1] - ends[0]) / res.valley["length_m"]
+        prior_s = float((prior_xy - ends[0]) @ u)
+        lo, hi = (0.0 - prior_s) / sigma, (res.valley["length_m"] - prior_s) / sigma
+        mean_s = prior_s + sigma * float(truncnorm.mean(lo, hi))
+        assert abs(float((res.T_local[:2, 3] - ends[0]) @ u) - mean_s) \
+            < 0.25 * cfg.coarse.mode_separation, method
+        assert _error_2d(res.T_local, truth) < prior_error + abs(mean_s - prior_s) + 0.3, method
