@@ -49,9 +49,12 @@ def _check(seed: int) -> None:
     assert len(batch.tracks) == 1 and m1.n_states > 100
     assert m1.iou >= 0.8 and m1.iou > m0.iou
     assert m1.centre_rms < 0.25
-    # the cause: with every frame's width rows (a few front-face returns that stop short of
-    # the far corner) the smoothed car is narrower and its IoU lower
-    assert width_every < width - 0.05 and m2.iou < m1.iou - 0.05
+    # the cause: every frame's extent rows (a few front-face returns that stop short of the
+    # far corner) make the smoothed car narrower or pull its centre towards the returns, and
+    # its IoU lower (seed 7 at 98d9f66: width 1.76 / 1.73 m, centre
+    # RMS 0.167 / 0.341 m)
+    assert m2.iou < m1.iou - 0.05
+    assert width_every < width - 0.05 or m2.centre_rms > m1.centre_rms + 0.05
 
 
 # measured on seeds 1-8 (docs/experiments.md): IoU up on 6 of the 7 with a track (seed 5:
