@@ -4,9 +4,11 @@
 Settings (``SETTINGS``; each a change of :class:`fgloc.sim.config.SimConfig`): default;
 platoons of 2-4 vehicles at 0.8-1.2 s headway; 15 % trucks 9-12 m long; low returns (0.2-1.5 m
 above the road); far and sparse returns (25 per vehicle and frame at 20 m falling to 4 at
-150 m); an oblique 70-80 deg junction with a large junction box; 10 vehicles per minute; and
-all of these at once ("combined", with returns at every visible corner and at the wheels and
-more clutter). Seeds: odd ones simulate an intersection, even ones a T-junction.
+150 m); an oblique 70-80 deg junction with a large junction box; 10 vehicles per minute;
+30 % of the returns at the wheels with their micro-Doppler (0 to twice the body's speed along
+the heading: "wheel-doppler"); and all of these but the micro-Doppler at once ("combined",
+with returns at every visible corner and at the wheels and more clutter). Seeds: odd ones
+simulate an intersection, even ones a T-junction.
 
 Per run: tracks per eligible true vehicle (all tracks, false ones included), tracks covering
 two vehicles (a track whose contour covers at least half of the footprints of two true
@@ -69,6 +71,7 @@ SETTINGS: dict[str, dict] = {
     "far-sparse": {"radar": _SPARSE},
     "oblique": {"road": _OBLIQUE},
     "10-per-min": {"traffic": {"arrival_interval": 6.0}},
+    "wheel-doppler": {"radar": {"wheel_fraction": 0.3, "wheel_radius": 0.35}},
     "combined": {
         "traffic": {**_PLATOONS, **_TRUCKS, "class_mix": [0.75, 0.15, 0.1]},
         "radar": {**_SPARSE, "return_height": [0.2, 1.5], "corners": "visible",

@@ -205,3 +205,51 @@ def test_defaults_are_todays_simulator() -> None:
     a = simulate_detailed("tjunction", 2, 4.0).scenario
     b = simulate_detailed("tjunction", 2, 4.0, config=explicit).scenario
     np.testing.assert_array_equal(a.radar.xyz, b.radar.xyz)
+
+
+def _wheel_doppler_ratios(wheel_radius: float) -> tuple[np.ndarray, np.ndarray]:
+    """One car passing on the straight road, every detection at a wheel, noise-free: per
+    detection (where the body's along-heading velocity is at least 1 m/s on the line of sight)
+    the Doppler beyond the rigid body's divided by that along-heading part, and the detection
+    (m, in L, (n, 3))."""
+    exact = dict(sigma_range=0.01, sigma_azimuth_deg=0.01, sigma_elevation_deg=0.01,
+                 sigma_doppler=1e-4, clutter_per_frame=0.0, false_alarms_per_frame=0.0)
+    cfg = SimConfig(radar=RadarSimConfig(corner_fraction=0.0, wheel_fraction=1.0,
+                                         wheel_radius=wheel_radius, **exact))
+    res = simulate_detailed("straight", 1, 20.0, vehicles=1, config=cfg)
+    scn = res.scenario
+    det = np.flatnonzero(res.source >= 0)
+    pose = scn.truth.sensor_pose
+    p = transform_points(pose, scn.radar.xyz[det])
+    tr = scn.truth.tracks[0]
+    st = tr.states[np.searchsorted(tr.states[:, 0], scn.radar.t[det] - 1e-9)]
+    rel = p - pose[:3, 3]
+    r = np.linalg.norm(rel, axis=1)
+    h = np.column_stack([np.cos(st[:, 3]), np.sin(st[:, 3])])
+    arm = p[:, :2] - st[:, 1:3]
+    body = st[:, 4:5] * h + st[:, 5:6] * np.column_stack([-arm[:, 1], arm[:, 0]])
+    rigid = np.sum(body * rel[:, :2], axis=1) / r
+    along = st[:, 4] * np.sum(h * rel[:, :2], axis=1) / r
+    ok = np.abs(along) > 1.0
+    return (scn.radar.doppler[det] - rigid)[ok] / along[ok], p[ok]
+
+
+def test_wheel_micro_doppler() -> None:
+    """With ``wheel_radius`` the wheel returns move with the wheel's surface: the Doppler beyond
+    the rigid body's is (h / R - 1) times the body's along-heading part, h uniform on [0, 2R]
+    and the return's height; without, they move with the body."""
+    ratio, xyz = _wheel_doppler_ratios(0.35)
+    assert len(ratio) > 500
+    assert ratio.min() < -0.9 and ratio.max() > 0.9 and np.all(np.abs(ratio) <= 1.0 + 1e-3)
+    assert abs(np.mean(ratio)) < 0.1 and np.std(ratio) == pytest.approx(1 / np.sqrt(3), rel=0.1)
+    # the height above the road is (ratio + 1) R: what is left is the road's own profile, a
+    # smooth function of the position along the road (here within 2 cm of a cubic)
+    road = xyz[:, 2] - (ratio + 1.0) * 0.35
+    u = np.linalg.svd(xyz[:, :2] - xyz[:, :2].mean(axis=0), full_matrices=False)[2][0]
+    s = (xyz[:, :2] - xyz[:, :2].mean(axis=0)) @ u
+    assert np.std(road - np.polyval(np.polyfit(s, road, 3), s)) < 0.02
+    assert np.std(xyz[:, 2] - np.polyval(np.polyfit(s, xyz[:, 2], 3), s)) > 0.15
+    still, _ = _wheel_doppler_ratios(0.0)
+    assert np.max(np.abs(still)) < 0.01
+    with pytest.raises(ValueError, match="wheel_radius"):
+        RadarSimConfig(wheel_radius=-0.1)

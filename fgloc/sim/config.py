@@ -120,6 +120,13 @@ class RadarSimConfig:
     these on their visible edges instead. Default 0 (no wheel concentration)."""
     wheel_spread: float = 0.3
     """Std. dev. (m) along the side of the wheel detections around the axle."""
+    wheel_radius: float = 0.0
+    """Radius (m) of the wheels the wheel detections lie on; > 0 gives them micro-Doppler: a
+    return at height h on a wheel rolling at the body's speed v moves along the heading at
+    v h / wheel_radius (0 at the road, 2 v at the top), h uniform in [0, 2 wheel_radius] (also
+    the return's height above the road; the wheel's vertical velocity, which reaches the
+    Doppler only through the elevation angle, is left out). 0 (default): wheel detections
+    move with the body."""
     range_half_detection: float = 0.75
     """Range (fraction of max_range) where the detection probability is 0.5."""
     range_falloff: float = 12.0
@@ -145,6 +152,8 @@ class RadarSimConfig:
         if not 0.0 <= self.corner_fraction + self.wheel_fraction <= 1.0:
             raise ValueError("corner_fraction + wheel_fraction must lie in [0, 1], got "
                              f"{self.corner_fraction} + {self.wheel_fraction}")
+        if self.wheel_radius < 0.0:
+            raise ValueError(f"wheel_radius must be >= 0 (m), got {self.wheel_radius}")
         if self.return_height is not None and not 0.0 <= self.return_height[0] \
                 <= self.return_height[1]:
             raise ValueError(f"return_height must be [low, high] with 0 <= low <= high (m), "

@@ -141,10 +141,11 @@ def expected_returns(cfg: RadarSimConfig, extent_deg: np.ndarray, rng: np.ndarra
 
 def _wheels(rng: np.random.Generator, cfg: RadarSimConfig, rows: VehicleRows,
             visible: np.ndarray, r: np.ndarray, u: np.ndarray, edge: np.ndarray,
-            frac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            frac: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Move the share ``wheel_fraction`` of detections (``u`` in [corner_fraction,
     corner_fraction + wheel_fraction)) to an axle of the visible long side (edge 1 = left side
-    from the front, edge 3 = right side from the rear); returns the new edge and fraction."""
+    from the front, edge 3 = right side from the rear); returns the new edge and fraction and
+    the (m,) mask of the moved detections."""
     wheel = (u >= cfg.corner_fraction) & (u < cfg.corner_fraction + cfg.wheel_fraction)
     side = np.where(visible[r, 1], 1, 3)
     wheel &= visible[r, 1] | visible[r, 3]
@@ -154,7 +155,7 @@ def _wheels(rng: np.random.Generator, cfg: RadarSimConfig, rows: VehicleRows,
     edge, frac = edge.copy(), frac.copy()
     edge[wheel] = side[wheel]
     frac[wheel] = np.clip(np.where(side[wheel] == 1, f, 1.0 - f), 0.0, 1.0)
-    return edge, frac
+    return edge, frac, wheel
 
 
 def return_heights(rng: np.random.Generator, cfg: RadarSimConfig,
@@ -209,8 +210,9 @@ def vehicle_points(rng: np.random.Generator, cfg: RadarSimConfig, rows: VehicleR
     if cfg.corners == "visible":
         start_near[corner] = rng.random(int(corner.sum())) < 0.5
     frac = np.where(start_near, along, 1.0 - along)
+    wheel = np.zeros(m, dtype=bool)
     if cfg.wheel_fraction > 0:
-        edge, frac = _wheels(rng, cfg, rows, visible, r, u, edge, frac)
+        edge, frac, wheel = _wheels(rng, cfg, rows, visible, r, u, edge, frac)
         start, end = c[r, edge], c[r, (edge + 1) % 4]
     p = start + frac[:, None] * (end - start)
     kind = rows.kind[r]
@@ -219,6 +221,11 @@ def vehicle_points(rng: np.random.Generator, cfg: RadarSimConfig, rows: VehicleR
     arm = p - rows.centre[r]
     vel = rows.v[r, None] * heading + rows.yawrate[r, None] * np.column_stack([-arm[:, 1],
                                                                               arm[:, 0]])
+    if cfg.wheel_radius > 0 and wheel.any():
+        # micro-Doppler: on a rolling wheel the point at height h moves at v h / R
+        h = rng.uniform(0.0, 2.0 * cfg.wheel_radius, int(wheel.sum()))
+        z[wheel] = terrain.road(p[wheel]) + h
+        vel[wheel] += ((h / cfg.wheel_radius - 1.0) * rows.v[r[wheel]])[:, None] * heading[wheel]
     rcs = np.array([vc.rcs for vc in VEHICLE_CLASSES])[kind]
     track = rows.track[r]
     return Points(rows.frame[r], np.column_stack([p, z]), vel, np.zeros(m), rcs, track, track)
