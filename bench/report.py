@@ -208,15 +208,17 @@ TABLES: list[Table] = [
     Table("robustness", "Robustness matrix", "bench/robustness.py",
           "Tracking (true pose; filter and batch smoother) and localization (filter-sicp, "
           "joint) under simulator settings the defaults do not make: platoons, trucks, low "
-          "returns, far and sparse returns, an oblique junction, light traffic and all at "
-          "once. Cells: mean over the seeds / worst seed. cover 2 = tracks covering two "
+          "returns, far and sparse returns, an oblique junction, light traffic, wheel returns "
+          "with their micro-Doppler and all of these but the micro-Doppler at once. Cells: "
+          "mean over the seeds / worst seed. cover 2 = tracks covering two "
           "vehicles at once; truck figures over the tracks following a truck (> 8 m). "
           "flagged = runs whose result says it is not sure (status ambiguous, or a weakly "
           "observed direction with its covariance): their errors are honest misses, the "
           "unflagged column is what a user would take as a pose.",
           produce_robustness,
           {"settings": ["default", "platoons", "trucks", "low-returns", "far-sparse", "oblique",
-                        "10-per-min", "combined"], "seeds": [1, 2, 3, 4, 5], "duration": 60.0},
+                        "10-per-min", "wheel-doppler", "combined"], "seeds": [1, 2, 3, 4, 5],
+           "duration": 60.0},
           {"settings": ["combined"], "seeds": [1], "duration": 30.0}, parallel=True),
     Table("sparse", "Sparse traffic", "bench/sparse.py",
           "Few vehicles per minute: a run must be resolved within 0.3 m or report itself "

@@ -155,3 +155,10 @@ def test_every_table_has_a_paragraph_and_matching_sets():
     for t in report.TABLES:
         assert t.about and t.title
         assert set(t.quick) - {"quick"} <= set(t.full), t.name
+
+
+def test_the_robustness_table_runs_every_setting_of_the_matrix() -> None:
+    from bench.robustness import SETTINGS
+
+    table = next(t for t in report.TABLES if t.name == "robustness")
+    assert table.full["settings"] == list(SETTINGS)
