@@ -105,3 +105,49 @@ def test_a_car_leaving_the_crossing_gets_its_own_lanes_heading(seed: int) -> Non
     assert np.linalg.norm(x[:2] - centre) < 1.0
     out = tracker.finish()
     assert len(out) == 1 and out[0].t[0] <= 0.2, [(tr.id, tr.t[0]) for tr in out]
+
+
+def _two_way_street(one_way: str) -> Lanelet:
+    """A 7 m wide street mapped as one lanelet along +x from (-20, 30) to (100, 30), tagged
+    ``one_way`` = one_way."""
+    x = np.linspace(-20.0, 100.0, 121)[:, None]
+    pad = np.zeros_like(x)
+    left = np.hstack([x, np.full_like(x, 33.5), pad])
+    right = np.hstack([x, np.full_like(x, 26.5), pad])
+    return Lanelet(1, left, right, {"one_way": one_way})
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_a_car_driving_a_two_way_lanelet_backwards_gets_its_heading(seed: int) -> None:
+    """Real maps draw two-way streets as one lanelet (tag one_way = no) driven both ways. A car
+    driving it against the lanelet's direction (heading 180 deg) at 10 m/s, 40 m from the
+    sensor and seen nearly across the line of sight: before, the births knew the lanelet's own
+    direction only, and since a heading mirrored about the line of sight explains the same
+    Doppler (plus a yaw rate), the car got one (real map, centre traffic, junction 2, seed 3:
+    157 deg off). Now the lanelet gives both directions and the Doppler picks the car's; a
+    one-way lanelet still gives only its own. The birth zones count a two-way lanelet once
+    per direction: one where each direction enters the FOV."""
+    rng = np.random.default_rng(seed)
+    yaw = np.pi
+    centre = np.array([35.0 + rng.uniform(-3.0, 3.0), 31.75])
+    frame = _car_frame(centre, yaw, 10.0, rng, 30)
+    cfg = TrackingConfig()
+    for tag, expected in (("no", yaw), ("yes", None)):
+        lanes = LaneHeadings.of([_two_way_street(tag)])
+        heads = lanes.headings_near(centre, cfg.lane_search_radius, frame.z, frame.doppler,
+                                    frame.rng, SENSOR, cfg.birth_sigma_doppler,
+                                    cfg.max_speed, cfg.max_yawrate, cfg.birth_hypotheses,
+                                    cfg.birth_hypothesis_margin,
+                                    np.deg2rad(cfg.birth_hypothesis_sep_deg))
+        if expected is None:
+            assert len(heads) == 1 and abs(wrap_angle(heads[0] - yaw)) > np.deg2rad(90.0)
+        else:
+            assert abs(wrap_angle(heads[0] - expected)) < np.deg2rad(1.0), heads
+    T = np.eye(4)
+    T[2, 3] = HEIGHT
+    fov = FieldOfView.of(T, 120.0, 200.0)
+    for tag, n_zones in (("no", 2), ("yes", 1)):
+        zones = BirthZones.from_map([_two_way_street(tag)], fov, 6.0, 5.0)
+        assert len(zones) == n_zones
+    both = BirthZones.from_map([_two_way_street("no")], fov, 6.0, 5.0)
+    assert sorted(np.round(np.rad2deg(np.abs(both.yaw)))) == [0.0, 180.0]

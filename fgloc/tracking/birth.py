@@ -83,9 +83,9 @@ class LaneHeadings:
 
     @staticmethod
     def of(lanelets: list[Lanelet]) -> LaneHeadings:
+        """Samples of every driving direction (:func:`driven_centrelines`)."""
         xy, hd = [], []
-        for ll in lanelets:
-            c = _centreline(ll)
+        for c in driven_centrelines(lanelets):
             d = np.gradient(c, axis=0)
             xy.append(c)
             hd.append(np.arctan2(d[:, 1], d[:, 0]))
@@ -163,6 +163,18 @@ def _centreline(ll: Lanelet) -> np.ndarray:
     return ll.centerline(max(2, int(np.ceil(length / LANE_STEP)) + 1))
 
 
+def driven_centrelines(lanelets: list[Lanelet]) -> list[np.ndarray]:
+    """The lanelets' centre lines (m, 2) sampled about ``LANE_STEP`` m apart in each direction
+    a vehicle drives them: every lanelet's own direction, and a two-way lanelet's (tag
+    ``one_way`` = no) also backwards (a two-way street mapped as one lanelet is driven both
+    ways; where on it each direction keeps is the lane models' business, not the births')."""
+    out = []
+    for ll in lanelets:
+        c = _centreline(ll)
+        out += [c, c[::-1]] if ll.two_way else [c]
+    return out
+
+
 @dataclass(frozen=True)
 class BirthZones:
     """Discs in C: centres (k, 2), radii (k,), yaw prior (k,) rad."""
@@ -193,8 +205,11 @@ class BirthZones:
                  depth: float) -> BirthZones:
         """Zones where lanelet centre lines enter the FOV sector (the angular edges or the
         range limit), ``depth`` m along the lane into it, and where a lanelet without a
-        predecessor starts inside the FOV; the yaw prior is the lane direction there."""
-        lines = [_centreline(ll) for ll in lanelets]
+        predecessor starts inside the FOV; the yaw prior is the lane direction there. Two-way
+        lanelets count once per direction (:func:`driven_centrelines`); a line ending where
+        another starts precedes it only when it leads on in the same direction (within 90
+        deg), not when it comes back (a two-way lanelet's other direction)."""
+        lines = driven_centrelines(lanelets)
         starts = np.array([c[0] for c in lines]) if lines else np.zeros((0, 2))
         ends = np.array([c[-1] for c in lines]) if lines else np.zeros((0, 2))
         end_tree = cKDTree(ends) if len(ends) else None
@@ -203,7 +218,8 @@ class BirthZones:
             inside = fov.contains(c)
             prev_inside = np.concatenate([[False], inside[:-1]])
             if end_tree is not None and inside[0]:
-                pred = end_tree.query_ball_point(s, CONNECT_TOL)
+                pred = [j for j in end_tree.query_ball_point(s, CONNECT_TOL)
+                        if np.dot(lines[j][-1] - lines[j][-2], c[1] - c[0]) > 0.0]
                 # continuation of an in-FOV predecessor: not an entry
                 prev_inside[0] = any(fov.contains(lines[j][-2:-1])[0] for j in pred)
             seg = np.linalg.norm(np.diff(c, axis=0), axis=1)
