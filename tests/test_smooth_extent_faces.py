@@ -51,8 +51,7 @@ def _check(seed: int) -> None:
     assert m1.centre_rms < 0.25
     # the cause: every frame's extent rows (a few front-face returns that stop short of the
     # far corner) make the smoothed car narrower or pull its centre towards the returns, and
-    # its IoU lower (seed 7 at 98d9f66: width 1.76 / 1.73 m, centre
-    # RMS 0.167 / 0.341 m)
+    # its IoU lower (seed 7 at 98d9f66: width 1.76 / 1.73 m, centre RMS 0.167 / 0.341 m)
     assert m2.iou < m1.iou - 0.05
     assert width_every < width - 0.05 or m2.centre_rms > m1.centre_rms + 0.05
 

@@ -216,7 +216,8 @@ def vehicle_points(rng: np.random.Generator, cfg: RadarSimConfig, rows: VehicleR
         start, end = c[r, edge], c[r, (edge + 1) % 4]
     p = start + frac[:, None] * (end - start)
     kind = rows.kind[r]
-    z = terrain.road(p) + return_heights(rng, cfg, kind)
+    road = terrain.road(p)
+    z = road + return_heights(rng, cfg, kind)
     heading = np.column_stack([np.cos(rows.yaw[r]), np.sin(rows.yaw[r])])
     arm = p - rows.centre[r]
     vel = rows.v[r, None] * heading + rows.yawrate[r, None] * np.column_stack([-arm[:, 1],
@@ -224,7 +225,7 @@ def vehicle_points(rng: np.random.Generator, cfg: RadarSimConfig, rows: VehicleR
     if cfg.wheel_radius > 0 and wheel.any():
         # micro-Doppler: on a rolling wheel the point at height h moves at v h / R
         h = rng.uniform(0.0, 2.0 * cfg.wheel_radius, int(wheel.sum()))
-        z[wheel] = terrain.road(p[wheel]) + h
+        z[wheel] = road[wheel] + h
         vel[wheel] += ((h / cfg.wheel_radius - 1.0) * rows.v[r[wheel]])[:, None] * heading[wheel]
     rcs = np.array([vc.rcs for vc in VEHICLE_CLASSES])[kind]
     track = rows.track[r]
