@@ -485,7 +485,10 @@ class ExtentSettings:
     rows, the seen front or rear for the width rows) -- 0 = no such test. With a few returns
     on a face its extremes stop short of the far end (the corner away from the sensor) by
     about the sampling gap, and a smoother that sums these rows over a whole track shrinks
-    the vehicle to that bias."""
+    the vehicle to that bias. ``huber_k``: Huber IRLS threshold (in sigmas) on each row's
+    ``row / sigma``, as on the normal-offset rows (0 = none): an extreme detection that is
+    not the vehicle's end (its far part hidden behind a nearer vehicle) moves the end by
+    metres in one frame."""
 
     sigma: float = 0.35
     min_points: int = 4
@@ -494,6 +497,7 @@ class ExtentSettings:
     gap_max: float = 0.0
     face_min_points: int = 0
     face_band: float = 0.5
+    huber_k: float = 0.0
 
 
 class ExtentRows(_FrameRows):
@@ -516,10 +520,12 @@ class ExtentRows(_FrameRows):
     face the sensor is on). Always 4 rows (front, left, rear, right); a row that does not
     apply is zero with a zero Jacobian, so the factor's dimension stays fixed while the
     selection (like the contour association) is re-done at every evaluation. Rows enter
-    scaled by ``sigma_factor / settings.sigma`` (the factor's noise model is isotropic).
-    Field-of-view cuts are the caller's: ``trusted`` (k,) marks the detections that may be
-    an end (e.g. not next to the FOV's edge, where the view may be cut); a row whose extreme
-    detection is not trusted does not apply.
+    scaled by ``sigma_factor / settings.sigma`` (the factor's noise model is isotropic), with
+    Huber IRLS weights on ``row / settings.sigma`` when ``settings.huber_k`` > 0 (held
+    constant in the Jacobian, like the selection). Field-of-view cuts are the caller's:
+    ``trusted`` (k,) marks the detections that may be an end (e.g. not next to the FOV's
+    edge, where the view may be cut); a row whose extreme detection is not trusted does not
+    apply.
 
     detections (k, 2) for one frame, or (F, K, 2) padded with ``valid`` (F, K) for a batch;
     states, rows and Jacobians then carry the frame axis too.
@@ -595,13 +601,14 @@ class ExtentRows(_FrameRows):
         j, use = self._select(x) if sel is None else (self._in(a) for a in sel)
         ax, dax = self.axes(x[:, YAW])
         d = np.take_along_axis(self.z, j[..., None], axis=1) - x[:, None, [X, Y]]   # (F, 4, 2)
-        w = use * self.scale
         reach = np.sum(ax * d, axis=-1)                                              # (F, 4)
         if self.cfg.gap_max > 0.0:
             n = np.maximum(self.valid.sum(axis=1) - 1, 1)
             gap = np.clip((reach[:, 0] + reach[:, 2]) / n, 0.0, self.cfg.gap_max)
             reach = reach + gap[:, None] * np.array([1.0, 0.0, 1.0, 0.0])
-        e = w * (reach - x[:, self.axis_idx])
+        r = reach - x[:, self.axis_idx]
+        w = use * self.scale * np.sqrt(huber_weights(r / self.cfg.sigma, self.cfg.huber_k))
+        e = w * r
         J = None
         if jacobian:
             J = np.zeros((len(x), 4, N_STATE))

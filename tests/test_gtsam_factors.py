@@ -367,6 +367,32 @@ def test_extent_rows_sampling_gap_correction() -> None:
         np.testing.assert_allclose(J1, J0)
 
 
+def test_extent_rows_huber_weights() -> None:
+    """With huber_k > 0 a row whose end lies more than k sigma from the contour's (an extreme
+    detection cut short) enters with the Huber IRLS weight k sigma / |row|: its residual is
+    sqrt(k sigma |row|) instead of |row| (in sigmas: quadratic cost k |r| - k^2 / 2 grows
+    linearly); a row within k sigma is unchanged; the Jacobian is the unweighted one times
+    the same weight (held constant)."""
+    rng = np.random.default_rng(4)
+    x = random_state(rng, 0.05)
+    h = np.array([np.cos(x[YAW]), np.sin(x[YAW])])
+    lat = np.array([-h[1], h[0]])
+    sensor = x[:2] + 30.0 * lat + 5.0 * h              # the left side is seen: length rows
+    z = box_detections(x, sensor, per_edge=8) + rng.normal(0, 0.05, (1, 2))
+    lo = (z - x[:2]) @ h
+    z = z[lo > -0.8]                    # its rear part hidden: the rear row is cut short
+    plain = ExtentRows(z, sensor, ExtentSettings(), sigma_factor=0.35)
+    robust = ExtentRows(z, sensor, ExtentSettings(huber_k=2.0), sigma_factor=0.35)
+    e0, J0 = plain.rows(x, jacobian=True)
+    e1, J1 = robust.rows(x, jacobian=True)
+    r = e0                                              # sigma_factor = sigma: rows in m
+    assert abs(r[2]) > 2.0 * 0.35 > abs(r[0]) > 0.0     # the cut rear row, the seen front
+    w = np.where(np.abs(r) > 0.7, np.sqrt(0.7 / np.maximum(np.abs(r), 1e-12)), 1.0)
+    np.testing.assert_allclose(e1, w * r, atol=1e-12)
+    np.testing.assert_allclose(e1[2] ** 2, 0.7 * abs(r[2]), rtol=1e-12)
+    np.testing.assert_allclose(J1, w[:, None] * J0, atol=1e-12)
+
+
 def test_extent_rows_need_enough_detections_on_the_face_they_measure() -> None:
     """A 4.5 x 1.8 m car seen from ahead and to its left (front face and left side seen):
     with ``face_min_points`` the width rows need that many detections on the front face and

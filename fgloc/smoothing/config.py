@@ -27,7 +27,11 @@ class SmoothingConfig:
     measurement factor (all of them when 0; the tracker's update takes 24)."""
     huber_k: float = 2.0
     """Huber threshold (in row std. devs.) of the per-row IRLS weights of a measurement
-    factor (0 disables the robust weights)."""
+    factor: its normal-offset, range-rate and extent rows (0 disables the robust weights).
+    On the extent rows since a one-frame outlier shifted a whole smoothed track: robustness
+    combined, seed 4, a van hid the rear half of a receding 9.4 m truck for a frame, whose
+    rear row pulled the rear 2.5 m in; the batch carried the truck 0.5-1.8 m forwards over
+    its 282 steps (centre RMS 0.74 m, 0.38 m with the weights; docs/experiments.md)."""
     size_walk_scale: float = 0.0
     """Scale of the tracker's length / width random walk (``tracking.sigma_length_rw``,
     ``sigma_width_rw``) in the smoothers' process noise: the filter needs it to let a

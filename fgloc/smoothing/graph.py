@@ -152,7 +152,8 @@ class TrackModel:
         gap = tcfg.extent_gap_max if tcfg.extent_gap_correction else 0.0
         ext = (ExtentSettings(tcfg.sigma_extent, tcfg.extent_min_points, tcfg.extent_min_cover,
                               tcfg.extent_min_incidence, gap, scfg.extent_face_min_points,
-                              2.0 * tcfg.sigma_range) if scfg.extent_rows else None)
+                              2.0 * tcfg.sigma_range, scfg.huber_k)
+               if scfg.extent_rows else None)
         return TrackModel(tcfg, scfg, gp, rw, ConditionalTable(gp), ext, long)
 
     @property
