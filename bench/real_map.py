@@ -30,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from fgloc.config import load_config  # noqa: E402
 from fgloc.evaluation.pose import pose_error  # noqa: E402
 from fgloc.pipeline import localize_many  # noqa: E402
+from fgloc.scenario import Scenario  # noqa: E402
 from fgloc.sim.config import SimConfig  # noqa: E402
 from fgloc.sim.real_map import map_junctions, simulate_on_map  # noqa: E402
 
@@ -44,6 +45,21 @@ TRAFFIC = ["keep-right", "centre"]
 Errors = dict[tuple[str, str, int, str], list[tuple[float, float, float]]]
 
 
+def junction_sites(map_path: Path, n: int) -> list[tuple[float, float]]:
+    """(lat, lon) of the map's ``n`` largest junctions (``map_junctions``' order)."""
+    junctions, _ = map_junctions(map_path)
+    return [(float(j.centre[0]), float(j.centre[1])) for j in junctions[:n]]
+
+
+def scenario(map_path: Path, kind: str, site: tuple[float, float], seed: int,
+             duration: float) -> Scenario:
+    """The simulated scenario with ground truth at the junction ``site`` (lat, lon):
+    ``duration`` s of traffic driving two-way lanelets as ``kind`` says, ``seed``."""
+    sim_cfg = SimConfig()
+    sim_cfg.real_map.two_way_traffic = kind
+    return simulate_on_map(map_path, seed, site=site, duration=duration, config=sim_cfg).scenario
+
+
 def run_one(map_path: Path, kind: str, k: int, site: tuple[float, float], seed: int,
             duration: float, labels: list[str], config: Path | None = None
             ) -> list[dict[str, object]]:
@@ -51,9 +67,7 @@ def run_one(map_path: Path, kind: str, k: int, site: tuple[float, float], seed: 
     localized by every method once per ``[map] labels`` mode with the fgloc config TOML
     ``config`` (None: the defaults): one row per (labels, method) with the 2D and yaw errors
     and the result's status."""
-    sim_cfg = SimConfig()
-    sim_cfg.real_map.two_way_traffic = kind
-    scn = simulate_on_map(map_path, seed, site=site, duration=duration, config=sim_cfg).scenario
+    scn = scenario(map_path, kind, site, seed, duration)
     rows: list[dict[str, object]] = []
     for mode in labels:
         t0 = time.perf_counter()
@@ -81,8 +95,7 @@ def run(map_path: Path, n_junctions: int, seeds: list[int], duration: float,
     traffic kind, junction and seed (in that order). ``pool_map(fn, items)`` runs
     ``fn(*item)`` per item in order (e.g. in worker processes; default: here, one after the
     other)."""
-    junctions, _ = map_junctions(map_path)
-    sites = [(float(j.centre[0]), float(j.centre[1])) for j in junctions[:n_junctions]]
+    sites = junction_sites(map_path, n_junctions)
     items = [(map_path, kind, k, site, seed, duration, labels, config)
              for kind in traffic or TRAFFIC for k, site in enumerate(sites) for seed in seeds]
     done = (pool_map or (lambda fn, its: (fn(*it) for it in its)))(run_one, items)

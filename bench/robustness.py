@@ -187,16 +187,13 @@ def truck_figures(tracks: TrackSet, metrics: TrackingMetrics, scn: Scenario,
             else math.nan)
 
 
-def run_one(setting: str, seed: int, duration: float, cfg: Config,
-            localization: bool) -> RunResult:
-    case = "intersection" if seed % 2 else "tjunction"
-    res = simulate_detailed(case, seed, duration, config=sim_config(setting))
-    scn = res.scenario
+def tracking_figures(scn: Scenario, cfg: Config) -> dict[str, float]:
+    """The tracking figures of the module docstring for ``scn`` (with ground truth): the
+    filter with the true pose and the batch smoother on its tracks, config ``cfg``."""
     assert scn.truth is not None
     run = track(scn, cfg, oracle_pose=True)
     smoothed = smooth_tracks(scn, run.tracks, run.T_placement, "batch", cfg)
-    out = RunResult(setting, seed, case, len(scn.truth.tracks))
-    f = out.figures
+    f: dict[str, float] = {}
     for name, ts in (("filter", run.tracks), ("batch", smoothed)):
         m = evaluate_tracks(ts, scn.truth, eta=cfg.tracking.eta,
                             sensor_pose=scn.truth.sensor_pose, hfov_deg=scn.sensor.hfov_deg,
@@ -211,6 +208,16 @@ def run_one(setting: str, seed: int, duration: float, cfg: Config,
             f["fragments"] = m.fragments
             f["missed"] = m.missed
             f["covering_two"] = tracks_covering_two(ts, scn)
+    return f
+
+
+def run_one(setting: str, seed: int, duration: float, cfg: Config,
+            localization: bool) -> RunResult:
+    case = "intersection" if seed % 2 else "tjunction"
+    scn = simulate_detailed(case, seed, duration, config=sim_config(setting)).scenario
+    assert scn.truth is not None
+    out = RunResult(setting, seed, case, len(scn.truth.tracks), tracking_figures(scn, cfg))
+    f = out.figures
     if localization:
         for meth, r in localize_many(scn, list(METHODS), cfg).items():
             e = pose_error(r.T_local, scn.truth.sensor_pose)
