@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from factors.state import YAWRATE, V
 from fgloc.geo import wrap_angle
 from fgloc.scenario import Lanelet, LaneletMap
 
@@ -17,6 +18,18 @@ RIGHT: int = 2
 #: label code -> name as written in files (tracks.csv, PLY comments, result.json)
 NAMES: dict[int, str] = {STRAIGHT: "straight", LEFT: "left", RIGHT: "right"}
 CODES: dict[str, int] = {v: k for k, v in NAMES.items()}
+
+
+def kappa_labels(states: np.ndarray, eta: float, min_speed: float) -> np.ndarray:
+    """(n,) int8 label codes from kappa = yawrate / v (rad/m): left above eta, right below
+    -eta, straight otherwise and when |v| < min_speed (m/s)."""
+    v = states[:, V]
+    fast = np.abs(v) >= min_speed
+    kappa = np.where(fast, states[:, YAWRATE] / np.where(fast, v, 1.0), 0.0)
+    out = np.full(len(v), STRAIGHT, dtype=np.int8)
+    out[kappa > eta] = LEFT
+    out[kappa < -eta] = RIGHT
+    return out
 
 
 def mirrored(codes: np.ndarray) -> np.ndarray:

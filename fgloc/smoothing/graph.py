@@ -57,12 +57,12 @@ from factors.gtsam_factors import (
 )
 from factors.track_system import sqrt_information
 from fgloc.geo import wrap_angle
+from fgloc.labels import kappa_labels
 from fgloc.scenario import Scenario
 from fgloc.smoothing.config import SmoothingConfig
 from fgloc.smoothing.length_floor import FlooredTracks, length_floor_factor
 from fgloc.tracking.birth import FieldOfView
 from fgloc.tracking.config import TrackingConfig
-from fgloc.tracking.tracker import kappa_labels
 from fgloc.tracks import (
     N_CONTOUR,
     N_KIN,

@@ -41,7 +41,7 @@ from factors.measurement import (
     unit,
     visibility_slack,
 )
-from fgloc.labels import LEFT, RIGHT, STRAIGHT
+from fgloc.labels import kappa_labels
 from fgloc.scenario import Scenario
 from fgloc.tracking import ukf
 from fgloc.tracking.birth import BirthZones, FieldOfView, LaneHeadings, initial_kinematics
@@ -54,6 +54,7 @@ from fgloc.tracking.measure import (
     measurement_vector,
     predict_measurements,
 )
+from fgloc.tracking.relink import relink
 from fgloc.tracking.retrodict import length_variance, retrodict_length
 from fgloc.tracks import (
     N_KIN,
@@ -88,18 +89,6 @@ def _connected_reach(d: np.ndarray, gap: float, k: int) -> float:
     return float(connected[-k]) if len(connected) > k else 0.0
 
 
-def kappa_labels(states: np.ndarray, eta: float, min_speed: float) -> np.ndarray:
-    """(n,) int8 label codes from kappa = yawrate / v (rad/m): left above eta, right below
-    -eta, straight otherwise and when |v| < min_speed (m/s)."""
-    v = states[:, V]
-    fast = np.abs(v) >= min_speed
-    kappa = np.where(fast, states[:, YAWRATE] / np.where(fast, v, 1.0), 0.0)
-    out = np.full(len(v), STRAIGHT, dtype=np.int8)
-    out[kappa > eta] = LEFT
-    out[kappa < -eta] = RIGHT
-    return out
-
-
 @dataclass
 class _Record:
     """History of one track while it is alive."""
@@ -115,6 +104,8 @@ class _Record:
     #: that diverges is reported up to there)
     calm_step: int = 0
     misfit: float = 0.0
+    #: ended inside the field of view, missed or diverged (:mod:`fgloc.tracking.relink`)
+    lost: bool = False
     #: updates in a row with a contour at least ``long_trigger_width`` wide
     wide_run: int = 0
     #: updates that saw a long side of the vehicle (its length is measured)
@@ -209,6 +200,9 @@ class Tracker:
         self.P = np.zeros((0, N_STATE, N_STATE))
         self.recs: list[_Record] = []
         self.done: list[Track] = []
+        #: ids of the reported tracks that ended inside the field of view, missed or
+        #: diverged (not by leaving it, as duplicates or at the end of the recording)
+        self.lost: set[int] = set()
         self.next_id = 0
         self.frame = -1
         self._corridor: np.ndarray | None = None
@@ -1032,11 +1026,12 @@ class Tracker:
             if rec.misfit > cfg.diverge_excess or wide[i]:
                 # diverged: no longer one vehicle; reported up to its last calm row
                 rec.last_update_step = min(rec.last_update_step, rec.calm_step)
-                end[i] = True
+                end[i] = rec.lost = True
                 continue
             if rec.confirmed:
                 patience = cfg.delete_after_blind if blind[i] else cfg.delete_after
-                end[i] |= t - rec.last_update_t > patience
+                rec.lost = t - rec.last_update_t > patience
+                end[i] |= rec.lost
                 continue
             hits, window = self._confirmation(rec)
             if rec.hits >= hits:
@@ -1084,6 +1079,8 @@ class Tracker:
             hits = sum(len(s) > 0 and s[0] <= rec.last_update_step for s in rec.det_step)
             if rec.confirmed and hits >= self.cfg.min_output_hits:
                 self.done.append(self._to_track(rec))
+                if rec.lost:
+                    self.lost.add(rec.id)
         keep = ~mask
         self.recs = [r for r, k in zip(self.recs, keep) if k]
         self.x, self.P = self.x[keep], self.P[keep]
@@ -1156,11 +1153,12 @@ def track_scenario(scn: Scenario, T_coarse: np.ndarray, cfg: TrackingConfig | No
         tracker.t = float(times[0])
     for t, det in zip(times, frames):
         tracker.step(float(t), det)
-    tracks = tracker.finish()
+    tracks, links = relink(tracker.finish(), tracker.lost, times, cfg)
     diag = {
         "measurement_model": cfg.measurement_model,
         "frames": len(times),
         "tracks": len(tracks),
+        "relinked": [[k.first, k.then] for k in links],
         "birth_zones": np.column_stack([zones.centre, zones.radius,
                                         np.rad2deg(zones.yaw)]).tolist(),
         "seconds": time.perf_counter() - t0,

@@ -1,0 +1,159 @@
+"""Re-linking of the tracks the tracker lost inside the field of view
+(:mod:`fgloc.tracking.relink`): the gap rows in closed-form cases, the link tests, and a car
+whose returns vanish for 1.5 s keeping one track (simulator truth)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from fgloc.config import Config, from_dict
+from fgloc.evaluation.tracking import evaluate_tracks
+from fgloc.pipeline import track
+from fgloc.scenario import RadarData
+from fgloc.sim import SimConfig, simulate_detailed
+from fgloc.tracking import TrackingConfig
+from fgloc.tracking.relink import gap_rows, relink
+from fgloc.tracks import N_KIN, N_STATE, YAW, YAWRATE, A, Track, V, X, Y
+
+DT = 0.05
+
+
+def _track(tid: int, t: np.ndarray, xy: np.ndarray, yaw: np.ndarray, speed: float,
+           var: float = 1.0) -> Track:
+    """A track with rows at times t (n,), centres xy (n, 2), headings yaw (n,) and one
+    detection per row."""
+    n = len(t)
+    states = np.zeros((n, N_STATE))
+    states[:, X], states[:, Y], states[:, YAW], states[:, V] = xy[:, 0], xy[:, 1], yaw, speed
+    states[:, N_KIN:] = 1.5
+    return Track(id=tid, t=t, states=states, labels=np.zeros(n, dtype=np.int8),
+                 covariances=np.repeat(var * np.eye(N_STATE)[None], n, axis=0),
+                 det_index=np.arange(n, dtype=np.int64) + 1000 * tid,
+                 det_step=np.arange(n, dtype=np.int64))
+
+
+def _straight(tid: int, t0: float, t1: float, speed: float = 10.0, heading: float = 0.0,
+              offset: float = 0.0, var: float = 1.0) -> Track:
+    """Rows from t0 to t1 (s) of a vehicle on the line through the origin at ``heading``
+    (rad), at ``offset`` (m) along it at t = 0."""
+    t = np.arange(round(t0 / DT), round(t1 / DT) + 1) * DT
+    u = np.array([np.cos(heading), np.sin(heading)])
+    xy = (offset + speed * t)[:, None] * u
+    return _track(tid, t, xy, np.full(len(t), heading), speed, var)
+
+
+def test_gap_rows_on_a_straight_line_are_exact() -> None:
+    a, b = _straight(1, 0.0, 1.0, var=1.0), _straight(2, 2.0, 3.0, var=3.0)
+    times = np.arange(21, 40) * DT
+    states, covs = gap_rows(a, b, times, 0.5)
+    np.testing.assert_allclose(states[:, X], 10.0 * times, atol=1e-9)
+    np.testing.assert_allclose(states[:, [Y, YAW, A, YAWRATE]], 0.0, atol=1e-9)
+    np.testing.assert_allclose(states[:, V], 10.0, atol=1e-9)
+    np.testing.assert_allclose(states[:, N_KIN:], a.states[-1:, N_KIN:].repeat(19, axis=0))
+    # covariances blended from A's last to B's first row's
+    np.testing.assert_allclose(covs[:, 0, 0], 1.0 + 2.0 * (times - 1.0), atol=1e-9)
+
+
+def test_gap_rows_follow_a_quarter_turn() -> None:
+    """A car on a circle of radius 10 m at 5 m/s, counter-clockwise: A ends heading +x at
+    (0, -10), B starts a quarter turn later heading +y at (10, 0); the Hermite curve keeps
+    within 0.15 m of the circle, its heading and yaw rate those of the turn."""
+    radius, speed = 10.0, 5.0
+    g = 0.5 * np.pi * radius / speed
+    a = _track(1, np.array([0.0]), np.array([[0.0, -radius]]), np.array([0.0]), speed)
+    b = _track(2, np.array([g]), np.array([[radius, 0.0]]), np.array([0.5 * np.pi]), speed)
+    times = np.linspace(0.0, g, 12)[1:-1]
+    states, _ = gap_rows(a, b, times, 0.5)
+    r = np.hypot(states[:, X], states[:, Y])
+    assert np.max(np.abs(r - radius)) < 0.15
+    tangent = np.arctan2(states[:, Y], states[:, X]) + 0.5 * np.pi
+    assert np.max(np.abs(np.angle(np.exp(1j * (states[:, YAW] - tangent))))) < np.deg2rad(3)
+    np.testing.assert_allclose(states[:, YAWRATE], speed / radius, rtol=0.15)
+
+
+def test_a_lost_track_is_joined_to_its_continuation() -> None:
+    a, b = _straight(1, 0.0, 1.0), _straight(2, 2.0, 3.0)
+    frames = np.arange(0, 61) * DT
+    out, links = relink([a, b], {1}, frames, TrackingConfig())
+    assert len(out) == 1 and [(k.first, k.then) for k in links] == [(1, 2)]
+    tr = out[0]
+    assert tr.id == 1
+    np.testing.assert_allclose(tr.t, frames)
+    np.testing.assert_allclose(tr.states[:, X], 10.0 * frames, atol=1e-9)
+    # B's detections still point at B's rows
+    from_b = tr.det_index >= 2000
+    np.testing.assert_allclose(tr.t[tr.det_step[from_b]], b.t[b.det_step])
+    np.testing.assert_array_equal(tr.det_index[~from_b], a.det_index)
+    assert len(tr.labels) == len(tr.t)
+
+
+@pytest.mark.parametrize("case", ["not lost", "other way", "follower", "late", "off"])
+def test_tracks_of_other_vehicles_stay_apart(case: str) -> None:
+    cfg = TrackingConfig()
+    a = _straight(1, 0.0, 1.0)
+    b = _straight(2, 2.0, 3.0)
+    lost = {1}
+    if case == "not lost":
+        lost = set()
+    elif case == "other way":            # enters where A was, driving back
+        b = _straight(2, 2.0, 3.0, heading=np.pi, offset=-40.0)
+    elif case == "follower":             # the car 1.5 s (15 m) behind A in its lane
+        b = _straight(2, 2.0, 3.0, offset=-15.0)
+    elif case == "late":
+        b = _straight(2, 1.0 + cfg.relink_time + 0.1, 5.0)
+    else:
+        cfg = dataclasses.replace(cfg, relink_time=0.0)
+    out, links = relink([a, b], lost, np.arange(0, 121) * DT, cfg)
+    assert links == [] and [tr.id for tr in out] == [1, 2]
+
+
+def test_the_nearer_continuation_wins_and_chains_join() -> None:
+    a = _straight(1, 0.0, 1.0)
+    near = _straight(2, 2.0, 3.0, offset=0.5)
+    far = _straight(3, 2.0, 3.0, offset=-2.0)
+    then = _straight(4, 4.0, 5.0, offset=0.5)
+    out, links = relink([a, near, far, then], {1, 2}, np.arange(0, 121) * DT,
+                        TrackingConfig())
+    assert sorted((k.first, k.then) for k in links) == [(1, 2), (2, 4)]
+    assert [tr.id for tr in out] == [1, 3]
+    joined = out[0]
+    np.testing.assert_allclose(joined.t, np.arange(0, 101) * DT)
+
+
+def _without(radar: RadarData, drop: np.ndarray) -> RadarData:
+    keep = ~drop
+    return RadarData(radar.t[keep], radar.xyz[keep], radar.doppler[keep],
+                     None if radar.rcs is None else radar.rcs[keep],
+                     None if radar.frame is None else radar.frame[keep])
+
+
+@pytest.mark.parametrize("relink_time", [3.0, 0.0])
+def test_a_car_unseen_for_a_second_and_a_half_keeps_one_track(relink_time: float) -> None:
+    """Straight road, one car approaching from 150 m (seen 6-19 s); its returns dropped from
+    11 to 12.5 s, longer than ``delete_after``: one track, its gap rows within 1 m of the
+    car; without re-linking the car has two."""
+    sim = from_dict(SimConfig, {"traffic": {"class_mix": [1.0, 0.0, 0.0]}}, None)
+    res = simulate_detailed("straight", 1, 25.0, vehicles=1, config=sim)
+    scn = res.scenario
+    gap = (res.source == scn.truth.tracks[0].id) & (scn.radar.t >= 11.0) & (scn.radar.t < 12.5)
+    scn = dataclasses.replace(scn, radar=_without(scn.radar, gap))
+    cfg = Config()
+    cfg.tracking.relink_time = relink_time
+    tracks = track(scn, cfg, oracle_pose=True).tracks
+    m = evaluate_tracks(tracks, scn.truth, sensor_pose=scn.truth.sensor_pose,
+                        hfov_deg=scn.sensor.hfov_deg, max_range=scn.sensor.max_range)
+    assert m.n_matched == m.n_true == 1 and m.false_tracks == 0
+    if relink_time == 0.0:
+        assert m.fragments == 1
+        return
+    assert m.fragments == 0 and len(tracks.tracks) == 1
+    tr = tracks.in_local().tracks[0]
+    truth = scn.truth.tracks[0].states
+    inside = (tr.t > 11.1) & (tr.t < 12.4)
+    assert inside.sum() >= 20
+    tx = np.interp(tr.t[inside], truth[:, 0], truth[:, 1])
+    ty = np.interp(tr.t[inside], truth[:, 0], truth[:, 2])
+    assert np.max(np.hypot(tr.states[inside, X] - tx, tr.states[inside, Y] - ty)) < 1.0
