@@ -235,8 +235,9 @@ def cmd_track(args: argparse.Namespace) -> int:
     n_states = sum(len(t) for t in run.tracks.tracks)
     placed = "ground-truth pose (oracle)" if args.oracle_pose else "T_coarse"
     smoothed = "" if args.smoother == "none" else f", {args.smoother} smoother"
-    print(f"{len(run.tracks)} tracks, {n_states} states; detections placed with {placed}"
-          f"{smoothed}")
+    relinked = len(run.tracks.diagnostics.get("relinked", []))
+    print(f"{len(run.tracks)} tracks ({relinked} joined to a lost track), {n_states} states; "
+          f"detections placed with {placed}{smoothed}")
     print("  stage times: " + ", ".join(f"{k} {v:.2f} s" for k, v in run.timings.items()))
     print(f"wrote {Path(args.out) / 'tracks.csv'}")
     return 0

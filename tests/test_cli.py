@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -102,7 +103,10 @@ def test_track_oracle_and_evaluate_tracks(scenario_dir, tmp_path, capsys):
     header = (out / "tracks.csv").read_text().splitlines()[0].split(",")
     assert header[:9] == ["track_id", "t", "x", "y", "v", "a", "yaw", "yawrate", "label"]
     assert header[9:] == [f"r{i}" for i in range(20)]
-    capsys.readouterr()
+    printed = capsys.readouterr().out
+    n_tracks = len({row.split(",")[0] for row in
+                    (out / "tracks.csv").read_text().splitlines()[1:]})
+    assert re.search(rf"^{n_tracks} tracks \(\d+ joined to a lost track\)", printed, re.M)
     gt = scenario_dir / "ground_truth.json"
     assert main(["evaluate", str(out), str(gt), "--json"]) == 0
     tracking = json.loads(capsys.readouterr().out)["tracking"]
