@@ -8,7 +8,7 @@ import numpy as np
 
 from factors.gp import rectangle_radius
 from fgloc.tracking.retrodict import length_variance, retrodict_length
-from fgloc.tracks import N_KIN, N_STATE, YAW, X, Y, contour_angles, contour_length_width
+from fgloc.tracks import N_KIN, N_STATE, YAW, V, X, Y, contour_angles, contour_length_width
 
 TRUE_LENGTH, TRUE_WIDTH = 12.0, 2.5
 SENSOR = np.array([0.0, 5.0])
@@ -146,3 +146,49 @@ def test_far_anchored_rows_keep_their_far_end() -> None:
     np.testing.assert_allclose(after[:, X], xs, atol=0.06)
     plain = retrodict_length(before, _sd(lengths), SENSOR, window=20, max_sd=0.35)
     assert np.max(np.abs(plain[:30, X] - xs[:30])) > 7.0       # the near end kept instead
+
+
+def _timed(states: np.ndarray, speed: float = 10.0) -> tuple[np.ndarray, np.ndarray]:
+    """The states with their speed (m/s) set and the row times (s) that speed gives along
+    their 2.03 m spacing."""
+    out = states.copy()
+    out[:, V] = speed
+    step = float(np.mean(np.abs(np.diff(states[:, X]))))
+    return out, np.arange(len(states)) * step / speed
+
+
+def test_a_growth_towards_the_sensor_is_found_from_the_rows() -> None:
+    """The far-anchored truck of the test above, without the tracker's flag: with the row
+    times, the growth at row 30 moved the near end (the rear stayed where the truck's motion
+    takes it), so the rows before it keep their far end; the head-on truck, whose front
+    stayed, keeps the default."""
+    xs = np.linspace(150.0, 30.0, 60)
+    lengths = np.where(np.arange(60) < 30, 4.6, TRUE_LENGTH)
+    before = _states(xs, lengths)
+    before[:, X] = xs + 0.5 * TRUE_LENGTH - 0.5 * lengths          # ends at the true rear
+    before, t = _timed(before)
+    after = retrodict_length(before, _sd(lengths), SENSOR, window=20, max_sd=0.35, t=t)
+    flagged = retrodict_length(before, _sd(lengths), SENSOR, window=20, max_sd=0.35,
+                               far_anchored=np.arange(60) < 30)
+    np.testing.assert_allclose(after, flagged, atol=1e-12)
+    np.testing.assert_allclose(after[:, X], xs, atol=0.06)
+    head_on, t = _timed(_states(xs, lengths))
+    np.testing.assert_allclose(
+        retrodict_length(head_on, _sd(lengths), SENSOR, window=20, max_sd=0.35, t=t),
+        retrodict_length(head_on, _sd(lengths), SENSOR, window=20, max_sd=0.35), atol=1e-12)
+
+
+def test_rows_from_before_the_vehicle_passed_the_sensor_keep_their_near_end() -> None:
+    """A truck driving -x past a sensor at x = 100 (5 m beside its path), its front seen all
+    along, its rear grown back towards the sensor at row 30 once past it: the rows from after
+    the pass keep their far end (the front), those from before it their near end (the front
+    too, which faced the sensor then): every row keeps the true front."""
+    xs = np.linspace(150.0, 30.0, 60)
+    lengths = np.where(np.arange(60) < 30, 4.6, TRUE_LENGTH)
+    before, t = _timed(_states(xs, lengths))            # the contour ends at the true front
+    sensor = np.array([100.0, 5.0])
+    after = retrodict_length(before, _sd(lengths), sensor, window=20, max_sd=0.35, t=t)
+    rel = sensor[0] - before[:, X]
+    end_on = np.abs(rel) / np.hypot(rel, sensor[1])
+    expected = before[:, X] + 0.5 * (TRUE_LENGTH - lengths) * end_on
+    np.testing.assert_allclose(after[:, X], expected, atol=1e-9)

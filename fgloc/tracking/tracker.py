@@ -1091,7 +1091,7 @@ class Tracker:
                                   self.fov.sensor, self.cfg.retrodict_window,
                                   self.cfg.retrodict_max_sd, np.asarray(rec.held[:n]),
                                   np.asarray(rec.occupied[:n]) > 0.0,
-                                  np.arange(n) < rec.toward_rows)
+                                  np.arange(n) < rec.toward_rows, np.asarray(rec.t[:n]))
         det_step = np.concatenate(rec.det_step).astype(np.int64)
         kept = det_step < n
         return Track(
