@@ -66,12 +66,14 @@ def _grew_towards_sensor(states: np.ndarray, t: np.ndarray, length: np.ndarray,
         return 0                    # a slow growth: both ends may have moved
     if np.sign(s_lo[k0]) != np.sign(s_lo[k1]):
         return 0                    # the vehicle passed the sensor: its ends swapped roles
-    side = -np.sign(s_lo)[:, None] * 0.5 * length[:, None] * h     # centre -> far end
-    xy = states[:, [X, Y]]
+    ends = [k0, k1]
+    # centre -> far end at the two rows
+    side = -np.sign(s_lo[ends])[:, None] * 0.5 * length[ends][:, None] * h[ends]
+    xy = states[ends][:, [X, Y]]
     ds = np.sum(0.5 * (states[k0:k1, V] + states[k0 + 1:k1 + 1, V]) * np.diff(t[k0:k1 + 1]))
-    motion = ds * 0.5 * (h[k0] + h[k1])
-    far_moved = np.linalg.norm(xy[k1] + side[k1] - xy[k0] - side[k0] - motion)
-    near_moved = np.linalg.norm(xy[k1] - side[k1] - xy[k0] + side[k0] - motion)
+    moved = xy[1] - xy[0] - ds * 0.5 * (h[k0] + h[k1])      # the vehicle's motion taken out
+    far_moved = np.linalg.norm(moved + side[1] - side[0])
+    near_moved = np.linalg.norm(moved - side[1] + side[0])
     return k1 if far_moved <= 0.5 * near_moved else 0
 
 
