@@ -248,6 +248,7 @@ def test_end_on_occupancy_forgets_updates_older_than_span_history(age: int) -> N
     tracker = _one_track((32.25, 0.0, 10.0), (4.5, 1.8), P)
     tracker.frame = 100
     rec = tracker.recs[0]
+    rec.hits = tracker.cfg.occupancy_min_updates
     old = np.linspace(0.0, 8.8, 45)
     rec.occupancy = [(100 - age, -1, old, np.ones(len(old), dtype=bool),
                       np.ones(len(old), dtype=bool))]
@@ -263,6 +264,79 @@ def test_end_on_occupancy_forgets_updates_older_than_span_history(age: int) -> N
         assert rec.occupied_length == pytest.approx(old[-k], abs=1e-9)
     else:
         assert rec.occupied_length < 4.5
+
+
+
+def _truck_side_frame(incidence_deg: float) -> tuple[Tracker, _Frame]:
+    """A car-sized track (4.6 x 2.5 m) on the front of a 12 m truck approaching the sensor
+    (at the origin), 50 m out along +x with its heading ``incidence_deg`` off the line of
+    sight, and one frame of returns: its front face, and its side facing the sensor 0-9.5 m
+    behind the front in 0.5 m steps (the pooled frames of a truck's sparse side)."""
+    a = np.deg2rad(incidence_deg)
+    tracker = _one_track((50.0, 0.0, 10.0), (4.6, 2.5), np.diag(np.full(N_STATE, 1e-4)))
+    tracker.x[0, 4] = np.pi - a
+    h = np.array([np.cos(np.pi - a), np.sin(np.pi - a)])
+    n = np.array([-h[1], h[0]])
+    side = 1.2 * np.sign(n @ -tracker.x[0, :2])          # the side facing the sensor
+    front = tracker.x[0, :2] + 2.3 * h
+    face = front + np.outer(np.linspace(-1.0, 1.0, 5), n)
+    rest = front - np.outer(np.linspace(0.0, 9.5, 20), h) + side * n
+    z = np.vstack([face, rest])
+    rng = np.linalg.norm(z, axis=1)
+    dop = -10.0 * (z @ -h) / rng                  # approaching at 10 m/s: the track's
+    return tracker, _Frame(z, rng, dop, np.arange(len(z)))
+
+
+@pytest.mark.parametrize(("incidence", "hits", "measured"), [
+    (10.0, 10, True), (30.0, 10, True), (45.0, 10, False), (10.0, 1, True), (30.0, 9, False)])
+def test_occupied_length_is_measured_up_to_37_deg_on_an_established_track(
+        incidence: float, hits: int, measured: bool) -> None:
+    """The truck's front is seen (+1) and its side returns reach 9.5 m behind it: the
+    occupied length is measured end-on and at 30 deg off the heading (sin 0.5 <=
+    ``occupancy_max_incidence``), not at 45 deg (the side seen broadside: the span and
+    the chain measure it); on a track with fewer than ``occupancy_min_updates`` updates
+    end-on only (``occupancy_young_incidence``)."""
+    tracker, det = _truck_side_frame(incidence)
+    rec = tracker.recs[0]
+    rec.hits = hits
+    assert tracker.cfg.occupancy_min_updates == 10
+    owner, _ = tracker._associate(det)
+    end = tracker._occupied_length(rec, det, owner, 0)
+    if measured:
+        assert end == 1
+        k = tracker.cfg.occupancy_min_points
+        assert rec.occupied_length == pytest.approx(9.5 - 0.5 * (k - 1), abs=0.3)
+    else:
+        assert end == 0 and rec.occupied_length == 0.0 and not rec.occupancy
+
+
+@pytest.mark.parametrize("lateral", [1.2, 2.5])
+def test_occupied_length_counts_corridor_returns_beside_the_contour_only(
+        lateral: float) -> None:
+    """The same track at 30 deg, its own returns on its front face and side 0-4.5 m behind
+    the front; free returns in its corridor continue them to 9.5 m behind the front, 1.2 m
+    (the truck's side) or 2.5 m (a car in the next lane, inside a grown gate) to the side of
+    the heading: the first count, the second do not (the contour's half width 1.25 m and
+    TOWARD_SIDE_MARGIN)."""
+    tracker, det = _truck_side_frame(30.0)
+    rec = tracker.recs[0]
+    rec.hits = tracker.cfg.occupancy_min_updates
+    x = tracker.x[0]
+    h = np.array([np.cos(x[4]), np.sin(x[4])])
+    n = np.array([-h[1], h[0]])
+    lo = (det.z - x[:2]) @ h
+    beyond = lo < 2.3 - 4.6 - 0.2                  # behind the contour's rear (4.6 m)
+    z = det.z.copy()
+    z[beyond] += np.outer((lateral - 1.2) * np.sign((z[beyond] - x[:2]) @ n), n)
+    det = _Frame(z, np.linalg.norm(z, axis=1), det.doppler, det.index)
+    owner = np.where(beyond, -1, 0)
+    tracker._corridor = beyond[None].copy()
+    assert tracker._occupied_length(rec, det, owner, 0) == 1
+    k = tracker.cfg.occupancy_min_points
+    if lateral < 2.0:
+        assert rec.occupied_length == pytest.approx(9.5 - 0.5 * (k - 1), abs=0.3)
+    else:
+        assert rec.occupied_length < 4.6
 
 
 def _receding_frames(case: str, frames: int, seed: int = 0) -> list[_Frame]:

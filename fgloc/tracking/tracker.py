@@ -788,7 +788,8 @@ class Tracker:
         gate of a car-sized contour). The distances (m) behind the seen end of its detections
         and of the Doppler-consistent detections in its lengthwise corridor (beside the
         contour, up to ``chain_reach`` beyond its ends; free or held by another track, e.g.
-        a second track on a truck's other end; not those in the blind range) are kept from
+        a second track on a truck's other end; not those in the blind range; counted within
+        its half width and TOWARD_SIDE_MARGIN sideways only) are kept from
         the end-on updates of the last ``span_history`` frames; pooled, they fill the
         vehicle's side densely, and the occupied length is where the sorted distances first
         leave a gap wider than
@@ -797,8 +798,9 @@ class Tracker:
         by that many; 0 without); ``rec.reached_length``: the distance that many of the
         track's own pooled detections reach, gaps or not. End-on: the sensor beyond the
         front or rear and sin(angle between the line of sight and the heading) at most
-        ``occupancy_max_incidence`` (there the lengthwise position is the precise range).
-        Returns the end seen (+1 front, -1 rear) or 0 (not end-on, or off)."""
+        ``occupancy_max_incidence`` (there the lengthwise position is nearly the precise
+        range); ``occupancy_young_incidence`` until the track has ``occupancy_min_updates``
+        updates. Returns the end seen (+1 front, -1 rear) or 0 (not end-on, or off)."""
         cfg = self.cfg
         if cfg.occupancy_gap <= 0.0 or self._corridor is None:
             return 0
@@ -809,8 +811,9 @@ class Tracker:
         s_lo = float(rel @ h)
         end = 1 if s_lo > front else (-1 if s_lo < -rear else 0)
         # sin of the angle between the line of sight and the heading (the side's incidence)
-        if not end or abs(rel[0] * h[1] - rel[1] * h[0]) > (
-                cfg.occupancy_max_incidence * float(np.linalg.norm(rel))):
+        most = (cfg.occupancy_max_incidence if rec.hits >= cfg.occupancy_min_updates
+                else min(cfg.occupancy_max_incidence, cfg.occupancy_young_incidence))
+        if not end or abs(rel[0] * h[1] - rel[1] * h[0]) > most * float(np.linalg.norm(rel)):
             return 0
         sel = (owner == i) | (self._corridor[i] & (owner != -2))
         lo = (det.z[sel] - c) @ h
@@ -834,7 +837,8 @@ class Tracker:
         rec.toward_length = min(
             _connected_reach(np.sort(-beyond[beyond < 0.0]), cfg.occupancy_gap, k),
             float(-np.min(behind[beside], initial=0.0)))
-        keep = d >= 0.0
+        # the track's own detections, and of the others those beside its contour
+        keep = (d >= 0.0) & (own | np.concatenate([[True]] + [o[4] for o in same]))
         d, own = d[keep], own[keep]
         order = np.argsort(d)
         d, own = d[order], own[order]
