@@ -266,7 +266,6 @@ def test_end_on_occupancy_forgets_updates_older_than_span_history(age: int) -> N
         assert rec.occupied_length < 4.5
 
 
-
 def _truck_side_frame(incidence_deg: float) -> tuple[Tracker, _Frame]:
     """A car-sized track (4.6 x 2.5 m) on the front of a 12 m truck approaching the sensor
     (at the origin), 50 m out along +x with its heading ``incidence_deg`` off the line of
@@ -283,7 +282,7 @@ def _truck_side_frame(incidence_deg: float) -> tuple[Tracker, _Frame]:
     rest = front - np.outer(np.linspace(0.0, 9.5, 20), h) + side * n
     z = np.vstack([face, rest])
     rng = np.linalg.norm(z, axis=1)
-    dop = -10.0 * (z @ -h) / rng                  # approaching at 10 m/s: the track's
+    dop = -10.0 * (z @ -h) / rng           # the track's range rate, approaching at 10 m/s
     return tracker, _Frame(z, rng, dop, np.arange(len(z)))
 
 

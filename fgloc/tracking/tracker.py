@@ -830,7 +830,8 @@ class Tracker:
         same = [o for o in rec.occupancy if o[1] == end]
         d = np.concatenate([[0.0]] + [o[2] for o in same])
         own = np.concatenate([[True]] + [o[3] for o in same])
-        beyond = np.concatenate([[0.0]] + [o[2][o[4]] for o in same])
+        near = np.concatenate([[True]] + [o[4] for o in same])       # beside the contour
+        beyond = d[near]
         k = cfg.occupancy_min_points
         # pooled, up to the first gap; no farther than this frame's detections reach (the
         # pool's older entries were measured from a seen end the updates have moved since)
@@ -838,7 +839,7 @@ class Tracker:
             _connected_reach(np.sort(-beyond[beyond < 0.0]), cfg.occupancy_gap, k),
             float(-np.min(behind[beside], initial=0.0)))
         # the track's own detections, and of the others those beside its contour
-        keep = (d >= 0.0) & (own | np.concatenate([[True]] + [o[4] for o in same]))
+        keep = (d >= 0.0) & (own | near)
         d, own = d[keep], own[keep]
         order = np.argsort(d)
         d, own = d[order], own[order]
