@@ -120,11 +120,16 @@ class JointConfig:
     (:func:`fgloc.registration.fine.coarse_tilt_covariance`). Where one road leaves the roll
     about it to the prior (T-junction 5: 2.3 deg off, 0.2 m across the road) this is the
     largest error term. False = leave it out."""
-    range_bias_sigma: float = 0.2
+    range_bias_sigma: float = 0.1
     """Prior standard deviation (m per 100 m of range) of a range-proportional side bias: an
     offset of every contour point towards the sensor that grows with its distance from the
-    sensor (the tracker's centre of a far vehicle, seen head-on through a widening azimuth
-    scatter, lies towards the sensor). 0 = none."""
+    sensor (the tracker's centre of a far vehicle, seen through a widening azimuth scatter,
+    lies off its lane). Its sign and size depend on the site: measured against the truth,
+    +0.08 m per 100 m on the simulated intersections and T-junctions, -0.05 to -0.07 on the
+    real map's junctions 1 and 2. Where one road runs nearly radially from the sensor and a
+    far road crosses it, the bias moves the far road's vehicles along the radial one, as a
+    translation would: there the prior decides, and 0.2 let a spurious bias carry the pose
+    0.2 m along the road (docs/experiments.md, issue 22). 0 = none."""
     estimate_noise: bool = True
     """Estimate the noise levels from the data (``fgloc.registration.joint.NoiseLevels``:
     point scatter, frame scatter, the correlation of consecutive frames, the tracks' offset
