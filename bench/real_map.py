@@ -3,7 +3,8 @@
 For each of the map's largest junctions (``--junctions``, ranked by the number of movements of
 the routing graph per driving direction), each kind of traffic on two-way lanelets
 (``--two-way-traffic``: ``[real_map] two_way_traffic`` of the simulator, "keep-right" and
-"centre") and each seed, ``fgloc.sim.real_map.simulate_on_map`` builds a scenario at that
+"centre", and keep-right on the lane lines as mapped, "keep-right-mapped"; :data:`TRAFFIC`)
+and each seed, ``fgloc.sim.real_map.simulate_on_map`` builds a scenario at that
 junction (``--duration`` s of traffic) and ``fgloc.localize_many`` runs every method on it; once
 per ``[map] labels`` mode (routing graph, Menger curvature); the 2D and yaw errors against the
 simulated truth are printed per run, then the mean and the worst seed per traffic, labels,
@@ -37,8 +38,17 @@ from fgloc.sim.real_map import map_junctions, simulate_on_map  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 DEFAULT_MAP = ROOT.parent / "shared" / "data" / "maps" / "lanelet2_mapping_example.osm"
 METHODS = ["icp", "filter-sicp", "smoother-sicp", "joint"]
-#: ``[real_map] two_way_traffic`` settings of the simulator
-TRAFFIC = ["keep-right", "centre"]
+#: Kinds of traffic, one row group each: name -> the simulator's ``[real_map]`` settings.
+#: "keep-right" / "centre": where vehicles drive on two-way lanelets (``two_way_traffic``), on
+#: paths smoothed through the lanelet joins (the default 5 m moving average);
+#: "keep-right-mapped": keep-right on the lane lines as mapped (``path_smoothing = "none"``, a
+#: kink where lanelets meet becomes a 1 m arc), as a generator that drives the map's centre
+#: lines makes them.
+TRAFFIC: dict[str, dict[str, str]] = {
+    "keep-right": {"two_way_traffic": "keep-right"},
+    "centre": {"two_way_traffic": "centre"},
+    "keep-right-mapped": {"two_way_traffic": "keep-right", "path_smoothing": "none"},
+}
 
 
 #: (traffic, labels, junction index, method) -> (2D m, yaw deg, ambiguous 0/1) of every seed
@@ -54,9 +64,10 @@ def junction_sites(map_path: Path, n: int) -> list[tuple[float, float]]:
 def scenario(map_path: Path, kind: str, site: tuple[float, float], seed: int,
              duration: float) -> Scenario:
     """The simulated scenario with ground truth at the junction ``site`` (lat, lon):
-    ``duration`` s of traffic driving two-way lanelets as ``kind`` says, ``seed``."""
+    ``duration`` s of traffic of the kind ``kind`` (:data:`TRAFFIC`), ``seed``."""
     sim_cfg = SimConfig()
-    sim_cfg.real_map.two_way_traffic = kind
+    for name, value in TRAFFIC[kind].items():
+        setattr(sim_cfg.real_map, name, value)
     return simulate_on_map(map_path, seed, site=site, duration=duration, config=sim_cfg).scenario
 
 
@@ -97,7 +108,7 @@ def run(map_path: Path, n_junctions: int, seeds: list[int], duration: float,
     other)."""
     sites = junction_sites(map_path, n_junctions)
     items = [(map_path, kind, k, site, seed, duration, labels, config)
-             for kind in traffic or TRAFFIC for k, site in enumerate(sites) for seed in seeds]
+             for kind in traffic or list(TRAFFIC) for k, site in enumerate(sites) for seed in seeds]
     done = (pool_map or (lambda fn, its: (fn(*it) for it in its)))(run_one, items)
     return sites, [row for rows in done for row in rows]
 
@@ -144,9 +155,11 @@ def main() -> None:
     ap.add_argument("--duration", type=float, default=60.0)
     ap.add_argument("--labels", choices=["routing", "curvature"], nargs="+",
                     default=["routing", "curvature"], help="[map] labels modes compared")
-    ap.add_argument("--two-way-traffic", choices=TRAFFIC, nargs="+", default=TRAFFIC,
+    ap.add_argument("--two-way-traffic", choices=list(TRAFFIC), nargs="+",
+                    default=list(TRAFFIC),
                     help="where the simulated vehicles drive on two-way lanelets "
-                    "([real_map] two_way_traffic), one row group per kind")
+                    "([real_map] two_way_traffic) and whether on the lane lines as mapped "
+                    "(keep-right-mapped), one row group per kind")
     ap.add_argument("--config", type=Path, default=None,
                     help="fgloc config TOML (default: all defaults; [map] labels is set per mode)")
     args = ap.parse_args()

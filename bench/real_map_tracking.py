@@ -38,7 +38,8 @@ def main() -> int:
     ap.add_argument("--junctions", type=int, default=3)
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3, 4, 5, 6])
     ap.add_argument("--duration", type=float, default=60.0, help="scenario length (s)")
-    ap.add_argument("--two-way-traffic", choices=TRAFFIC, nargs="+", default=TRAFFIC)
+    ap.add_argument("--two-way-traffic", choices=list(TRAFFIC), nargs="+",
+                    default=list(TRAFFIC))
     ap.add_argument("--config", default=None, help="fgloc config TOML (default: all defaults)")
     ap.add_argument("--json", default=None, help="also write every run's figures here")
     args = ap.parse_args()

@@ -260,3 +260,32 @@ def test_bench_table_has_a_row_group_per_traffic_kind() -> None:
                                                                       "0/2"]
     assert first[("centre", "all 2 x 2 runs", "joint")] == pytest.approx(
         [(1.0 + 2.0 + 3.0 + 3.0) / 4, 3.0, 0.03, 0.05, "2/4"])
+
+
+def test_bench_traffic_kinds_set_the_simulator(monkeypatch: pytest.MonkeyPatch) -> None:
+    """bench/real_map.py's traffic kinds are valid ``[real_map]`` settings of the simulator,
+    and its scenario is simulated with them (keep-right-mapped: keep-right on the lane lines
+    as mapped, no path smoothing; the other kinds on the default smoothed paths)."""
+    import bench.real_map as rm
+    from fgloc.sim.config import RealMapSimConfig
+
+    configs = []
+
+    class Simulated:
+        scenario = None
+
+    def fake(map_path, seed, *, site, duration, config):
+        configs.append(config.real_map)
+        return Simulated()
+
+    monkeypatch.setattr(rm, "simulate_on_map", fake)
+    default = RealMapSimConfig()
+    for kind, settings in rm.TRAFFIC.items():
+        RealMapSimConfig(**settings)                       # raises on an invalid value
+        rm.scenario(Path("map.osm"), kind, (49.0, 8.4), 1, 1.0)
+        got = configs[-1]
+        assert {k: getattr(got, k) for k in settings} == settings
+        assert got.path_smoothing == settings.get("path_smoothing", default.path_smoothing)
+    assert rm.TRAFFIC["keep-right-mapped"] == {"two_way_traffic": "keep-right",
+                                                "path_smoothing": "none"}
+    assert default.path_smoothing != "none"
