@@ -67,7 +67,7 @@ def score(res: LocalizationResult, truth: np.ndarray, seconds: float) -> dict:
         row["nees"] = float(e @ np.linalg.solve(cov, e))
         row["sd_x"], row["sd_y"] = float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1]))
         row["sd_yaw_deg"] = float(np.rad2deg(np.sqrt(cov[2, 2])))
-    if res.covariance is not None and "joint" in res.diagnostics:   # filter-sicp has none
+    if res.covariance is not None and "joint" in res.diagnostics:  # no report from filter-sicp
         deg = res.diagnostics["joint"]["degeneracy"]
         row["weak"] = bool(deg["weakly_observed"])
         row["weak_std_m"] = max([d["std_m"] for d in deg["weak_directions"]], default=0.0)
