@@ -42,15 +42,20 @@ def test_platoon_of_three_cars_gives_three_tracks(seed: int) -> None:
     assert tracks_covering_two(tracks, res.scenario) == 0
 
 
+def _extent_along_heading(states: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(k,) extent (m) of each state's contour polygon along its heading, and (k, 2) the unit
+    headings."""
+    h = np.column_stack([np.cos(states[:, YAW]), np.sin(states[:, YAW])])
+    return np.ptp(np.einsum("kmd,kd->km", contour_polygons(states), h), axis=1), h
+
+
 def _side_lengths(tracks, sensor: np.ndarray) -> np.ndarray:
     """Contour extent along the heading of every track state 20-120 m from the sensor whose
     vehicle shows the sensor one long side (the sensor beyond the side by more than the
     vehicle's half width)."""
     out = []
     for tr in tracks.in_local().tracks:
-        poly = contour_polygons(tr.states)
-        h = np.column_stack([np.cos(tr.states[:, YAW]), np.sin(tr.states[:, YAW])])
-        length = np.ptp(np.einsum("kmd,kd->km", poly, h), axis=1)
+        length, h = _extent_along_heading(tr.states)
         rel = sensor - tr.states[:, :2]
         dist = np.linalg.norm(rel, axis=1)
         lateral = np.abs(rel[:, 0] * h[:, 1] - rel[:, 1] * h[:, 0])
@@ -107,9 +112,7 @@ def test_truck_seen_head_on_is_not_pulled_towards_the_sensor(seed: int) -> None:
     assert end_seen.sum() > 50
     to_sensor = rel / np.linalg.norm(rel, axis=1, keepdims=True)
     bias = np.sum((tr.states[k, :2] - xy) * to_sensor, axis=1)[end_seen]
-    poly = contour_polygons(tr.states[k][end_seen])
-    h = np.column_stack([np.cos(tr.states[k, YAW]), np.sin(tr.states[k, YAW])])[end_seen]
-    length = np.ptp(np.einsum("kmd,kd->km", poly, h), axis=1)
+    length, _ = _extent_along_heading(tr.states[k][end_seen])
     assert length.min() >= 10.5, length.min()
     assert abs(float(np.mean(bias))) <= 0.7, np.mean(bias)
 
@@ -126,8 +129,7 @@ def test_receding_truck_seen_end_on_does_not_outgrow_its_returns(seed: int) -> N
     assert m.n_matched == 1 and m.false_tracks == 0
     sensor = res.scenario.truth.sensor_pose[:2, 3]
     (tr,) = tracks.in_local().tracks
-    h = np.column_stack([np.cos(tr.states[:, YAW]), np.sin(tr.states[:, YAW])])
-    length = np.ptp(np.einsum("kmd,kd->km", contour_polygons(tr.states), h), axis=1)
+    length, h = _extent_along_heading(tr.states)
     rel = sensor - tr.states[:, :2]
     dist = np.linalg.norm(rel, axis=1)
     grazing = np.abs(rel[:, 0] * h[:, 1] - rel[:, 1] * h[:, 0]) <= 0.35 * dist
@@ -159,8 +161,7 @@ def test_truck_seen_end_on_with_sparse_returns_gets_its_length(seed: int) -> Non
     res, tracks, m = _run({**TRUCK_12M, "radar": SPARSE}, seed, 25.0, 1)
     assert m.n_matched == 1 and m.false_tracks == 0 and m.fragments == 0
     (tr,) = tracks.in_local().tracks
-    h = np.column_stack([np.cos(tr.states[:, YAW]), np.sin(tr.states[:, YAW])])
-    length = np.ptp(np.einsum("kmd,kd->km", contour_polygons(tr.states), h), axis=1)
+    length, _ = _extent_along_heading(tr.states)
     assert 10.5 <= np.median(length) <= 13.5, np.median(length)
     # 0.33-0.88 m on the passing seeds (without it: no track within 3 m)
     assert m.centre_rms_track_mean <= 1.0, m.centre_rms_track_mean
@@ -204,7 +205,6 @@ def test_trucks_first_seen_late_get_their_length() -> None:
         (row,) = [r for r in m.rows if r.truth_id == gt.id]
         assert row.role == "matched" and row.centre_rms <= 1.0, (gt.id, row.centre_rms)
         (tr,) = [t for t in tracks.in_local().tracks if t.id == row.track_id]
-        h = np.column_stack([np.cos(tr.states[:, YAW]), np.sin(tr.states[:, YAW])])
-        length = np.ptp(np.einsum("kmd,kd->km", contour_polygons(tr.states), h), axis=1)
+        length, _ = _extent_along_heading(tr.states)
         last = tr.t >= tr.t[-1] - 1.0
         assert abs(np.median(length[last]) - gt.length) <= 1.5, (gt.id, gt.length)
