@@ -3,7 +3,8 @@
 For each of the map's largest junctions (``--junctions``, ranked by the number of movements of
 the routing graph per driving direction), each kind of traffic on two-way lanelets
 (``--two-way-traffic``: ``[real_map] two_way_traffic`` of the simulator, "keep-right" and
-"centre", and keep-right on the lane lines as mapped, "keep-right-mapped"; :data:`TRAFFIC`)
+"centre", keep-right on the lane lines as mapped, "keep-right-mapped", and lanelet2's centre
+lines as mapped, "centre-lanelet2"; :data:`TRAFFIC`)
 and each seed, ``fgloc.sim.real_map.simulate_on_map`` builds a scenario at that
 junction (``--duration`` s of traffic) and ``fgloc.localize_many`` runs every method on it; once
 per ``[map] labels`` mode (routing graph, Menger curvature); the 2D and yaw errors against the
@@ -43,11 +44,15 @@ METHODS = ["icp", "filter-sicp", "smoother-sicp", "joint"]
 #: paths smoothed through the lanelet joins (the default 5 m moving average);
 #: "keep-right-mapped": keep-right on the lane lines as mapped (``path_smoothing = "none"``, a
 #: kink where lanelets meet becomes a 1 m arc), as a generator that drives the map's centre
-#: lines makes them.
+#: lines makes them; "centre-lanelet2": the centre line both ways, lanelet2's own
+#: (``centre_line = "lanelet2"``, up to 2 m from fgloc's resampled one on hand-mapped turns),
+#: as mapped, as a generator that routes with lanelet2 and drives its ``centerline`` makes them.
 TRAFFIC: dict[str, dict[str, str]] = {
     "keep-right": {"two_way_traffic": "keep-right"},
     "centre": {"two_way_traffic": "centre"},
     "keep-right-mapped": {"two_way_traffic": "keep-right", "path_smoothing": "none"},
+    "centre-lanelet2": {"two_way_traffic": "centre", "centre_line": "lanelet2",
+                        "path_smoothing": "none"},
 }
 
 

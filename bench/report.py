@@ -238,7 +238,10 @@ TABLES: list[Table] = [
           "their direction (keep-right) or on the centre line (centre), on paths smoothed "
           "through the lanelet joins; keep-right-mapped: keep-right on the lane lines as "
           "mapped, a kink where lanelets meet turned within 1 m (as a generator that drives "
-          "the map's centre lines makes them); one row group each; "
+          "the map's centre lines makes them); centre-lanelet2: the centre line both ways, "
+          "lanelet2's own (Lanelet.centerline, up to 2 m from the arc-length one on "
+          "hand-mapped turns), as mapped (as a generator that drives lanelet2's centre lines "
+          "makes them); one row group each; "
           "every method, mean and worst seed per junction and the runs whose result was "
           "ambiguous (the pose given is the best mode's; [map] two_way_lanes = auto: the "
           "lane models of two-way streets are modes); each scenario localized with the "
@@ -246,7 +249,7 @@ TABLES: list[Table] = [
           produce_real_map,
           {"junctions": 3, "seeds": [1, 2, 3], "duration": 60.0,
            "labels": ["routing", "curvature"],
-           "traffic": ["keep-right", "centre", "keep-right-mapped"]},
+           "traffic": ["keep-right", "centre", "keep-right-mapped", "centre-lanelet2"]},
           {"junctions": 1, "seeds": [1], "duration": 30.0, "labels": ["routing"],
            "traffic": ["keep-right", "centre"]}, parallel=True),
     Table("straight", "Straight road without a junction", "bench/accuracy.py",

@@ -106,6 +106,10 @@ class AlsCloud:
         return int(self.xyz.shape[0])
 
 
+#: Kinds of a lanelet's centre line (:meth:`Lanelet.centre`, ``[map] centre_line``): "mean"
+#: midway between the other two, "resampled" the mean of the bounds resampled by arc length,
+#: "lanelet2" lanelet2's ``centerline``.
+CENTRE_LINES: tuple[str, ...] = ("mean", "resampled", "lanelet2")
 #: A two-way lanelet (tag ``one_way`` = no / false: both directions drive it) at least this wide
 #: (m) holds one lane per direction, each keeping to its right half (right-hand traffic): a
 #: two-way street mapped as one lanelet. A narrower one is a single shared lane at its centre.
@@ -121,6 +125,8 @@ class Lanelet:
     left: np.ndarray
     right: np.ndarray
     attributes: dict[str, str] = field(default_factory=dict)
+    _lanelet2_centre: np.ndarray | None = field(default=None, init=False, repr=False,
+                                                compare=False)
 
     def polygon(self) -> np.ndarray:
         """Closed outline (left bound forward, right bound backward) as (m, 2)."""
@@ -129,6 +135,39 @@ class Lanelet:
     def centerline(self, n: int = 20) -> np.ndarray:
         """(n, 2) centre line from arc-length-resampled bounds."""
         return self.line_at(0.5, n)
+
+    def lanelet2_centerline(self) -> np.ndarray:
+        """(m, 2) lanelet2's own centre line of the bounds (``lanelet2.core.Lanelet.centerline``:
+        midpoints between each bound's vertices and the other bound, so its vertices follow
+        the bounds' nodes; not the arc-length construction of :meth:`centerline`, from which
+        it lies up to 2 m away on turns drawn with few nodes); computed once."""
+        if self._lanelet2_centre is None:
+            from lanelet2.core import Lanelet as Lanelet2
+            from lanelet2.core import LineString3d, Point3d, getId
+
+            def line(xy: np.ndarray) -> LineString3d:
+                return LineString3d(getId(), [Point3d(getId(), float(x), float(y), 0.0)
+                                              for x, y in xy[:, :2]])
+
+            c = Lanelet2(getId(), line(self.left), line(self.right)).centerline
+            self._lanelet2_centre = np.array([[p.x, p.y] for p in c])
+        return self._lanelet2_centre
+
+    def centre(self, n: int, kind: str = "resampled") -> tuple[np.ndarray, np.ndarray]:
+        """The centre line of ``kind`` (:data:`CENTRE_LINES`) as (n, 2) samples in the
+        lanelet's direction, and (n, 2) the offset (m) from each sample of the arc-length
+        construction (:meth:`centerline`) to the nearest point of lanelet2's
+        (:meth:`lanelet2_centerline`): how far apart the two constructions of the centre lie
+        there (half its length is the line's ambiguity). "mean" is the midpoint of those two
+        points."""
+        if kind not in CENTRE_LINES:
+            raise ValueError(f"unknown centre line {kind!r}; expected one of "
+                             f"{', '.join(CENTRE_LINES)}")
+        own = self.centerline(n)
+        l2 = self.lanelet2_centerline()
+        offset = nearest_on_polyline(own, l2) - own
+        line = {"resampled": own, "mean": own + 0.5 * offset}.get(kind)
+        return (resample_polyline(l2, n) if line is None else line), offset
 
     def line_at(self, share: float | np.ndarray, n: int) -> np.ndarray:
         """(n, 2) line ``share`` of the way from the right bound (0) to the left bound (1),
@@ -225,6 +264,16 @@ def _share_on(left: np.ndarray, right: np.ndarray, points: list[np.ndarray],
 def _length(p: np.ndarray) -> float:
     """Length (m) of a polyline (n, 2)."""
     return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
+
+
+def nearest_on_polyline(points: np.ndarray, line: np.ndarray) -> np.ndarray:
+    """(n, 2) the nearest point of the polyline ``line`` (m, 2) to each of ``points`` (n, 2)."""
+    a, d = line[:-1, :2], np.diff(line[:, :2], axis=0)                  # (m-1, 2) segments
+    rel = points[:, None, :2] - a[None]
+    t = np.clip(np.einsum("nmk,mk->nm", rel, d) / np.maximum((d * d).sum(1), 1e-18), 0.0, 1.0)
+    foot = a[None] + t[..., None] * d[None]
+    best = np.argmin(((points[:, None, :2] - foot) ** 2).sum(-1), axis=1)
+    return foot[np.arange(len(points)), best]
 
 
 def resample_polyline(p: np.ndarray, n: int) -> np.ndarray:

@@ -265,7 +265,8 @@ def test_bench_table_has_a_row_group_per_traffic_kind() -> None:
 def test_bench_traffic_kinds_set_the_simulator(monkeypatch: pytest.MonkeyPatch) -> None:
     """bench/real_map.py's traffic kinds are valid ``[real_map]`` settings of the simulator,
     and its scenario is simulated with them (keep-right-mapped: keep-right on the lane lines
-    as mapped, no path smoothing; the other kinds on the default smoothed paths)."""
+    as mapped, no path smoothing; centre-lanelet2: lanelet2's centre lines as mapped; the
+    other kinds on the default smoothed paths)."""
     import bench.real_map as rm
     from fgloc.sim.config import RealMapSimConfig
 
@@ -288,4 +289,83 @@ def test_bench_traffic_kinds_set_the_simulator(monkeypatch: pytest.MonkeyPatch) 
         assert got.path_smoothing == settings.get("path_smoothing", default.path_smoothing)
     assert rm.TRAFFIC["keep-right-mapped"] == {"two_way_traffic": "keep-right",
                                                 "path_smoothing": "none"}
+    assert configs[list(rm.TRAFFIC).index("centre-lanelet2")].centre_line == "lanelet2"
+    assert default.centre_line == "resampled"
     assert default.path_smoothing != "none"
+
+
+# --------------------------------------------------------------------------------------------
+# [real_map] centre_line: lanelet2's centre lines
+# --------------------------------------------------------------------------------------------
+def _lanelet2_reference_lines(path: Path) -> dict[tuple[int, bool], np.ndarray]:
+    """lanelet2's own ``centerline`` of every lanelet of the map file and of its inverted
+    lanelet, each relative to its first point (the frames differ by a translation)."""
+    lmap = lanelet2.io.load(str(path), UtmProjector(Origin(*SITE)))
+    out = {}
+    for ll in lmap.laneletLayer:
+        for d in (ll, ll.invert()):
+            c = np.array([[p.x, p.y] for p in d.centerline])
+            out[(ll.id, d.inverted())] = c - c[0]
+    return out
+
+
+def test_lanelet2_centre_lines_are_lanelet2s(two_way_map: LaneletMap) -> None:
+    """Built from fgloc's lanelets, the lines are those lanelet2 computes from the file, for
+    inverted lanelets too (its centre line reversed, not the centre line of the swapped
+    bounds), and they differ from fgloc's resampled centre lines on some lanelets."""
+    from fgloc.sim.real_roads import lanelet2_centre_lines
+
+    view = directed_lanelets(two_way_map)
+    lines = lanelet2_centre_lines(view)
+    ref = _lanelet2_reference_lines(TWO_WAY_CROP)
+    assert set(lines) == {ll.id for ll in view.map.lanelets}
+    assert any(inv for _, inv in view.source.values())
+    by_id = {ll.id: ll for ll in view.map.lanelets}
+    apart = []
+    for lid, line in lines.items():
+        want = ref[view.source[lid]]
+        assert line.shape == want.shape
+        np.testing.assert_allclose(line - line[0], want, atol=0.01)
+        ours = by_id[lid].centerline(200)
+        apart.append(_distance(resample_polyline(line, 200), ours).max())
+    # measured on this crop: up to about 1 m apart on turns drawn with few nodes
+    assert max(apart) > 0.3
+
+
+@pytest.mark.parametrize("centre_line", ["lanelet2", "resampled"])
+def test_vehicles_drive_the_centre_lines_the_setting_says(centre_line: str) -> None:
+    """``centre_line``: the truth lies on lanelet2's centre lines ("lanelet2") or on fgloc's
+    resampled ones ("resampled"; both directions on the centre line, kinks at the joins
+    turned within 1 m, path_smoothing "none"); the other kind of line is farther away."""
+    from fgloc.sim.real_roads import lanelet2_centre_lines
+
+    cfg = SimConfig()
+    cfg.real_map.two_way_traffic = "centre"
+    cfg.real_map.path_smoothing = "none"
+    cfg.real_map.centre_line = centre_line
+    sim = simulate_on_map(TWO_WAY_CROP, 1, duration=30.0, config=cfg, crop_radius=150.0)
+    lmap = sim.scenario.lanelets
+    view = directed_lanelets(lmap)
+    resampled = np.vstack([ll.centerline(ll.samples(0.25)) for ll in view.map.lanelets])
+    l2 = np.vstack([resample_polyline(c, 200) for c in lanelet2_centre_lines(view).values()])
+    own, other = (l2, resampled) if centre_line == "lanelet2" else (resampled, l2)
+    xy = np.vstack([np.asarray(tr.states)[:, 1:3] for tr in sim.scenario.truth.tracks])
+    inside = np.zeros(len(xy), bool)
+    for ll in lmap.lanelets:
+        inside |= points_in_polygon(xy, ll.polygon())
+    d_own, d_other = _distance(xy[inside], own), _distance(xy[inside], other)
+    assert len(d_own) >= 500
+    # measured (seed 1, 30 s): 99th percentile 0.30 m (lanelet2) / 0.26 m (resampled) from
+    # the own lines, 0.62 / 0.69 m from the other ones (turns drawn with few nodes)
+    own99, other99 = np.percentile(d_own, 99), np.percentile(d_other, 99)
+    assert own99 < 0.4 and other99 > 0.5 and other99 > 1.5 * own99
+
+
+def test_centre_line_setting_is_validated() -> None:
+    from fgloc.config import from_dict
+
+    assert SimConfig().real_map.centre_line == "resampled"
+    assert from_dict(SimConfig, {"real_map": {"centre_line": "lanelet2"}}, "x.toml") \
+        .real_map.centre_line == "lanelet2"
+    with pytest.raises(InputError, match="centre_line"):
+        from_dict(SimConfig, {"real_map": {"centre_line": "spline"}}, "x.toml")

@@ -256,6 +256,13 @@ class RealMapSimConfig:
     spline of the line against arc length (:func:`scipy.interpolate.make_smoothing_spline`)
     whose equivalent kernel is about ``path_spline_length`` m wide; "none" the line itself
     (every kink driven as a 1 m arc)."""
+    centre_line: str = "resampled"
+    """Which centre line of a lanelet vehicles drive where they drive its centre:
+    "resampled" (default) the mean of its bounds resampled by arc length (fgloc's own, the
+    line its lane models use), "lanelet2" lanelet2's ``Lanelet.centerline`` (built from the
+    bounds' vertices; on hand-mapped turns up to 2 m away from the resampled one), as a
+    generator that drives lanelet2's centre lines makes them. The right half of a two-way
+    street (keep-right) is the resampled one's either way."""
     path_half_window: int = 2
     """Half window (samples, 1 m apart) of the "moving-average" path smoothing."""
     path_spline_length: float = 3.0
@@ -269,6 +276,9 @@ class RealMapSimConfig:
         if self.path_smoothing not in ("moving-average", "spline", "none"):
             raise ValueError("path_smoothing must be 'moving-average', 'spline' or 'none', got "
                              f"{self.path_smoothing!r}")
+        if self.centre_line not in ("resampled", "lanelet2"):
+            raise ValueError("centre_line must be 'resampled' or 'lanelet2', got "
+                             f"{self.centre_line!r}")
         if self.path_half_window < 0 or not self.path_spline_length > 0:
             raise ValueError("path_half_window must be >= 0 and path_spline_length > 0")
 

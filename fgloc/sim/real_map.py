@@ -41,6 +41,7 @@ from fgloc.sim.real_roads import (
     directed_lanelets,
     find_junctions,
     junction_routes,
+    lanelet2_centre_lines,
     map_scenery,
 )
 from fgloc.sim.roads import RoadArea, RoadNetwork
@@ -242,7 +243,8 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
     centre_h = site_rng.uniform(*cfg.site.ground_height)
     frame0 = LocalFrame.around(je, jn, centre_h, crs)
     lmap0 = _read_text_map(text, crs, frame0)
-    directed = directed_lanelets(lmap0).map
+    directed_all = directed_lanelets(lmap0)
+    directed = directed_all.map
     centre0 = np.array([je, jn]) - np.asarray(frame0.origin[:2])
     junction = next((j for j in find_junctions(directed)
                      if np.linalg.norm(j.centre - centre0) < 30.0), None)
@@ -253,7 +255,9 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
     rm = cfg.real_map
     net = build_map_network(lmap0, routes, junction.centre, cfg.als.extent, rm.two_way_traffic,
                             PathSmoothing(rm.path_smoothing, rm.path_half_window,
-                                          rm.path_spline_length))
+                                          rm.path_spline_length),
+                            lanelet2_centre_lines(directed_all) if rm.centre_line == "lanelet2"
+                            else None)
     mount = _place_mast(rng["sensor"], cfg, net, RoadArea(net), lmap0, junction.centre)
 
     slope = site_rng.uniform(*cfg.als.slope)

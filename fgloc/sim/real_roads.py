@@ -190,15 +190,32 @@ def smooth_path(xy: np.ndarray, smoothing: PathSmoothing = PathSmoothing()) -> n
     raise ValueError(f"unknown path smoothing {smoothing.kind!r}")
 
 
+def lanelet2_centre_lines(directed: DirectedLanelets) -> dict[int, np.ndarray]:
+    """lanelet2's own centre line (:meth:`fgloc.scenario.Lanelet.lanelet2_centerline`) of
+    every lanelet of ``directed`` ((n, 2) m in L, in the lanelet's driving direction): an
+    inverted lanelet's is its map lanelet's reversed, as ``lanelet2.core.Lanelet.invert``
+    gives it (lanelet2's construction of the swapped bounds is another line)."""
+    by_id = {ll.id: ll for ll in directed.map.lanelets}   # a map lanelet keeps its id
+    return {lid: by_id[orig].lanelet2_centerline()[::-1 if inverted else 1]
+            for lid, (orig, inverted) in directed.source.items()}
+
+
 def _polyline(lanelets: list[Lanelet], attr: str,
               two_way_min_width: float = TWO_WAY_MIN_WIDTH,
-              smoothing: PathSmoothing = PathSmoothing()) -> np.ndarray:
+              smoothing: PathSmoothing = PathSmoothing(),
+              centre_lines: dict[int, np.ndarray] | None = None) -> np.ndarray:
     """(n, 2) concatenation of the lanelets' lanes in their direction (``attr="centre"``: the
     centre line, the right half's on a two-way lanelet at least ``two_way_min_width`` m wide,
     :func:`fgloc.scenario.lane_lines`) or bounds, resampled every ROUTE_STEP m, kinks at the
-    joins smoothed as ``smoothing`` says (:func:`smooth_path`)."""
+    joins smoothed as ``smoothing`` says (:func:`smooth_path`). ``centre_lines``: lanelet id
+    -> (m, 2) line that replaces a lanelet's own centre line where its lane is that centre
+    line (e.g. :func:`lanelet2_centre_lines`; the right half of a two-way street and a line
+    bending into one stay)."""
     if attr == "centre":
-        lines = [c for _, c, back in lane_lines(lanelets, ROUTE_STEP / 2, two_way_min_width)
+        given = centre_lines or {}
+        lines = [resample_polyline(given[ll.id], len(c))
+                 if ll.id in given and np.allclose(c, ll.line_at(0.5, len(c))) else c
+                 for ll, c, back in lane_lines(lanelets, ROUTE_STEP / 2, two_way_min_width)
                  if not back]
     else:
         lines = [getattr(ll, attr)[:, :2] for ll in lanelets]
@@ -268,15 +285,17 @@ class MapRoadNetwork(RoadNetwork):
 
 def build_map_network(lmap: LaneletMap, routes: list[list[Lanelet]], centre: np.ndarray,
                       radius: float, two_way_traffic: str = "keep-right",
-                      smoothing: PathSmoothing = PathSmoothing()) -> MapRoadNetwork:
+                      smoothing: PathSmoothing = PathSmoothing(),
+                      centre_lines: dict[int, np.ndarray] | None = None) -> MapRoadNetwork:
     """Route pieces for ``routes`` (lanelets in driving order, inverted ones as
     :func:`directed_lanelets` makes them) driven as ``two_way_traffic`` says
     (:func:`fgloc.map.lane_models.min_width`: a two-way lanelet at least
     :data:`fgloc.scenario.TWO_WAY_MIN_WIDTH` wide keeps right), plus curb pieces of the
     drivable lanelets of ``lmap`` within ``radius`` m of ``centre`` (2,). ``smoothing``: how
-    a route's line becomes the path driven (:func:`smooth_path`)."""
+    a route's line becomes the path driven (:func:`smooth_path`); ``centre_lines``: lanelet id
+    -> the centre line driven instead of the lanelet's own (:func:`_polyline`)."""
     width = min_width(two_way_traffic)
-    pieces = [piece_from_polyline(k, _polyline(r, "centre", width, smoothing),
+    pieces = [piece_from_polyline(k, _polyline(r, "centre", width, smoothing, centre_lines),
                                   _mean_width(r, width))
               for k, r in enumerate(routes)]
     near = [ll for ll in lmap.lanelets
