@@ -121,24 +121,34 @@ class LaneCentres:
     """Lane centre lines sampled in L: points (K, 2), unit left normals (K, 2) of the driving
     direction, whether each sample's lane runs against its lanelet's direction (K,) (the left
     half of a two-way street, or its centre line driven backwards), the index (K,) of its
-    lanelet in the list it was built from and the index (K,) of its lane
-    (:func:`fgloc.scenario.lane_lines`)."""
+    lanelet in the list it was built from, the index (K,) of its lane
+    (:func:`fgloc.scenario.lane_lines`) and the offset (K, 2) (m) between the two
+    constructions of its lanelet's centre line there (:meth:`fgloc.scenario.Lanelet.centre`;
+    None: not computed, 0)."""
 
     xy: np.ndarray
     normal: np.ndarray
     against: np.ndarray
     lanelet: np.ndarray
     lane: np.ndarray
+    centre_offset: np.ndarray | None = None
 
     @classmethod
     def build(cls, lanelets: list[Lanelet], step: float,
-              two_way_min_width: float = TWO_WAY_MIN_WIDTH) -> LaneCentres:
+              two_way_min_width: float = TWO_WAY_MIN_WIDTH,
+              centre: str = "resampled") -> LaneCentres:
         """Every lane of the lanelets (:func:`fgloc.scenario.lane_lines` with
         ``two_way_min_width``, which sets the lane model of two-way lanelets), samples about
-        ``step`` m apart."""
+        ``step`` m apart, each lane moved as its lanelet's centre line of kind ``centre``
+        (:data:`fgloc.scenario.CENTRE_LINES`; ``[map] centre_line``) lies from the arc-length
+        one (the lanes of :func:`~fgloc.scenario.lane_lines` are built on that)."""
         index = {id(ll): k for k, ll in enumerate(lanelets)}
-        xy, normal, against, which, lane = [], [], [], [], []
+        xy, normal, against, which, lane, offsets = [], [], [], [], [], []
         for k, (ll, c, back) in enumerate(lane_lines(lanelets, step, two_way_min_width)):
+            line, off = ll.centre(len(c), centre)
+            shift = line - ll.centerline(len(c))
+            c = c + (shift[::-1] if back else shift)
+            offsets.append(off[::-1] if back else off)
             d = np.gradient(c, axis=0)
             d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
             xy.append(c)
@@ -147,7 +157,7 @@ class LaneCentres:
             which.append(np.full(len(c), index[id(ll)], dtype=np.int64))
             lane.append(np.full(len(c), k, dtype=np.int64))
         return cls(np.vstack(xy), np.vstack(normal), np.concatenate(against),
-                   np.concatenate(which), np.concatenate(lane))
+                   np.concatenate(which), np.concatenate(lane), np.vstack(offsets))
 
     def aspect(self, sensor_xy: np.ndarray) -> np.ndarray:
         """(K,) |sin| of the angle between each sample's driving direction and the line of

@@ -62,6 +62,7 @@ if TYPE_CHECKING:
 def lane_centre_points(
     scn: Scenario, target: TargetCloud, step: float, towards: np.ndarray | None = None,
     offset: float | VisibleSide = 0.0, two_way_min_width: float = TWO_WAY_MIN_WIDTH,
+    centre: str = "resampled",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(K, 2) samples (m, in L) of the lane centre lines of the lanelets in ``target``
     (:meth:`LaneCentres.build`: one per direction on a wide two-way lanelet), every about
@@ -70,11 +71,12 @@ def lane_centre_points(
     ``towards`` (2,) m, every sample is shifted ``offset`` m sideways towards that point (the
     sensor); a :class:`VisibleSide` offset shifts each sample by its value at the sample's
     aspect seen from there. ``two_way_min_width`` (m) sets the lane model of two-way lanelets
-    (:func:`fgloc.map.lane_models.min_width`)."""
+    (:func:`fgloc.map.lane_models.min_width`), ``centre`` the kind of the lanelets' centre
+    lines (``[map] centre_line``)."""
     from fgloc.coarse import LaneCentres
 
     lanelets = target.lanelets(scn.lanelets)
-    lanes = LaneCentres.build(lanelets, step, two_way_min_width)
+    lanes = LaneCentres.build(lanelets, step, two_way_min_width, centre)
     if towards is not None and isinstance(offset, VisibleSide):
         offset = offset.at(lanes.aspect(towards))
     xy = lanes.xy if towards is None else lanes.towards(towards, offset).xy
@@ -106,9 +108,11 @@ def fine_targets(
     width = min_width(lanes, cfg.map.two_way_min_width)
     if kind == "lane-centres":
         return SemanticTargets.build(*lane_centre_points(scn, target, step,
-                                                         two_way_min_width=width))
+                                                         two_way_min_width=width,
+                                                         centre=cfg.map.centre_line))
     offset = cfg.coarse.visible_side_offset if side is None else side
-    return SemanticTargets.build(*lane_centre_points(scn, target, step, sensor_xy, offset, width))
+    return SemanticTargets.build(*lane_centre_points(scn, target, step, sensor_xy, offset, width,
+                                                     cfg.map.centre_line))
 
 
 def mode_targets(scn: Scenario, target: TargetCloud, cfg: Config, coarse: CoarseResult,

@@ -111,9 +111,12 @@ if TYPE_CHECKING:
 class LaneLines:
     """Labelled, directed target lines in L: samples (M, 2) of the lanelet centre lines
     (optionally shifted sideways towards the sensor), their unit left normals (M, 2) -- the
-    driving direction is ``(n_y, -n_x)`` --, label codes (M,) and the index (M,) of the
+    driving direction is ``(n_y, -n_x)`` --, label codes (M,), the index (M,) of the
     lanelet each sample belongs to (None: unknown; it groups the points whose lateral bias
-    is considered per lanelet, ``consider_lane_bias_sigma``). One KD-tree per label over
+    is considered per lanelet, ``consider_lane_bias_sigma``) and the offset (M, 2) (m)
+    between the two constructions of the centre line at each sample
+    (:meth:`fgloc.scenario.Lanelet.centre`; None: 0).
+    One KD-tree per label over
     ``(x, y, w cos psi, w sin psi)`` (psi the driving direction, ``w`` the heading weight in m)
     is built on first use and kept, so a vehicle is matched to a lane it drives along, not to
     a crossing one."""
@@ -122,26 +125,28 @@ class LaneLines:
     normal: np.ndarray
     label: np.ndarray
     lane: np.ndarray | None = None
+    centre_offset: np.ndarray | None = None
     _trees: dict[tuple[int, float], tuple[np.ndarray, cKDTree]] = field(
         default_factory=dict, init=False, repr=False)
 
     @classmethod
     def build(cls, scn: Scenario, target: TargetCloud, step: float, sensor_xy: np.ndarray,
               offset: float, two_way_min_width: float = TWO_WAY_MIN_WIDTH,
-              join_length: float = 0.0) -> LaneLines:
+              join_length: float = 0.0, centre: str = "resampled") -> LaneLines:
         """Lane lines of the lanelets that hold target points (:meth:`LaneCentres.build`;
         labels mirrored on a lane driven against its lanelet, ``two_way_min_width`` sets the
         lane model of two-way lanelets),
         sampled every about ``step`` m and shifted ``offset`` m towards ``sensor_xy`` (2,) (0:
         the centre lines); ``lane`` is the index of each sample's lane line. ``join_length``
         > 0: each lane smoothed through its joins with the lanes before and after it with
-        that steering length (m) (:func:`fgloc.map.lane_joins.smooth_lane_joins`)."""
+        that steering length (m) (:func:`fgloc.map.lane_joins.smooth_lane_joins`); ``centre``:
+        the kind of the lanelets' centre lines (``[map] centre_line``)."""
         from fgloc.coarse import LaneCentres
         from fgloc.map.lane_joins import lane_keys, smooth_lane_joins
         from fgloc.registration.fine import lane_labels
 
         lanelets = target.lanelets(scn.lanelets)
-        lanes = LaneCentres.build(lanelets, step, two_way_min_width)
+        lanes = LaneCentres.build(lanelets, step, two_way_min_width, centre)
         if join_length > 0.0 and len(lanes.xy):
             keys = lane_keys(lanelets, lanes.lanelet, lanes.against, lanes.lane)
             xy, normal = smooth_lane_joins(lanes.xy, lanes.lane, keys, join_length, step,
@@ -149,22 +154,33 @@ class LaneLines:
             lanes = dataclasses.replace(lanes, xy=xy, normal=normal)
         side = np.sign(np.einsum("ij,ij->i", np.asarray(sensor_xy) - lanes.xy, lanes.normal))
         return cls.of(lanes.xy + (offset * side)[:, None] * lanes.normal, lanes.normal,
-                      lane_labels(target, lanelets, lanes), lanes.lane)
+                      lane_labels(target, lanelets, lanes), lanes.lane, lanes.centre_offset)
 
     @classmethod
     def of(cls, xy: np.ndarray, normal: np.ndarray, label: np.ndarray,
-           lane: np.ndarray | None = None) -> LaneLines:
+           lane: np.ndarray | None = None, centre_offset: np.ndarray | None = None
+           ) -> LaneLines:
         """Lines from samples (M, 2), unit left normals (M, 2), label codes (M,) and,
-        optionally, the lanelet index of each sample (M,)."""
+        optionally, the lanelet index (M,) and the offset (M, 2) (m) between the centre
+        line's two constructions of each sample."""
         xy, normal = np.asarray(xy, dtype=float), np.asarray(normal, dtype=float)
         label = np.asarray(label, dtype=np.int64)
         lane = None if lane is None else np.asarray(lane, dtype=np.int64)
+        off = None if centre_offset is None else np.asarray(centre_offset, dtype=float)
         if (normal.shape != xy.shape or label.shape != (xy.shape[0],) or xy.ndim != 2
-                or (lane is not None and lane.shape != label.shape)):
+                or (lane is not None and lane.shape != label.shape)
+                or (off is not None and off.shape != xy.shape)):
             raise ValueError(f"LaneLines: xy {xy.shape}, normal {normal.shape}, label "
-                             f"{label.shape} and lane {None if lane is None else lane.shape} "
-                             "do not match")
-        return cls(xy, normal, label, lane)
+                             f"{label.shape}, lane {None if lane is None else lane.shape} and "
+                             f"centre_offset {None if off is None else off.shape} do not match")
+        return cls(xy, normal, label, lane, off)
+
+    @property
+    def ambiguity(self) -> np.ndarray | None:
+        """(M,) half the distance (m) between the centre line's two constructions at each
+        sample (None without ``centre_offset``)."""
+        return None if self.centre_offset is None else 0.5 * np.linalg.norm(
+            self.centre_offset, axis=1)
 
     def tree(self, code: int, weight: float) -> tuple[np.ndarray, cKDTree]:
         """(indices, KD-tree over (x, y, weight * direction)) of label ``code``."""
@@ -354,30 +370,48 @@ def track_quadratic(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
 
 
 def _bias_terms(jc: JointConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Prior std. devs. of both side-bias terms (constant m, range-proportional m per 100 m)
-    and which of them are in use (std. dev. > 0)."""
-    sd = np.array([jc.side_bias_sigma, jc.range_bias_sigma])
+    """Prior std. devs. of the shared shifts of the targets (constant side bias m,
+    range-proportional side bias m per 100 m, centre-line share 1) and which of them are in
+    use (std. dev. > 0)."""
+    sd = np.array([jc.side_bias_sigma, jc.range_bias_sigma, jc.centre_line_sigma])
     return sd, sd > 0.0
 
 
 def bias_sigmas(jc: JointConfig) -> np.ndarray:
-    """Prior std. devs. of the side-bias parameters in use: the constant one (m) with
-    ``side_bias_sigma``, then the range-proportional one (m per 100 m) with
-    ``range_bias_sigma``."""
+    """Prior std. devs. of the shared shifts in use: the constant side bias (m) with
+    ``side_bias_sigma``, the range-proportional one (m per 100 m) with ``range_bias_sigma``,
+    then the centre-line share with ``centre_line_sigma``."""
     sd, used = _bias_terms(jc)
     return sd[used]
 
 
 def side_basis(target: np.ndarray, normal: np.ndarray, sensor_l: np.ndarray,
-               jc: JointConfig) -> np.ndarray | None:
-    """(P, nb) each point's coefficients of the side-bias parameters (:func:`bias_sigmas`):
-    the sign of the sensor's side of its line along ``normal`` (so a positive bias moves the
-    point towards the sensor), times 1 and / or the target's range from ``sensor_l`` in hm;
-    target, normal (P, 2) and sensor_l (2,) in L. None without side-bias parameters."""
+               jc: JointConfig, centre: np.ndarray | None = None) -> np.ndarray | None:
+    """(P, nb) each point's coefficients of the shared shifts (:func:`bias_sigmas`): of the
+    side biases the sign of the sensor's side of its line along ``normal`` (so a positive
+    bias moves the point towards the sensor), times 1 and / or the target's range from
+    ``sensor_l`` in hm; of the centre-line share ``centre`` (P,), the offset (m) along
+    ``normal`` from the arc-length centre line to lanelet2's where the point is matched
+    (:func:`centre_shift`; None: 0). target, normal (P, 2) and sensor_l (2,) in L. None
+    without shared shifts."""
     _, used = _bias_terms(jc)
     if not used.any():
         return None
-    return _side_columns(target, normal, sensor_l)[:, used]
+    share = np.zeros(len(target)) if centre is None else centre
+    return np.column_stack([_side_columns(target, normal, sensor_l), share])[:, used]
+
+
+def centre_shift(lines: LaneLines, index: np.ndarray, normal: np.ndarray) -> np.ndarray | None:
+    """(P,) the offset (m) from the arc-length centre line to lanelet2's along each point's
+    oriented ``normal`` (P, 2) at its matched sample (``index``, -1 none: 0); None when the
+    lines have no centre offsets. The centre-line share moves each target by its value
+    times this."""
+    if lines.centre_offset is None:
+        return None
+    ok = index >= 0
+    out = np.zeros(len(index))
+    out[ok] = np.einsum("pi,pi->p", lines.centre_offset[index[ok]], normal[ok])
+    return out
 
 
 def _side_columns(target: np.ndarray, normal: np.ndarray, sensor_l: np.ndarray) -> np.ndarray:
@@ -450,10 +484,12 @@ def consider_covariance(info: np.ndarray, sigma: np.ndarray) -> np.ndarray:
 def _point_set(fp: FramePoints, pad: tuple[np.ndarray, np.ndarray], index: np.ndarray,
                compat: np.ndarray, target: np.ndarray, normal: np.ndarray, sigma: np.ndarray,
                x: np.ndarray, glob: np.ndarray, b: np.ndarray | None, huber_scale: float,
-               gp: ContourGP, jc: JointConfig, sensor_l: np.ndarray) -> PointSet:
+               gp: ContourGP, jc: JointConfig, sensor_l: np.ndarray,
+               centre: np.ndarray | None = None) -> PointSet:
     """The round's matched points, padded per frame (:class:`PointSet`); sigma: (P,) std.
     dev. (m) of each point across its line; glob: the global parameters (pose, and the side
-    bias with ``side_bias_sigma``); sensor_l (2,): the sensor in L (the side of each line).
+    bias with ``side_bias_sigma``); sensor_l (2,): the sensor in L (the side of each line);
+    centre (P,): each point's coefficient of the centre-line share (:func:`centre_shift`).
     The per-point weights (label compatibility x Huber of the across-line residual at (x,
     glob, b) in units of ``huber_scale`` m) are fixed for the round (IRLS), so the optimizer
     sees a smooth objective."""
@@ -462,7 +498,7 @@ def _point_set(fp: FramePoints, pad: tuple[np.ndarray, np.ndarray], index: np.nd
     sig_t = sigma / np.sqrt(jc.along_weight) if jc.along_weight > 0 else np.inf
     n = np.where(ok[:, None], normal, np.array([1.0, 0.0]))
     info = line_sqrt_info(n, np.where(ok, sigma, 1.0), sig_t)
-    basis = side_basis(target, n, sensor_l, jc)
+    basis = side_basis(target, n, sensor_l, jc, centre)
     side = None if basis is None else basis[pi]
     pts = PointSet(fp.frame_state, fp.frame_track, fp.theta[pi], fp.H[pi], fp.mean[pi],
                    target[pi], n[pi], info[pi], (valid & ok[pi]).astype(float), gp.mu, side)
@@ -523,10 +559,14 @@ class NoiseLevels:
         independent ones (AR(1))."""
         return (1.0 + self.rho) / (1.0 - self.rho)
 
-    def point_sigma(self, per_frame: np.ndarray) -> np.ndarray:
+    def point_sigma(self, per_frame: np.ndarray, ambiguity: np.ndarray | float = 0.0
+                    ) -> np.ndarray:
         """Std. dev. (m) of each point of frames with ``per_frame`` matched points, such that
-        a frame weighs like one measurement of its mean, deflated by the frame correlation."""
-        return self.frame * np.sqrt(self.inflation * np.maximum(per_frame, 1))
+        a frame weighs like one measurement of its mean, deflated by the frame correlation;
+        ``ambiguity`` (m; one, or per point) of the line where a point is matched adds to
+        the frame noise in quadrature."""
+        frame = np.sqrt(self.frame**2 + np.square(ambiguity))
+        return frame * np.sqrt(self.inflation * np.maximum(per_frame, 1))
 
     def settled(self, other: NoiseLevels, tol: float = 0.1) -> bool:
         """Every level within ``tol`` (relative; rho: absolute) of ``other``'s."""
@@ -537,6 +577,14 @@ class NoiseLevels:
     def summary(self) -> dict[str, float]:
         return {"within_m": self.within, "frame_m": self.frame, "rho": self.rho,
                 "offset_m": self.offset, "inflation": self.inflation}
+
+
+def _ambiguity(lines: LaneLines, index: np.ndarray, scale: float) -> np.ndarray | float:
+    """(P,) ``scale`` times the centre-line ambiguity (m) where each point is matched
+    (``index`` into the lines, -1 none: 0); 0 when the lines have none or ``scale`` is 0."""
+    if lines.ambiguity is None or scale == 0.0:
+        return 0.0
+    return scale * np.where(index >= 0, lines.ambiguity[np.maximum(index, 0)], 0.0)
 
 
 def noise_levels(fp: FramePoints, states0: np.ndarray, T: np.ndarray, index: np.ndarray,
@@ -625,6 +673,7 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     layout = BandedLayout(len(x), tq.below)
     offsets = jc.offset_sigma > 0.0
     bias_sd = bias_sigmas(jc)
+    n_side = len(bias_sd) - int(jc.centre_line_sigma > 0)      # side biases before the share
     pose = np.concatenate([se2_params(T0), np.zeros(len(bias_sd))])
     b = np.zeros(len(dec.tracks)) if offsets else None
     prior_sd = np.array([jc.pose_prior_sigma, jc.pose_prior_sigma,
@@ -649,10 +698,12 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
             noise = noise_levels(fp, states0, se2(*pose[:3]), index, target, normal, gp,
                                  len(dec.tracks), jc.min_sigma)
         per_frame = np.bincount(fp.point_frame[ok], minlength=len(fp.frame_state))
-        sigma = noise.point_sigma(per_frame[fp.point_frame])
+        sigma = noise.point_sigma(per_frame[fp.point_frame],
+                                  _ambiguity(lines, index, jc.centre_ambiguity))
         sensor_l = transform_points(se2(*pose[:3]), sensor_xy[None])[0]
+        centre = centre_shift(lines, index, normal)
         pts = _point_set(fp, pad, index, compat, target, normal, sigma, x, pose, b,
-                         noise.within, gp, jc, sensor_l)
+                         noise.within, gp, jc, sensor_l, centre)
         pri = Priors(np.zeros(len(pose)), 1.0 / prior_sd,
                      1.0 / noise.offset if offsets else 0.0)
         _add_time(timing, "associate", t0)
@@ -683,7 +734,9 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
         step_yaw = float(abs(wrap_angle(pose[2] - before[2])))
         history.append({"round": rounds, "tx": float(pose[0]), "ty": float(pose[1]),
                         "yaw_deg": float(np.rad2deg(pose[2])), "step_m": step_xy,
-                        "side_bias_m": pose[3:].tolist(),
+                        "side_bias_m": pose[3:3 + n_side].tolist(),
+                        "centre_line_share": (float(pose[-1]) if jc.centre_line_sigma > 0
+                                              else None),
                         "step_yaw_deg": float(np.rad2deg(step_yaw)), "noise": noise.summary(),
                         "matched": int(ok.sum()), "error": float(cost)})
         if step_xy >= jc.tol_position or step_yaw >= np.deg2rad(jc.tol_yaw_deg):
@@ -692,7 +745,7 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
             converged = True
             break
         # the pose settled: re-estimate the noise levels; done when they settled too
-        basis = side_basis(target, normal, sensor_l, jc)
+        basis = side_basis(target, normal, sensor_l, jc, centre)
         again = noise_levels(fp, states0, se2(*pose[:3]), index, target, normal, gp,
                              len(dec.tracks), jc.min_sigma,
                              None if basis is None else basis @ pose[3:])
@@ -843,7 +896,7 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
             mode_sensor = transform_points(mode.start, sensor_c[None])[0]
             lines = LaneLines.build(scn, target, cfg.fine.lane_sample_step, mode_sensor, offset,
                                     min_width(mode.lanes, cfg.map.two_way_min_width),
-                                    cfg.joint.join_smoothing_length)
+                                    cfg.joint.join_smoothing_length, cfg.map.centre_line)
             T0 = mode.T_fine if cfg.joint.start == "sicp" else mode.start
             jr = joint_refine(subset, det_xy, sensor_c, lines, T0, cfg, trusted, rates)
             cov = sensor_covariance(jr.covariance, jr.T, sensor_c, tilt)

@@ -89,6 +89,21 @@ class JointConfig:
     vertex). 0 = the lanelets' centre lines as mapped. 1.5 (of 1.5 / 2 / 3) came out best on
     the real map's junctions under paths made three ways and changes nothing on the
     synthetic layouts (docs/experiments.md, issue 22)."""
+    centre_ambiguity: float = 1.0
+    """Scale of the centre-line ambiguity in the point noise: a point matched where its
+    lanelet's two centre-line constructions lie ``2 a`` m apart (``[map] centre_line``,
+    :meth:`fgloc.scenario.Lanelet.centre`) has its frame noise ``frame`` grown to
+    ``sqrt(frame^2 + (centre_ambiguity a)^2)``, so hand-mapped turns whose centre is not
+    known weigh less; 0 = off. Changes nothing where the constructions agree (the simulated
+    layouts)."""
+    centre_line_sigma: float = 0.5
+    """Prior standard deviation of the centre-line share: one parameter, shared by every
+    point, that moves each target by that share of the offset from the arc-length centre
+    line of its lanelet to lanelet2's (``[map] centre_line``,
+    :meth:`fgloc.scenario.Lanelet.centre`): where between the two constructions the vehicles
+    drive, estimated from the data (0 = the "mean" line, -0.5 = the arc-length one, +0.5 =
+    lanelet2's); 0 = off. Moves nothing where the constructions agree (the simulated
+    layouts)."""
     offset_sigma: float = 0.3
     """Prior standard deviation (m) of each track's lateral offset from its target lines
     (shared by all of its points: models their correlation) without ``estimate_noise``;
@@ -191,6 +206,8 @@ def check_joint_config(cfg: JointConfig) -> None:
         "huber_k": cfg.huber_k < 0.0,
         "offset_sigma": cfg.offset_sigma < 0.0,
         "join_smoothing_length": cfg.join_smoothing_length < 0.0,
+        "centre_ambiguity": cfg.centre_ambiguity < 0.0,
+        "centre_line_sigma": cfg.centre_line_sigma < 0.0,
         "side_bias_sigma": cfg.side_bias_sigma < 0.0,
         "range_bias_sigma": cfg.range_bias_sigma < 0.0,
         "consider_side_bias_sigma": cfg.consider_side_bias_sigma < 0.0,
