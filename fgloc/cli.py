@@ -113,6 +113,10 @@ def scenario_summary(path: str | Path) -> str:
     drivable_kinds = [lanelet_kind(ll) for ll in lmap.lanelets]
     by_kind = ", ".join(f"{k} {drivable_kinds.count(k)}" for k in sorted(set(drivable_kinds)))
 
+    # how far apart the two constructions of each lanelet's centre line lie (formats.md)
+    apart = np.array([np.linalg.norm(ll.centre(ll.samples(0.5))[1], axis=1).max()
+                      for ll in lmap.lanelets])
+
     def counts(d: dict[str, int]) -> str:
         return ", ".join(f"{k} {v}" for k, v in d.items()) or "none"
     rate = len(r) / r.duration if r.duration > 0 else float("nan")
@@ -133,6 +137,9 @@ def scenario_summary(path: str | Path) -> str:
         f"lanelets      {len(lmap)} drivable ({by_kind}; {lmap.rules})",
         f"  labels      {by_label} ({n_routed} from the routing graph's junction movements, "
         f"the rest by Menger curvature, gamma {map_cfg.gamma:g} 1/m)",
+        f"  centre line {map_cfg.centre_line!r}; arc-length and lanelet2's construction "
+        f"apart by median {np.median(apart):.2f} m, max {apart.max():.2f} m, "
+        f"over 0.3 m on {int((apart > 0.3).sum())} lanelets",
         f"  ignored     {sum(lmap.ignored_by_kind().values())} not drivable "
         f"({counts(lmap.ignored_by_kind())})",
         f"map areas     {len(lmap.areas)} ({counts(lmap.areas_by_kind())})",

@@ -519,6 +519,10 @@ def test_cli_simulate_map_and_info(tmp_path: Path, capsys: pytest.CaptureFixture
     assert re.search(r"lanelets\s+\d+ drivable \(road \d+; lanelet2 traffic rules de/vehicle\)",
                      text)
     assert "crosswalk" in text and "not drivable" in text and "from the routing graph" in text
+    # the crop's hand-mapped turns: the two centre-line constructions apart by up to ~1 m
+    m = re.search(r"centre line 'mean'; .* median ([\d.]+) m, max ([\d.]+) m, over 0.3 m on "
+                  r"(\d+) lanelets", text)
+    assert m and float(m[1]) < 0.2 and 0.3 < float(m[2]) < 2.5 and int(m[3]) >= 1, text
     assert main(["simulate", "--map", str(CROP), "--site", "49.0", "--out",
                  str(tmp_path / "x")]) == 2
     assert main(["simulate", "--map", str(CROP), "--site", "49.1,8.4", "--out",
