@@ -51,7 +51,11 @@ scatter about the offset line, a robust MAD estimate) and ``offset_sigma`` (RMS 
 estimated offsets) are re-estimated from the data each round, so the covariance follows the
 data rather than a tuned constant. The tracker places far vehicles towards the sensor by an
 amount that grows with range; a range-proportional side bias (``range_bias_sigma``, a global
-parameter beside ``T``) takes it up instead of a rotation. The model covariance is the
+parameter beside ``T``) takes it up instead of a rotation. A hand-mapped turn has two centre
+lines (the arc-length construction and lanelet2's, up to 2 m apart); the targets lie midway
+(``[map] centre_line``), one more global parameter, the centre-line share
+(``centre_line_sigma``), moves them towards either, and half the distance between the two
+adds to the point noise (``centre_ambiguity``). The model covariance is the
 marginal covariance of ``T`` at the solution (the inverse of its Schur complement, equal to
 ``gtsam.Marginals`` on the equivalent graph); the reported one (``covariance =
 "track-robust"``) is the cluster-robust sandwich over tracks, never below the model one
@@ -115,11 +119,10 @@ class LaneLines:
     lanelet each sample belongs to (None: unknown; it groups the points whose lateral bias
     is considered per lanelet, ``consider_lane_bias_sigma``) and the offset (M, 2) (m)
     between the two constructions of the centre line at each sample
-    (:meth:`fgloc.scenario.Lanelet.centre`; None: 0).
-    One KD-tree per label over
-    ``(x, y, w cos psi, w sin psi)`` (psi the driving direction, ``w`` the heading weight in m)
-    is built on first use and kept, so a vehicle is matched to a lane it drives along, not to
-    a crossing one."""
+    (:meth:`fgloc.scenario.Lanelet.centre`; None: 0). One KD-tree per label over ``(x, y,
+    w cos psi, w sin psi)`` (psi the driving direction, ``w`` the heading weight in m) is
+    built on first use and kept, so a vehicle is matched to a lane it drives along, not to a
+    crossing one."""
 
     xy: np.ndarray
     normal: np.ndarray
