@@ -67,9 +67,10 @@ class MapConfig:
     "mean" = midway between them. The two constructions agree on bounds drawn with many
     evenly spaced nodes (the simulated layouts: within 2.4 cm) but lie up to 2 m apart on
     hand-mapped turns (the Lanelet2 example map: over 0.37 m on a tenth of its road
-    lanelets); where vehicles drive there is not known, "mean" is off by at most half that
-    from either, and the joint counts that half as the line's ambiguity
-    (``[joint] centre_ambiguity``)."""
+    lanelets). Where vehicles drive there is not known. "mean" is off by at most half that
+    from either. The joint counts that half as the line's ambiguity (``[joint]
+    centre_ambiguity``) and estimates where between the two the vehicles drive (``[joint]
+    centre_line_sigma``)."""
 
     def __post_init__(self) -> None:
         if self.centre_line not in CENTRE_LINES:
