@@ -165,7 +165,7 @@ class Lanelet:
                              f"{', '.join(CENTRE_LINES)}")
         own = self.centerline(n)
         l2 = self.lanelet2_centerline()
-        offset = nearest_on_polyline(own, l2) - own
+        offset = nearest_on_segments(own, l2[:-1], l2[1:]) - own
         line = {"resampled": own, "mean": own + 0.5 * offset}.get(kind)
         return (resample_polyline(l2, n) if line is None else line), offset
 
@@ -266,14 +266,17 @@ def _length(p: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
 
 
-def nearest_on_polyline(points: np.ndarray, line: np.ndarray) -> np.ndarray:
-    """(n, 2) the nearest point of the polyline ``line`` (m, 2) to each of ``points`` (n, 2)."""
-    a, d = line[:-1, :2], np.diff(line[:, :2], axis=0)                  # (m-1, 2) segments
-    rel = points[:, None, :2] - a[None]
-    t = np.clip(np.einsum("nmk,mk->nm", rel, d) / np.maximum((d * d).sum(1), 1e-18), 0.0, 1.0)
-    foot = a[None] + t[..., None] * d[None]
-    best = np.argmin(((points[:, None, :2] - foot) ** 2).sum(-1), axis=1)
-    return foot[np.arange(len(points)), best]
+def nearest_on_segments(xy: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(n, 2) the nearest point to each of ``xy`` (n, 2) on the segments ``a`` -> ``b``
+    (m, 2 each; a segment of zero length is its point)."""
+    ab = b - a
+    length2 = np.einsum("ij,ij->i", ab, ab)
+    ap = xy[:, None, :] - a[None, :, :]
+    t = np.clip(np.einsum("pej,ej->pe", ap, ab) / np.where(length2 > 0.0, length2, 1.0),
+                0.0, 1.0)
+    d = ap - t[..., None] * ab[None]
+    best = np.argmin(np.einsum("pej,pej->pe", d, d), axis=1)
+    return a[best] + t[np.arange(len(xy)), best, None] * ab[best]
 
 
 def resample_polyline(p: np.ndarray, n: int) -> np.ndarray:

@@ -29,7 +29,7 @@ from fgloc.config import MapConfig
 from fgloc.errors import InputError, LocalizationError
 from fgloc.labels import NAMES
 from fgloc.map.lanelet_labels import map_labels
-from fgloc.scenario import AlsCloud, Lanelet, LaneletMap, Scenario
+from fgloc.scenario import AlsCloud, Lanelet, LaneletMap, Scenario, nearest_on_segments
 
 #: ASPRS codes that mean "not classified"; an ALS holding only these has no class information.
 UNCLASSIFIED_CODES: tuple[int, ...] = (0, 1)
@@ -101,13 +101,7 @@ def _edges(poly: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _boundary_distance(xy: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Distance (m) of every point to the nearest polygon edge."""
-    ab = b - a
-    ll = np.einsum("ij,ij->i", ab, ab)
-    ll = np.where(ll > 0.0, ll, 1.0)
-    ap = xy[:, None, :] - a[None, :, :]
-    t = np.clip(np.einsum("pej,ej->pe", ap, ab) / ll, 0.0, 1.0)
-    d = ap - t[..., None] * ab[None]
-    return np.sqrt(np.min(np.einsum("pej,pej->pe", d, d), axis=1))
+    return np.linalg.norm(xy - nearest_on_segments(xy, a, b), axis=1)
 
 
 def _densify(a: np.ndarray, b: np.ndarray, step: float) -> np.ndarray:
