@@ -162,9 +162,10 @@ def main() -> None:
                     default=["routing", "curvature"], help="[map] labels modes compared")
     ap.add_argument("--two-way-traffic", choices=list(TRAFFIC), nargs="+",
                     default=list(TRAFFIC),
-                    help="where the simulated vehicles drive on two-way lanelets "
-                    "([real_map] two_way_traffic) and whether on the lane lines as mapped "
-                    "(keep-right-mapped), one row group per kind")
+                    help="the kinds of simulated traffic (TRAFFIC): where vehicles drive on "
+                    "two-way lanelets ([real_map] two_way_traffic), whether on the lane lines "
+                    "as mapped (keep-right-mapped) and on lanelet2's centre lines "
+                    "(centre-lanelet2); one row group per kind")
     ap.add_argument("--config", type=Path, default=None,
                     help="fgloc config TOML (default: all defaults; [map] labels is set per mode)")
     args = ap.parse_args()
