@@ -266,6 +266,13 @@ def _length(p: np.ndarray) -> float:
     return float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum())
 
 
+def centre_ambiguity(offset: np.ndarray) -> np.ndarray:
+    """(n,) the ambiguity (m) of a centre line at each sample: half the length of its offset
+    (n, 2) between the two constructions (:meth:`Lanelet.centre`); a "mean" line lies that
+    far from either."""
+    return 0.5 * np.linalg.norm(np.asarray(offset, dtype=float), axis=1)
+
+
 def nearest_on_segments(xy: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(n, 2) the nearest point to each of ``xy`` (n, 2) on the segments ``a`` -> ``b``
     (m, 2 each; a segment of zero length is its point)."""

@@ -16,9 +16,11 @@ from scipy.spatial import cKDTree
 from fgloc.coarse import LaneCentres
 from fgloc.config import Config, MapConfig, from_dict
 from fgloc.errors import InputError
+from fgloc.registration.fine import centre_weights
 from fgloc.registration.joint import LaneLines, NoiseLevels, _ambiguity, centre_shift
 from fgloc.registration.joint_config import check_joint_config
-from fgloc.scenario import CENTRE_LINES, Lanelet, resample_polyline
+from fgloc.registration.source import check_fine_config
+from fgloc.scenario import CENTRE_LINES, Lanelet, centre_ambiguity, resample_polyline
 
 #: lanelet 45096 of the Lanelet2 example map (BSD-3-Clause, FZI), bounds relative to its
 #: left bound's first node: a left turn, the outer bound drawn with 5 nodes, the inner with 4
@@ -106,6 +108,27 @@ def test_lanes_follow_the_centre_line_asked_both_ways() -> None:
         # the normals are the left normals of the driving direction
         d = np.gradient(lanes.xy[fwd], axis=0)
         assert (np.einsum("ij,ij->i", lanes.normal[fwd], d) < 1e-9).all()
+
+
+def test_sicp_lane_targets_weigh_less_where_the_centre_is_ambiguous() -> None:
+    """``[fine] centre_weight_sigma``: a lane sample ambiguous by a m weighs s^2 / (s^2 + a^2)
+    in filter-sicp's and smoother-sicp's alignment; the turn drawn with few nodes weighs down
+    to a fifth or less, the arc drawn with many nodes keeps its weight."""
+    np.testing.assert_allclose(centre_weights(np.array([0.0, 0.25, 0.5]), 0.25),
+                               [1.0, 0.5, 0.2])
+    assert centre_weights(np.array([0.3]), 0.0) is None
+    turn, arc = _lanelet(TURN_LEFT, TURN_RIGHT, 1), _lanelet(_arc(10.0, 40), _arc(13.5, 40), 2)
+    lanes = LaneCentres.build([turn, arc], 0.25, centre="mean")
+    amb = centre_ambiguity(lanes.centre_offset)
+    np.testing.assert_allclose(amb, 0.5 * np.linalg.norm(lanes.centre_offset, axis=1))
+    w = centre_weights(amb, Config().fine.centre_weight_sigma)
+    assert w[lanes.lanelet == 1].min() > 0.99
+    assert w[lanes.lanelet == 0].min() < 0.2
+    assert w[lanes.lanelet == 0][[0, -1]].min() > 0.99      # both lines end mid-bounds
+    cfg = Config()
+    cfg.fine.centre_weight_sigma = -0.1
+    with pytest.raises(ValueError, match="centre_weight_sigma"):
+        check_fine_config(cfg.fine)
 
 
 def test_joint_point_noise_counts_the_ambiguity() -> None:

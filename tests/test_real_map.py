@@ -16,14 +16,14 @@ import pytest
 from lanelet2.io import Origin
 from lanelet2.projection import UtmProjector
 
-from fgloc.config import MapConfig
+from fgloc.config import Config, MapConfig
 from fgloc.errors import InputError
 from fgloc.geo import LocalFrame, transformer, wrap_angle
 from fgloc.io.lanelet_map import als_ground, passable_by_tags, read_lanelet_map
 from fgloc.io.sensor_file import read_sensor_toml, write_sensor_toml
 from fgloc.labels import LEFT, RIGHT, STRAIGHT, junction_movements, routing_labels
 from fgloc.map import build_target_cloud, map_labels, points_in_polygon
-from fgloc.registration.fine import lane_centre_points
+from fgloc.registration.fine import centre_weights, fine_targets, lane_centre_points
 from fgloc.scenario import (
     AlsCloud,
     Lanelet,
@@ -150,9 +150,24 @@ def test_no_target_point_on_crosswalk_walkway_or_bicycle_lane(crop_map: LaneletM
     summary = target.summary()
     assert summary["ignored_lanelets"] == crop_map.ignored_by_kind()
     # what coarse, fine and joint build their lane models from: drivable lanelets only
-    lane_xy, _, _ = lane_centre_points(scn, target, 2.0)
+    lane_xy = lane_centre_points(scn, target, 2.0)[0]
     assert inside_any(lane_xy, crop_map.lanelets).all()
     assert not (inside_any(lane_xy, others) & ~inside_any(lane_xy, crop_map.lanelets)).any()
+
+
+def test_sicp_lane_targets_carry_the_centre_weights(crop_map: LaneletMap) -> None:
+    """filter-sicp's lane target on the crop: each sample weighs by its centre line's
+    ambiguity (``[fine] centre_weight_sigma``); the crop's hand-mapped turns weigh less."""
+    scn = flat_scenario(crop_map, site_frame())
+    target = build_target_cloud(scn, MapConfig())
+    cfg = Config()
+    targets = fine_targets(scn, target, cfg, np.zeros(2))
+    amb = lane_centre_points(scn, target, cfg.fine.lane_sample_step, np.zeros(2),
+                             cfg.coarse.visible_side_offset, centre=cfg.map.centre_line)[3]
+    np.testing.assert_allclose(targets.weight, centre_weights(amb, cfg.fine.centre_weight_sigma))
+    assert (targets.weight < 0.5).mean() > 0.01 and np.median(targets.weight) > 0.9
+    cfg.fine.centre_weight_sigma = 0.0
+    assert fine_targets(scn, target, cfg, np.zeros(2)).weight is None
 
 
 # --------------------------------------------------------------------------------------------

@@ -336,3 +336,30 @@ def test_track_covariance_counts_the_evidence_per_track():
     plain = SemanticTargets.build(targets.xy, targets.label)
     assert track_covariance(sicp(xy, np.zeros(len(xy)), plain, None, np.eye(3), cfg), xy,
                             track, plain, cfg) is None
+
+
+@pytest.mark.parametrize("w", [1.0, 1.0 / 3.0, 0.0])
+def test_target_weights_scale_the_pull_of_what_is_matched_there(w):
+    """Two point-symmetric sets of isolated features, as many in each: one mapped where it is
+    (weight 1), one mapped 0.5 m east of where it is seen (weight w). Weighted least squares
+    moves the source by the weighted mean offset, 0.5 w / (1 + w) m east, without a turn."""
+    a = scattered(50, seed=0) + 5.0
+    b = scattered(50, seed=1) + np.array([5.0, -80.0])
+    src = np.vstack([a, -a, b, -b])
+    offset = np.r_[np.zeros(2 * len(a)), np.full(2 * len(b), 0.5)]
+    targets = SemanticTargets.build(src + np.column_stack([offset, np.zeros_like(offset)]),
+                                    np.zeros(len(src)), weight=np.where(offset > 0.0, w, 1.0))
+    res = sicp(src, np.zeros(len(src)), targets, None, np.eye(3),
+               SicpConfig(mode="none", min_correspondence=2.0))
+    x, y, yaw = se2_params(res.T)
+    assert x == pytest.approx(0.5 * w / (1.0 + w), abs=1e-6)
+    assert abs(y) < 1e-6 and abs(yaw) < 1e-8
+    np.testing.assert_allclose(res.weights, np.where(offset > 0.0, w, 1.0))
+
+
+def test_target_weights_are_checked():
+    txy, tl = np.zeros((3, 2)), np.zeros(3)
+    with pytest.raises(ValueError, match="target weight"):
+        SemanticTargets.build(txy, tl, weight=np.ones(2))
+    with pytest.raises(ValueError, match="target weight"):
+        SemanticTargets.build(txy, tl, weight=np.array([0.5, 1.0, 1.5]))

@@ -91,7 +91,7 @@ def _scene(lanelets: list[Lanelet], labels: dict[int, int]) -> tuple[object, Tar
 def test_lane_against_a_turning_lanelet_takes_the_mirrored_label() -> None:
     turn = _arc(7, 12.0, 7.0, "no")
     scn, target = _scene([turn], {7: LEFT})
-    xy, label, _ = lane_centre_points(scn, target, 0.5)
+    xy, label, _, _ = lane_centre_points(scn, target, 0.5)
     r = np.hypot(xy[:, 0], xy[:, 1])
     # keeping right, the lanelet's own direction (a left turn) takes the outer half (radius
     # 12 + 1.75), the other direction the inner half, turning right
@@ -120,7 +120,7 @@ def test_fine_registration_on_two_way_streets_recovers_the_true_pose() -> None:
     src = transform_points(np.linalg.inv(T_err), truth)
     cfg = Config()
     res = sicp(src, np.full(len(src), STRAIGHT), SemanticTargets.build(
-        *lane_centre_points(scn, target, cfg.fine.lane_sample_step)), None, np.eye(3),
+        *lane_centre_points(scn, target, cfg.fine.lane_sample_step)[:3]), None, np.eye(3),
         fine_sicp_config(cfg))
     err = transform_points(res.T, src) - truth
     assert np.abs(err.mean(axis=0)).max() < 0.05
@@ -231,7 +231,7 @@ def test_the_tracks_choose_the_lane_model_of_their_traffic(traffic: str) -> None
         cfg.map.two_way_lanes = model
         width = min_width(model, cfg.map.two_way_min_width)
         targets = SemanticTargets.build(*lane_centre_points(
-            scn, target, cfg.fine.lane_sample_step, two_way_min_width=width))
+            scn, target, cfg.fine.lane_sample_step, two_way_min_width=width)[:3])
         res = sicp(src.xy, src.label, targets, None, np.eye(3), fine_sicp_config(cfg),
                    source_direction=src.direction)
         T_local = np.eye(4)

@@ -134,6 +134,12 @@ class FineConfig:
     largest std. dev. of 0.300 m (resolved); the constant fit lay 0.74 m from it."""
     lane_sample_step: float = 0.25
     """Spacing (m) of the samples on the lanelet centre lines (target "lane-centres")."""
+    centre_weight_sigma: float = 0.25
+    """Targets "lane-centres" and "visible-sides": a lane sample where the lanelet's centre
+    line is ambiguous by ``a`` m (half the distance between its two constructions, ``[map]
+    centre_line``; up to 1 m on hand-mapped turns) weighs ``s^2 / (s^2 + a^2)`` in the
+    alignment, ``s`` this value (m); 0 = every sample weighs 1. Where the map does not say
+    where vehicles drive, their tracks pull less (as the joint's ``centre_ambiguity``)."""
     n_trajectories: int | None = None
     """Use at most this many trajectories (tracks), chosen at random with ``Config.seed`` (the
     paper uses 20 of 80 and 50 of 146); None = all."""

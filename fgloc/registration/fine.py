@@ -51,7 +51,7 @@ from fgloc.registration.source import (
 )
 from fgloc.registration.visible_side import VisibleSide
 from fgloc.result import LocalizationResult, json_ready
-from fgloc.scenario import TWO_WAY_MIN_WIDTH, Lanelet, Scenario
+from fgloc.scenario import TWO_WAY_MIN_WIDTH, Lanelet, Scenario, centre_ambiguity
 
 if TYPE_CHECKING:
     from fgloc.coarse import CoarseResult, LaneCentres
@@ -63,11 +63,13 @@ def lane_centre_points(
     scn: Scenario, target: TargetCloud, step: float, towards: np.ndarray | None = None,
     offset: float | VisibleSide = 0.0, two_way_min_width: float = TWO_WAY_MIN_WIDTH,
     centre: str = "resampled",
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(K, 2) samples (m, in L) of the lane centre lines of the lanelets in ``target``
     (:meth:`LaneCentres.build`: one per direction on a wide two-way lanelet), every about
-    ``step`` m, and the (K,) label code of each (its lanelet's label, mirrored on a lane driven
-    against the lanelet's direction), and the (K, 2) unit driving direction of each. With
+    ``step`` m, the (K,) label code of each (its lanelet's label, mirrored on a lane driven
+    against the lanelet's direction), the (K, 2) unit driving direction of each and the (K,)
+    ambiguity (m) of its lanelet's centre line there (:func:`fgloc.scenario.centre_ambiguity`).
+    With
     ``towards`` (2,) m, every sample is shifted ``offset`` m sideways towards that point (the
     sensor); a :class:`VisibleSide` offset shifts each sample by its value at the sample's
     aspect seen from there. ``two_way_min_width`` (m) sets the lane model of two-way lanelets
@@ -81,7 +83,8 @@ def lane_centre_points(
         offset = offset.at(lanes.aspect(towards))
     xy = lanes.xy if towards is None else lanes.towards(towards, offset).xy
     direction = np.column_stack([lanes.normal[:, 1], -lanes.normal[:, 0]])
-    return xy, lane_labels(target, lanelets, lanes), direction
+    return xy, lane_labels(target, lanelets, lanes), direction, centre_ambiguity(
+        lanes.centre_offset)
 
 
 def lane_labels(target: TargetCloud, lanelets: list[Lanelet], lanes: LaneCentres) -> np.ndarray:
@@ -107,12 +110,23 @@ def fine_targets(
         return SemanticTargets.build(target.xyz[:, :2], target.label)
     width = min_width(lanes, cfg.map.two_way_min_width)
     if kind == "lane-centres":
-        return SemanticTargets.build(*lane_centre_points(scn, target, step,
-                                                         two_way_min_width=width,
-                                                         centre=cfg.map.centre_line))
-    offset = cfg.coarse.visible_side_offset if side is None else side
-    return SemanticTargets.build(*lane_centre_points(scn, target, step, sensor_xy, offset, width,
-                                                     cfg.map.centre_line))
+        xy, label, direction, ambiguity = lane_centre_points(
+            scn, target, step, two_way_min_width=width, centre=cfg.map.centre_line)
+    else:
+        offset = cfg.coarse.visible_side_offset if side is None else side
+        xy, label, direction, ambiguity = lane_centre_points(
+            scn, target, step, sensor_xy, offset, width, cfg.map.centre_line)
+    return SemanticTargets.build(xy, label, direction,
+                                 centre_weights(ambiguity, cfg.fine.centre_weight_sigma))
+
+
+def centre_weights(ambiguity: np.ndarray, sigma: float) -> np.ndarray | None:
+    """(K,) weights ``sigma^2 / (sigma^2 + a^2)`` of lane samples whose centre line is
+    ambiguous by ``a`` m (``[fine] centre_weight_sigma``, m); None (all 1) when ``sigma`` is
+    0."""
+    if sigma == 0.0:
+        return None
+    return sigma**2 / (sigma**2 + np.square(ambiguity))
 
 
 def mode_targets(scn: Scenario, target: TargetCloud, cfg: Config, coarse: CoarseResult,

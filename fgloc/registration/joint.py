@@ -101,7 +101,7 @@ from fgloc.registration.joint_solver import (
 )
 from fgloc.registration.sicp import _degeneracy, track_robust_covariance
 from fgloc.result import LocalizationResult, json_ready
-from fgloc.scenario import TWO_WAY_MIN_WIDTH, Scenario
+from fgloc.scenario import TWO_WAY_MIN_WIDTH, Scenario, centre_ambiguity
 from fgloc.smoothing.banded_lm import BandedLayout
 from fgloc.tracks import N_KIN, N_STATE, YAW, Track, TrackSet, X, Y
 
@@ -182,8 +182,7 @@ class LaneLines:
     def ambiguity(self) -> np.ndarray | None:
         """(M,) half the distance (m) between the centre line's two constructions at each
         sample (None without ``centre_offset``)."""
-        return None if self.centre_offset is None else 0.5 * np.linalg.norm(
-            self.centre_offset, axis=1)
+        return None if self.centre_offset is None else centre_ambiguity(self.centre_offset)
 
     def tree(self, code: int, weight: float) -> tuple[np.ndarray, cKDTree]:
         """(indices, KD-tree over (x, y, weight * direction)) of label ``code``."""

@@ -20,8 +20,9 @@ Algorithm (one call of :func:`sicp`)
      near the solution it agrees with "hard";
    * "none": plain point-to-point ICP.
 3. Alignment: the closed-form weighted 2D Procrustes (Kabsch) solution for the current pairs,
-   with weights = user weights x compatibility x robust-kernel weight of the current residual
-   (iteratively reweighted least squares; Huber ``min(1, k/d)``, Cauchy ``1/(1 + (d/k)^2)``).
+   with weights = user weights x compatibility x the matched target point's weight (if the
+   target has weights) x robust-kernel weight of the current residual (iteratively reweighted
+   least squares; Huber ``min(1, k/d)``, Cauchy ``1/(1 + (d/k)^2)``).
 4. Schedule: ``r`` starts at ``max_correspondence`` (50 m) and is multiplied by ``range_decay``
    per iteration down to ``min_correspondence``. Converged when, with ``r`` at its floor for two
    consecutive iterations, the inlier RMSE changes by less than ``rmse_tol`` and the last
@@ -89,13 +90,16 @@ class SemanticTargets:
 
     xy: (M, 2) float64 m in the target frame. label: (M,) int64 label codes. direction: None, or
     (M, 2) unit driving directions in the target frame (lanes: a source point with a direction
-    is then matched to a lane driven its way, :func:`sicp`). Reuse one object across
+    is then matched to a lane driven its way, :func:`sicp`). weight: None, or (M,) weights in
+    [0, 1] that multiply the alignment weight of every source point matched to each target
+    point (lanes: how sure the map is of where the lane lies there). Reuse one object across
     :func:`sicp` calls against the same target to build its trees only once.
     """
 
     xy: np.ndarray
     label: np.ndarray
     direction: np.ndarray | None = None
+    weight: np.ndarray | None = None
     _trees: dict[int, tuple[np.ndarray, cKDTree]] = field(
         default_factory=dict, init=False, repr=False
     )
@@ -104,10 +108,10 @@ class SemanticTargets:
     )
 
     @classmethod
-    def build(cls, xy: np.ndarray, label: np.ndarray,
-              direction: np.ndarray | None = None) -> SemanticTargets:
-        """Validate and wrap target points (M, 2), labels (M,) and optional unit driving
-        directions (M, 2); trees come lazily."""
+    def build(cls, xy: np.ndarray, label: np.ndarray, direction: np.ndarray | None = None,
+              weight: np.ndarray | None = None) -> SemanticTargets:
+        """Validate and wrap target points (M, 2), labels (M,), optional unit driving
+        directions (M, 2) and optional weights (M,) in [0, 1]; trees come lazily."""
         xy = np.asarray(xy, dtype=np.float64)
         label = np.asarray(label, dtype=np.int64).reshape(-1)
         if xy.ndim != 2 or xy.shape[1] != 2 or xy.shape[0] != label.shape[0]:
@@ -118,7 +122,12 @@ class SemanticTargets:
             if direction.shape != xy.shape:
                 raise ValueError(f"target direction must be (M, 2) like target_xy, got "
                                  f"{direction.shape}")
-        return cls(xy, label, direction)
+        if weight is not None:
+            weight = np.asarray(weight, dtype=np.float64)
+            if weight.shape != label.shape or not np.all((weight >= 0.0) & (weight <= 1.0)):
+                raise ValueError(f"target weight must be (M,) = {label.shape} in [0, 1], got "
+                                 f"shape {weight.shape}")
+        return cls(xy, label, direction, weight)
 
     def count(self, code: int) -> int:
         """Number of target points of label ``code`` (ALL: every point)."""
@@ -519,6 +528,8 @@ def sicp(
         w_all = np.zeros(src.shape[0])
         w_all[ok] = user_w[ok] * m.compat[ok] * kernel_weights(m.dist[ok], cfg.kernel,
                                                                cfg.kernel_scale)
+        if targets.weight is not None:
+            w_all[ok] *= targets.weight[m.index[ok]]
         if np.count_nonzero(ok) < 3:
             stop = "too_few_correspondences"
             break

@@ -94,6 +94,7 @@ def check_fine_config(cfg: FineConfig) -> None:
         "target": cfg.target not in TARGET_KINDS,
         "visible_side": cfg.visible_side not in VISIBLE_SIDE_MODELS,
         "lane_sample_step": not cfg.lane_sample_step > 0.0,
+        "centre_weight_sigma": not cfg.centre_weight_sigma >= 0.0,
         "start_range": not cfg.start_range >= 0.0,
         "model_spread": not cfg.model_spread >= 0.0,
         "n_trajectories": cfg.n_trajectories is not None and cfg.n_trajectories < 1,
