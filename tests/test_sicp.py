@@ -361,5 +361,7 @@ def test_target_weights_are_checked():
     txy, tl = np.zeros((3, 2)), np.zeros(3)
     with pytest.raises(ValueError, match="target weight"):
         SemanticTargets.build(txy, tl, weight=np.ones(2))
-    with pytest.raises(ValueError, match="target weight"):
+    with pytest.raises(ValueError, match="target weight.*from 0.5 to 1.5"):
         SemanticTargets.build(txy, tl, weight=np.array([0.5, 1.0, 1.5]))
+    with pytest.raises(ValueError, match="NaN"):
+        SemanticTargets.build(txy, tl, weight=np.array([np.nan, 1.0, 1.0]))

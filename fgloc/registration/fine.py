@@ -69,12 +69,11 @@ def lane_centre_points(
     ``step`` m, the (K,) label code of each (its lanelet's label, mirrored on a lane driven
     against the lanelet's direction), the (K, 2) unit driving direction of each and the (K,)
     ambiguity (m) of its lanelet's centre line there (:func:`fgloc.scenario.centre_ambiguity`).
-    With
-    ``towards`` (2,) m, every sample is shifted ``offset`` m sideways towards that point (the
-    sensor); a :class:`VisibleSide` offset shifts each sample by its value at the sample's
-    aspect seen from there. ``two_way_min_width`` (m) sets the lane model of two-way lanelets
-    (:func:`fgloc.map.lane_models.min_width`), ``centre`` the kind of the lanelets' centre
-    lines (``[map] centre_line``)."""
+    With ``towards`` (2,) m, every sample is shifted ``offset`` m sideways towards that point
+    (the sensor); a :class:`VisibleSide` offset shifts each sample by its value at the
+    sample's aspect seen from there. ``two_way_min_width`` (m) sets the lane model of two-way
+    lanelets (:func:`fgloc.map.lane_models.min_width`), ``centre`` the kind of the lanelets'
+    centre lines (``[map] centre_line``)."""
     from fgloc.coarse import LaneCentres
 
     lanelets = target.lanelets(scn.lanelets)

@@ -125,8 +125,10 @@ class SemanticTargets:
         if weight is not None:
             weight = np.asarray(weight, dtype=np.float64)
             if weight.shape != label.shape or not np.all((weight >= 0.0) & (weight <= 1.0)):
-                raise ValueError(f"target weight must be (M,) = {label.shape} in [0, 1], got "
-                                 f"shape {weight.shape}")
+                span = (f"from {np.nanmin(weight):g} to {np.nanmax(weight):g}"
+                        if weight.size and not np.isnan(weight).any() else "NaN values")
+                raise ValueError(f"target weight must be {label.shape} values in [0, 1], got "
+                                 f"shape {weight.shape}, {span}")
         return cls(xy, label, direction, weight)
 
     def count(self, code: int) -> int:
