@@ -108,13 +108,13 @@ def fine_targets(
     if kind == "road-points":
         return SemanticTargets.build(target.xyz[:, :2], target.label)
     width = min_width(lanes, cfg.map.two_way_min_width)
-    if kind == "lane-centres":
-        xy, label, direction, ambiguity = lane_centre_points(
-            scn, target, step, two_way_min_width=width, centre=cfg.map.centre_line)
-    else:
+    towards: np.ndarray | None = None
+    offset: float | VisibleSide = 0.0
+    if kind == "visible-sides":
+        towards = sensor_xy
         offset = cfg.coarse.visible_side_offset if side is None else side
-        xy, label, direction, ambiguity = lane_centre_points(
-            scn, target, step, sensor_xy, offset, width, cfg.map.centre_line)
+    xy, label, direction, ambiguity = lane_centre_points(
+        scn, target, step, towards, offset, width, cfg.map.centre_line)
     return SemanticTargets.build(xy, label, direction,
                                  centre_weights(ambiguity, cfg.fine.centre_weight_sigma))
 
