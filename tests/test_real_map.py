@@ -435,6 +435,23 @@ def test_inverted_shared_bound(tmp_path: Path) -> None:
     np.testing.assert_allclose(by_id[21].left, by_id[20].left[::-1])
 
 
+def test_simulate_on_a_map_without_junction_says_what_it_holds(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Two opposite lanes and nothing else: no junction to put a mast at; the error names the
+    drivable lanelets and how drivability was decided (a map of an old tag scheme, all
+    lanelets ignored, shows up the same way)."""
+    from fgloc.cli import main
+
+    path = tmp_path / "map.osm"
+    path.write_text(INVERTED)
+    assert main(["simulate", "--map", str(path), "--out", str(tmp_path / "scn")]) == 2
+    err = capsys.readouterr().err
+    assert "the routing graph has no junction" in err
+    assert "2 drivable lanelets (lanelet2 traffic rules de/vehicle), ignored: none" in err
+    assert err.count(str(path)) == 1
+    assert not (tmp_path / "scn").exists()
+
+
 # --------------------------------------------------------------------------------------------
 # simulate --map
 # --------------------------------------------------------------------------------------------

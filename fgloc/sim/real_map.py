@@ -85,18 +85,33 @@ def map_crs(lat: float, lon: float, preferred: str) -> str:
 def map_junctions(map_path: str | Path, crs: str = "EPSG:25832") -> tuple[list[Junction], str]:
     """Junctions of a map (:func:`find_junctions`) with their centres as (lat, lon) in
     ``Junction.centre``, and the CRS used; for choosing sites."""
-    text = Path(map_path).read_text(encoding="utf-8")
-    lat, lon = _first_latlon(text)
-    crs = map_crs(lat, lon, crs)
-    e, n = transformer(WGS84, crs).transform(lon, lat)
-    frame = LocalFrame.around(e, n, 0.0, crs)
-    lmap = read_lanelet_map(map_path, crs, frame)
+    lmap, frame, crs = _read_map(map_path, crs)
     out = []
     for j in find_junctions(directed_lanelets(lmap).map):
         w = frame.to_world(j.centre[None])[0]
         jlon, jlat = transformer(crs, WGS84).transform(w[0], w[1])
         out.append(Junction(np.array([jlat, jlon]), j.movements))
     return out, crs
+
+
+def _read_map(map_path: str | Path, crs: str) -> tuple[LaneletMap, LocalFrame, str]:
+    """The map read in a local frame around its first node, that frame and the CRS used
+    (:func:`map_crs`)."""
+    lat, lon = _first_latlon(Path(map_path).read_text(encoding="utf-8"))
+    crs = map_crs(lat, lon, crs)
+    e, n = transformer(WGS84, crs).transform(lon, lat)
+    frame = LocalFrame.around(e, n, 0.0, crs)
+    return read_lanelet_map(map_path, crs, frame), frame, crs
+
+
+def _no_junction_message(map_path: str | Path, crs: str) -> str:
+    """Why a map has no junction to simulate at: its drivable and ignored lanelets (by kind)
+    and how drivability was decided."""
+    lmap, _, _ = _read_map(map_path, crs)
+    ignored = ", ".join(f"{k} {n}" for k, n in lmap.ignored_by_kind().items()) or "none"
+    return (f"the routing graph has no junction (no lanelet with several drivable successors "
+            f"or predecessors): {len(lmap.lanelets)} drivable lanelets ({lmap.rules}), "
+            f"ignored: {ignored}")
 
 
 def _first_latlon(text: str) -> tuple[float, float]:
@@ -216,8 +231,7 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
     map_path = Path(map_path)
     junctions, crs = map_junctions(map_path, cfg.site.crs)
     if not junctions:
-        raise ValueError(f"{map_path}: the routing graph has no junction (no lanelet with "
-                         "several drivable successors or predecessors)")
+        raise ValueError(_no_junction_message(map_path, cfg.site.crs))
     if site is not None:
         d = [np.hypot(j.centre[0] - site[0], (j.centre[1] - site[1]) * np.cos(np.radians(
             site[0]))) for j in junctions]
