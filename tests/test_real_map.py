@@ -384,6 +384,28 @@ def test_local_xy_nodes_with_declared_crs_and_offset(tmp_path: Path, local_crs: 
     assert err < 1e-3
 
 
+def test_vector_map_builder_nodes_with_lat_lon_need_no_declaration(tmp_path: Path) -> None:
+    """Vector Map Builder / Autoware maps of real streets carry lat/lon next to their
+    ``mgrs_code`` / ``local_x`` / ``local_y`` / ``ele`` tags: without a declared ``local_crs``
+    the lat/lon place the nodes, whatever the local tags say."""
+    text = CROP.read_text()
+
+    def repl(m: re.Match[str]) -> str:
+        extra = ('<tag k="mgrs_code" v="32UMV560290"/><tag k="local_x" v="12.5"/>'
+                 '<tag k="local_y" v="-7.25"/>')
+        return f"{m.group(1)}>{extra}" + ("</node>" if m.group(2) == "/>" else "")
+    vmb, n = re.subn(r'(<node id="\d+" visible="true" version="1" lat="[-\d.]+" '
+                     r'lon="[-\d.]+")\s*(/>|>)', repl, text)
+    assert n > 100
+    path = tmp_path / "map.osm"
+    path.write_text(vmb)
+    frame = site_frame()
+    ref = read_lanelet_map(CROP, CRS, frame)
+    got = read_lanelet_map(path, CRS, frame)
+    assert [ll.id for ll in got.lanelets] == [ll.id for ll in ref.lanelets]
+    assert max(np.abs(a.left - b.left).max() for a, b in zip(got.lanelets, ref.lanelets)) < 1e-6
+
+
 def test_sensor_toml_map_table_round_trip(tmp_path: Path) -> None:
     cfg = SensorConfig(approx_position=(456000.0, 5429000.0), crs=CRS,
                        map=MapSettings("de", "vehicle:truck", "EPSG:31467", (3.4e6, 5.4e6)))
