@@ -562,6 +562,33 @@ def test_mast_at_an_edge_junction_watches_the_mapped_road(seed: int) -> None:
         assert seen[:-1].sum() >= 900, f"{site}: only {seen[:-1].sum()} m of mapped road seen"
 
 
+def test_radar_turns_from_the_junction_only_towards_much_more_road() -> None:
+    """A junction straight ahead (bearing 0) with 11 m of road there and 91 m running out at
+    bearing 70 deg: aiming at the junction sees the 11 m (the 70 deg road is outside the
+    +-60 deg view), turning by 10 deg or more sees all 102 m, so the radar turns by the least
+    such angle and the junction stays inside the view. With road enough ahead it does not."""
+    from fgloc.sim import SimConfig
+    from fgloc.sim.real_map import JUNCTION_IN_VIEW_MARGIN_DEG, _aim
+
+    cfg = SimConfig()
+    assert cfg.radar.hfov_deg == 120.0
+
+    def ray(bearing_deg: float, r0: float, r1: float) -> np.ndarray:
+        r = np.arange(r0, r1 + 0.5)
+        return r[:, None] * np.array([np.cos(np.deg2rad(bearing_deg)),
+                                      np.sin(np.deg2rad(bearing_deg))])
+
+    road = np.vstack([ray(0.0, 20.0, 30.0), ray(70.0, 10.0, 100.0)])
+    yaw, seen = _aim(np.zeros(2), 0.0, road, cfg)
+    assert seen == len(road) == 102
+    assert np.rad2deg(yaw) == pytest.approx(10.0)
+    assert 60.0 - abs(np.rad2deg(yaw)) >= JUNCTION_IN_VIEW_MARGIN_DEG
+    # 61 m ahead: turning would see 102 m, less than twice that: the radar keeps its aim
+    yaw, seen = _aim(np.zeros(2), 0.0, np.vstack([ray(0.0, 20.0, 80.0), ray(70.0, 10.0, 50.0)]),
+                     cfg)
+    assert yaw == 0.0 and seen == 61
+
+
 def test_cli_simulate_map_and_info(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from fgloc.cli import main
 

@@ -57,6 +57,11 @@ SIDEWALK_RAISE = 0.12
 #: counted as seen
 MAST_CANDIDATES = 12
 VIEW_RANGE_FRACTION = 0.75
+#: the radar may turn away from the junction until the junction is this far (deg) inside the
+#: field of view's edge ...
+JUNCTION_IN_VIEW_MARGIN_DEG = 15.0
+#: ... and turns when that sees at least this many times the mapped road aiming at it does
+TURN_GAIN = 2.0
 
 
 @dataclass
@@ -136,6 +141,26 @@ def _every_metre(xy: np.ndarray) -> np.ndarray:
     return resample_polyline(xy, max(2, int(length) + 1))
 
 
+def _aim(xy: np.ndarray, aim: float, road: np.ndarray, cfg: SimConfig) -> tuple[float, int]:
+    """Yaw (rad) of a radar at ``xy`` (2,) that looks towards the junction (``aim``, rad) and
+    how many of the road samples ``road`` (n, 2) (one per metre) it sees (inside the
+    horizontal field of view, within ``VIEW_RANGE_FRACTION`` x ``max_range``). The junction
+    stays ``JUNCTION_IN_VIEW_MARGIN_DEG`` inside the view; the radar turns (steps of 5 deg,
+    the most road, the least turn on a tie) only when that sees ``TURN_GAIN`` times the road
+    the aim does: a junction at the map's edge, where the aim looks at unmapped land."""
+    half = np.deg2rad(cfg.radar.hfov_deg) / 2.0
+    limit = max(0.0, cfg.radar.hfov_deg / 2.0 - JUNCTION_IN_VIEW_MARGIN_DEG)
+    turns = np.deg2rad(np.arange(-np.floor(limit / 5.0), np.floor(limit / 5.0) + 1) * 5.0)
+    rel = road - xy
+    near = np.hypot(rel[:, 0], rel[:, 1]) <= VIEW_RANGE_FRACTION * cfg.radar.max_range
+    bearing = np.arctan2(rel[near, 1], rel[near, 0])
+    seen = (np.abs(wrap_angle(bearing[None, :] - aim - turns[:, None])) <= half).sum(axis=1)
+    zero = int(np.argmin(np.abs(turns)))
+    best = int(max(range(len(turns)), key=lambda k: (seen[k], -abs(turns[k]))))
+    k = best if seen[best] >= TURN_GAIN * seen[zero] else zero
+    return float(aim + turns[k]), int(seen[k])
+
+
 def _place_mast(rng: np.random.Generator, cfg: SimConfig, net: RoadNetwork, area: RoadArea,
                 lmap: LaneletMap, target: np.ndarray) -> Mounting:
     """Mast ``setback`` m off a road edge ``junction_distance`` m from the junction centre
@@ -146,7 +171,8 @@ def _place_mast(rng: np.random.Generator, cfg: SimConfig, net: RoadNetwork, area
     drivable lanelets' centre lines, sampled every metre, inside the radar's horizontal field of
     view and within ``VIEW_RANGE_FRACTION`` x ``max_range``), as an installer would aim the
     radar at the traffic: on a real map a junction near the map's edge otherwise gets a radar
-    staring at the few metres of road the map has beyond it."""
+    staring at the few metres of road the map has beyond it. Where every such place aims at
+    unmapped land, the radar turns from the junction towards the road (:func:`_aim`)."""
     s = cfg.sensor
     edge, normal = net.curb_line(1.0)
     dist = np.linalg.norm(edge - target, axis=1)
@@ -165,12 +191,8 @@ def _place_mast(rng: np.random.Generator, cfg: SimConfig, net: RoadNetwork, area
         if any(points_in_polygon(xy[None], poly, 0.5)[0] for poly in blocked):
             continue
         look = target - xy
-        yaw = float(np.arctan2(look[1], look[0]))
-        rel = road - xy
-        seen = (np.hypot(rel[:, 0], rel[:, 1]) <= VIEW_RANGE_FRACTION * cfg.radar.max_range) \
-            & (np.abs(wrap_angle(np.arctan2(rel[:, 1], rel[:, 0]) - yaw))
-               <= np.deg2rad(cfg.radar.hfov_deg) / 2.0)
-        places.append((xy, yaw, int(seen.sum())))
+        yaw, seen = _aim(xy, float(np.arctan2(look[1], look[0])), road, cfg)
+        places.append((xy, yaw, seen))
         if len(places) == MAST_CANDIDATES:
             break
     if not places:
