@@ -421,6 +421,25 @@ def test_write_load_round_trip(tmp_path: Path) -> None:
         assert got == (want if isinstance(want, str) else pytest.approx(want)), f.name
 
 
+@pytest.mark.parametrize("curb", [0.05, 0.15, 0.35])
+def test_curb_height_setting(curb: float) -> None:
+    """The static returns low above the road (below the poles' 0.5 m, the trunks' 0.8 m and
+    the facades' 1 m) are the curbs': their median height above the ALS road under them is
+    ``[radar] curb_height``."""
+    cfg = SimConfig(radar=RadarSimConfig(curb_height=curb, sigma_elevation_deg=0.0,
+                                         sigma_range=0.0, sigma_azimuth_deg=0.0))
+    scn = simulate("straight", 3, 5.0, config=cfg)
+    p = transform_points(scn.truth.sensor_pose, scn.radar.xyz)
+    road = scn.als.xyz[scn.als.classification == 11].astype(float)
+    _, k = cKDTree(road[:, :2]).query(p[:, :2], k=8)
+    h = p[:, 2] - np.median(road[k, 2], axis=1)
+    low = (np.abs(scn.radar.doppler) < 0.05) & (h < 0.45)
+    assert low.sum() > 200
+    assert abs(np.median(h[low]) - curb) < 0.03, np.median(h[low])
+    with pytest.raises(Exception, match="curb_height"):
+        from_dict(SimConfig, {"radar": {"curb_height": -0.1}}, None)
+
+
 @pytest.mark.parametrize("band", [None, (0.2, 1.5), (0.5, 0.9)])
 def test_return_height_setting(band: tuple[float, float] | None) -> None:
     """Vehicle returns lie within [low, high] above the road (clipped at the roof), mean as

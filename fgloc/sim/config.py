@@ -135,6 +135,10 @@ class RadarSimConfig:
     """Expected static clutter detections per frame (curbs, poles, facades, trunks)."""
     clutter_doppler_sigma: float = 0.03
     """Std. dev. (m/s) of the true doppler of static clutter (vibration, multipath)."""
+    curb_height: float = 0.15
+    """Height (m above the road surface) of the curb scatterers along the road edges (a kerb's
+    top; fgloc's vertical fit assumes ``[coarse] static_height`` 0.1 +- 0.05 m for static
+    ground returns, so other heights test that prior)."""
     false_alarms_per_frame: float = 10.0
     """Expected uniform false alarms per frame (random position in the FOV, random doppler)."""
     false_alarm_doppler: float = 20.0
@@ -154,6 +158,8 @@ class RadarSimConfig:
                              f"{self.corner_fraction} + {self.wheel_fraction}")
         if self.wheel_radius < 0.0:
             raise ValueError(f"wheel_radius must be >= 0 (m), got {self.wheel_radius}")
+        if not 0.0 <= self.curb_height <= 1.0:
+            raise ValueError(f"curb_height must lie in [0, 1] (m), got {self.curb_height}")
         if self.return_height is not None and not 0.0 <= self.return_height[0] \
                 <= self.return_height[1]:
             raise ValueError(f"return_height must be [low, high] with 0 <= low <= high (m), "

@@ -252,13 +252,14 @@ def vehicle_boxes(rows: VehicleRows, n_frames: int, terrain: Terrain) -> Boxes:
 # --------------------------------------------------------------------------------------------
 # static clutter
 # --------------------------------------------------------------------------------------------
-def static_scatterers(net: RoadNetwork, scn: Scenery, terrain: Terrain,
-                      sensor: np.ndarray) -> tuple[Points, np.ndarray]:
-    """Persistent scatterers (frame -1): curbs, poles, facades facing the sensor, trunks, and
-    their (n,) relative strengths."""
+def static_scatterers(net: RoadNetwork, scn: Scenery, terrain: Terrain, sensor: np.ndarray,
+                      curb_height: float) -> tuple[Points, np.ndarray]:
+    """Persistent scatterers (frame -1): curbs (``curb_height`` m above the road), poles,
+    facades facing the sensor, trunks, and their (n,) relative strengths."""
     parts: list[tuple[np.ndarray, float, float, int]] = []   # xyz, weight, rcs, own key
     curb, _ = net.curb_line(2.0)
-    parts.append((np.column_stack([curb, terrain.road(curb) + 0.15]), 0.25, 0.0, NO_BOX))
+    parts.append((np.column_stack([curb, terrain.road(curb) + curb_height]), 0.25, 0.0,
+                  NO_BOX))
     for xy, h in zip(scn.pole_xy, scn.pole_height):
         zs = terrain.ground(xy[None]) + np.arange(0.5, h, 1.0)
         parts.append((np.column_stack([np.tile(xy, (len(zs), 1)), zs]), 1.0, 10.0, NO_BOX))
@@ -401,7 +402,7 @@ def simulate_radar(rng: np.random.Generator, cfg: RadarSimConfig, pose: np.ndarr
     """All detections of ``n_frames`` frames at ``cfg.rate_hz`` and their sources."""
     sensor = pose[:3, 3]
     rows = VehicleRows.from_tracks(tracks, kinds, cfg.rate_hz)
-    scat, weight = static_scatterers(net, scn, terrain, sensor)
+    scat, weight = static_scatterers(net, scn, terrain, sensor, cfg.curb_height)
     seen = np.flatnonzero(_pre_fov(scat, pose, cfg))
     pts = Points.concat([vehicle_points(rng, cfg, rows, pose, terrain),
                          clutter_points(rng, cfg, scat.take(seen), weight[seen], sensor,
