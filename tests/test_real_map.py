@@ -469,7 +469,7 @@ def test_simulate_on_a_map_without_junction_says_what_it_holds(
     assert main(["simulate", "--map", str(path), "--out", str(tmp_path / "scn")]) == 2
     err = capsys.readouterr().err
     assert "the routing graph has no junction" in err
-    assert "2 drivable lanelets (lanelet2 traffic rules de/vehicle), ignored: none" in err
+    assert "drivable lanelets: 2 (lanelet2 traffic rules de/vehicle), ignored: none" in err
     assert err.count(str(path)) == 1
     assert not (tmp_path / "scn").exists()
 

@@ -115,7 +115,7 @@ def _no_junction_message(map_path: str | Path, crs: str) -> str:
     lmap, _, _ = _read_map(map_path, crs)
     ignored = ", ".join(f"{k} {n}" for k, n in lmap.ignored_by_kind().items()) or "none"
     return (f"the routing graph has no junction (no lanelet with several drivable successors "
-            f"or predecessors): {len(lmap.lanelets)} drivable lanelets ({lmap.rules}), "
+            f"or predecessors); drivable lanelets: {len(lmap.lanelets)} ({lmap.rules}), "
             f"ignored: {ignored}")
 
 
