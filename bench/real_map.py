@@ -7,9 +7,9 @@ the routing graph per driving direction), each kind of traffic on two-way lanele
 lines as mapped, "centre-lanelet2"; :data:`TRAFFIC`)
 and each seed, ``fgloc.sim.real_map.simulate_on_map`` builds a scenario at that
 junction (``--duration`` s of traffic) and ``fgloc.localize_many`` runs every method on it; once
-per ``[map] labels`` mode (routing graph, Menger curvature); the 2D and yaw errors against the
-simulated truth are printed per run, then the mean and the worst seed per traffic, labels,
-junction and method. docs/benchmarks.md's table comes from
+per ``[map] labels`` mode (routing graph, Menger curvature); the 2D, yaw and height errors
+against the simulated truth are printed per run, then the mean and the worst seed per
+traffic, labels, junction and method. docs/benchmarks.md's table comes from
 ``python -m bench.report --only real_map``.
 
     OMP_NUM_THREADS=1 python -m bench.real_map --seeds 1 2 3
@@ -56,8 +56,9 @@ TRAFFIC: dict[str, dict[str, str]] = {
 }
 
 
-#: (traffic, labels, junction index, method) -> (2D m, yaw deg, ambiguous 0/1) of every seed
-Errors = dict[tuple[str, str, int, str], list[tuple[float, float, float]]]
+#: (traffic, labels, junction index, method) -> (2D m, yaw deg, ambiguous 0/1, dz m) of every
+#: seed (dz signed: the result's height minus the truth's)
+Errors = dict[tuple[str, str, int, str], list[tuple[float, float, float, float]]]
 
 
 def junction_sites(map_path: Path, n: int) -> list[tuple[float, float]]:
@@ -81,8 +82,8 @@ def run_one(map_path: Path, kind: str, k: int, site: tuple[float, float], seed: 
             ) -> list[dict[str, object]]:
     """One scenario (two-way traffic ``kind``, junction index ``k`` at ``site``, ``seed``),
     localized by every method once per ``[map] labels`` mode with the fgloc config TOML
-    ``config`` (None: the defaults): one row per (labels, method) with the 2D and yaw errors
-    and the result's status."""
+    ``config`` (None: the defaults): one row per (labels, method) with the 2D, yaw and
+    height errors and the result's status."""
     scn = scenario(map_path, kind, site, seed, duration)
     rows: list[dict[str, object]] = []
     for mode in labels:
@@ -95,8 +96,9 @@ def run_one(map_path: Path, kind: str, k: int, site: tuple[float, float], seed: 
             e = pose_error(r.T_local, scn.truth.sensor_pose)
             rows.append({"traffic": kind, "labels": mode, "junction": k + 1, "method": m,
                          "seed": seed, "d2d": e.d2d, "dyaw_deg": e.dyaw_deg,
+                         "dz": float(r.T_local[2, 3] - scn.truth.sensor_pose[2, 3]),
                          "status": r.status})
-            line.append(f"{m} {e.d2d:.3f} m {e.dyaw_deg:.3f} deg"
+            line.append(f"{m} {e.d2d:.3f} m {e.dyaw_deg:.3f} deg dz {rows[-1]['dz']:+.3f} m"
                         + ("" if r.status == "resolved" else f" ({r.status})")
                         + ("" if r.converged else " (not converged)"))
         print(" ".join(line) + f"  [{time.perf_counter() - t0:.0f} s]", flush=True)
@@ -123,21 +125,25 @@ def errors_of(rows: list[dict[str, object]]) -> Errors:
     errors: Errors = {}
     for r in rows:
         errors.setdefault((r["traffic"], r["labels"], int(r["junction"]) - 1, r["method"]),
-                          []).append((r["d2d"], r["dyaw_deg"], float(r["status"] != "resolved")))
+                          []).append((r["d2d"], r["dyaw_deg"], float(r["status"] != "resolved"),
+                                      r["dz"]))
     return errors
 
 
 def table(sites: list[tuple[float, float]], seeds: list[int], labels: list[str],
           errors: Errors) -> str:
     """Markdown table: per two-way traffic kind and labels mode, every junction's and all runs'
-    mean and worst per method, and how many of the runs were ambiguous."""
+    mean and worst per method (the height error: its signed mean and worst magnitude), and
+    how many of the runs were ambiguous."""
     rows = ["| two-way traffic | junction (lat, lon) | labels | method | 2D mean (m) "
-            "| 2D worst (m) | yaw mean (deg) | yaw worst (deg) | ambiguous |",
-            "|---|---|---|---|---|---|---|---|---|"]
+            "| 2D worst (m) | yaw mean (deg) | yaw worst (deg) | dz mean (m) | abs dz worst (m) "
+            "| ambiguous |",
+            "|---|---|---|---|---|---|---|---|---|---|---|"]
 
     def row(kind: str, name: str, mode: str, m: str, e: np.ndarray) -> str:
         return (f"| {kind} | {name} | {mode} | {m} | {e[:, 0].mean():.3f} | "
                 f"{e[:, 0].max():.3f} | {e[:, 1].mean():.3f} | {e[:, 1].max():.3f} | "
+                f"{e[:, 3].mean():+.3f} | {np.abs(e[:, 3]).max():.3f} | "
                 f"{int(e[:, 2].sum())}/{len(e)} |")
 
     kinds = list(dict.fromkeys(kind for kind, *_ in errors))

@@ -243,7 +243,8 @@ TABLES: list[Table] = [
           "lanelet2's own (Lanelet.centerline, up to 2 m from the arc-length one on "
           "hand-mapped turns), as mapped (as a generator that drives lanelet2's centre lines "
           "makes them); one row group each; "
-          "every method, mean and worst seed per junction and the runs whose result was "
+          "every method, mean and worst seed per junction (the height error dz: its signed "
+          "mean and largest magnitude) and the runs whose result was "
           "ambiguous (the pose given is the best mode's; [map] two_way_lanes = auto: the "
           "lane models of two-way streets are modes); each scenario localized with the "
           "routing-graph labels (the default) and with Menger-curvature labels only.",
