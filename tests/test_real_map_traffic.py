@@ -240,26 +240,29 @@ def test_two_way_traffic_setting_is_validated(tmp_path: Path) -> None:
 
 def test_bench_table_has_a_row_group_per_traffic_kind() -> None:
     """bench/real_map.py's table: per traffic kind and labels mode, each junction's and all
-    runs' mean and worst and the ambiguous runs (known rows in, their statistics out)."""
+    runs' mean and worst, the height error's signed mean and largest magnitude and the
+    ambiguous runs (known rows in, their statistics out)."""
     from bench.real_map import METHODS, errors_of, table
 
     sites = [(49.0, 8.4), (49.1, 8.5)]
     rows = [{"traffic": kind, "labels": "routing", "junction": k + 1, "method": m, "seed": seed,
-             "d2d": d2d, "dyaw_deg": dyaw, "status": status}
+             "d2d": d2d, "dyaw_deg": dyaw, "dz": dz, "status": status}
             for kind, scale in (("keep-right", 1.0), ("centre", 10.0))
             for k in range(2) for m in METHODS
-            for seed, d2d, dyaw, status in ((1, 0.1 * (k + 1) * scale, 0.01, "resolved"),
-                                            (2, 0.3 * scale, 0.05,
-                                             "ambiguous" if kind == "centre" else "resolved"))]
+            for seed, d2d, dyaw, dz, status in (
+                (1, 0.1 * (k + 1) * scale, 0.01, -0.2, "resolved"),
+                (2, 0.3 * scale, 0.05, 0.1 * (k + 1),
+                 "ambiguous" if kind == "centre" else "resolved"))]
     lines = table(sites, [1, 2], ["routing"], errors_of(rows)).splitlines()
     assert len(lines) == 2 + 2 * 3 * len(METHODS)
     cells = [[c.strip() for c in r.strip("|").split("|")] for r in lines[2:]]
     assert [c[0] for c in cells] == ["keep-right"] * 12 + ["centre"] * 12
-    first = {(c[0], c[1], c[3]): [float(v) for v in c[4:8]] + [c[8]] for c in cells}
+    first = {(c[0], c[1], c[3]): [float(v) for v in c[4:10]] + [c[10]] for c in cells}
     assert first[("keep-right", "2 (49.10000, 8.50000)", "icp")] == [0.25, 0.3, 0.03, 0.05,
-                                                                      "0/2"]
+                                                                      0.0, 0.2, "0/2"]
+    assert first[("keep-right", "1 (49.00000, 8.40000)", "icp")][4:6] == [-0.05, 0.2]
     assert first[("centre", "all 2 x 2 runs", "joint")] == pytest.approx(
-        [(1.0 + 2.0 + 3.0 + 3.0) / 4, 3.0, 0.03, 0.05, "2/4"])
+        [(1.0 + 2.0 + 3.0 + 3.0) / 4, 3.0, 0.03, 0.05, (-0.4 + 0.3) / 4, 0.2, "2/4"])
 
 
 def test_bench_traffic_kinds_set_the_simulator(monkeypatch: pytest.MonkeyPatch) -> None:
