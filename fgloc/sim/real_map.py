@@ -91,12 +91,17 @@ def map_junctions(map_path: str | Path, crs: str = "EPSG:25832") -> tuple[list[J
     """Junctions of a map (:func:`find_junctions`) with their centres as (lat, lon) in
     ``Junction.centre``, and the CRS used; for choosing sites."""
     lmap, frame, crs = _read_map(map_path, crs)
+    return _junctions_in(lmap, frame), crs
+
+
+def _junctions_in(lmap: LaneletMap, frame: LocalFrame) -> list[Junction]:
+    """:func:`find_junctions` of a map read in ``frame``, centres as (lat, lon)."""
     out = []
     for j in find_junctions(directed_lanelets(lmap).map):
         w = frame.to_world(j.centre[None])[0]
-        jlon, jlat = transformer(crs, WGS84).transform(w[0], w[1])
+        jlon, jlat = transformer(frame.crs, WGS84).transform(w[0], w[1])
         out.append(Junction(np.array([jlat, jlon]), j.movements))
-    return out, crs
+    return out
 
 
 def _read_map(map_path: str | Path, crs: str) -> tuple[LaneletMap, LocalFrame, str]:
@@ -109,10 +114,9 @@ def _read_map(map_path: str | Path, crs: str) -> tuple[LaneletMap, LocalFrame, s
     return read_lanelet_map(map_path, crs, frame), frame, crs
 
 
-def _no_junction_message(map_path: str | Path, crs: str) -> str:
+def _no_junction_message(lmap: LaneletMap) -> str:
     """Why a map has no junction to simulate at: its drivable and ignored lanelets (by kind)
     and how drivability was decided."""
-    lmap, _, _ = _read_map(map_path, crs)
     ignored = ", ".join(f"{k} {n}" for k, n in lmap.ignored_by_kind().items()) or "none"
     return (f"the routing graph has no junction (no lanelet with several drivable successors "
             f"or predecessors); drivable lanelets: {len(lmap.lanelets)} ({lmap.rules}), "
@@ -251,9 +255,10 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
     rng = dict(zip(_STAGES, (np.random.default_rng(s)
                              for s in np.random.SeedSequence(seed).spawn(len(_STAGES)))))
     map_path = Path(map_path)
-    junctions, crs = map_junctions(map_path, cfg.site.crs)
+    whole, whole_frame, crs = _read_map(map_path, cfg.site.crs)
+    junctions = _junctions_in(whole, whole_frame)
     if not junctions:
-        raise ValueError(_no_junction_message(map_path, cfg.site.crs))
+        raise ValueError(_no_junction_message(whole))
     if site is not None:
         d = [np.hypot(j.centre[0] - site[0], (j.centre[1] - site[1]) * np.cos(np.radians(
             site[0]))) for j in junctions]
