@@ -16,7 +16,7 @@ from fgloc.sim.config import RadarSimConfig, RoadSimConfig, TrafficSimConfig
 from fgloc.sim.radar import detection_probability
 from fgloc.sim.roads import build_network
 from fgloc.sim.scenery import box_corners
-from fgloc.sim.traffic import VEHICLE_CLASSES, simulate_traffic
+from fgloc.sim.traffic import ROUTE_DS, VEHICLE_CLASSES, Route, offset_route, simulate_traffic
 
 
 def _traffic(cfg: TrafficSimConfig, duration: float, seed: int, lanes: int = 1,
@@ -253,3 +253,53 @@ def test_wheel_micro_doppler() -> None:
     assert np.max(np.abs(still)) < 0.01
     with pytest.raises(ValueError, match="wheel_radius"):
         RadarSimConfig(wheel_radius=-0.1)
+
+
+def test_offset_route_is_the_parallel_curve() -> None:
+    # a left quarter circle of radius 20 m: 2 m to its right it is a circle of radius 22 m
+    r0 = 20.0
+    s = np.arange(0.0, 0.5 * np.pi * r0, ROUTE_DS)
+    heading = s / r0
+    xy = np.column_stack([r0 * np.sin(heading), r0 * (1.0 - np.cos(heading))])
+    arc = Route([0], s, xy, heading, np.full(len(s), 1.0 / r0))
+    out = offset_route(arc, 2.0)
+    assert np.allclose(np.hypot(out.xy[:, 0], out.xy[:, 1] - r0), r0 + 2.0, atol=1e-3)
+    assert np.allclose(out.kappa, 1.0 / (r0 + 2.0))
+    assert out.s[-1] == pytest.approx(s[-1] * (r0 + 2.0) / r0, abs=ROUTE_DS)
+    assert np.allclose(np.diff(out.s), ROUTE_DS)
+    tangent = np.arctan2(*np.diff(out.xy, axis=0)[:, ::-1].T)
+    assert np.allclose(tangent, 0.5 * (out.heading[1:] + out.heading[:-1]), atol=1e-3)
+    # to the left (negative) on a straight: 1.5 m across, same length
+    line = Route([0], s, np.column_stack([s, np.zeros_like(s)]), np.zeros_like(s),
+                 np.zeros_like(s))
+    left = offset_route(line, -1.5)
+    assert np.allclose(left.xy[:, 1], 1.5) and left.s[-1] == pytest.approx(s[-1])
+
+
+def test_cyclists_ride_beside_the_unchanged_motor_traffic() -> None:
+    base = TrafficSimConfig(arrival_interval=4.0)
+    with_cyclists = dataclasses.replace(base, cyclists_per_minute=6.0, cyclist_offset=1.4)
+    cars, mixed = (_traffic(c, 120.0, 4) for c in (base, with_cyclists))
+    bicycle = [vc.name for vc in VEHICLE_CLASSES].index("bicycle")
+    motor = mixed.kinds != bicycle
+    # the motor vehicles are those without cyclists, track for track
+    assert motor.sum() == len(cars.tracks)
+    for a, b in zip(cars.tracks, [t for t, m in zip(mixed.tracks, motor) if m]):
+        assert np.array_equal(a.states, b.states)
+    bikes = [t for t, m in zip(mixed.tracks, motor) if not m]
+    assert 6 <= len(bikes) <= 30          # 6 per minute over 2 minutes plus the warm-up
+    cars_xy = np.vstack([t.states[:, 1:3] for t in cars.tracks])
+    for t in bikes:
+        assert 1.5 < t.length < 2.1 and 0.4 < t.width < 0.8
+        v = t.states[:, 4]
+        assert v.max() <= 7.0 + 1e-9 and np.median(v) >= 4.0 - 1e-9
+        # 1.4 m right of the lane centre line the cars drive: across the heading, to the right
+        d = t.states[:, 1:3][:, None, :] - cars_xy[None, ::20, :]
+        near = np.argmin(np.hypot(d[..., 0], d[..., 1]), axis=1)
+        rel = d[np.arange(len(d)), near]
+        right = rel[:, 0] * np.sin(t.states[:, 3]) - rel[:, 1] * np.cos(t.states[:, 3])
+        assert np.median(right) == pytest.approx(1.4, abs=0.15)
+    with pytest.raises(Exception, match="cyclists_per_minute"):
+        from_dict(SimConfig, {"traffic": {"cyclists_per_minute": -1.0}}, None)
+    with pytest.raises(Exception, match="cyclist_speed"):
+        from_dict(SimConfig, {"traffic": {"cyclist_speed": [5.0, 3.0]}}, None)

@@ -197,12 +197,24 @@ class TrafficSimConfig:
     """Vehicles per platoon, uniform in [low, high]; (1, 1) (default) = independent arrivals.
     A platoon drives one route at one speed profile; its arrivals are Poisson with mean
     interval ``arrival_interval`` x the mean platoon size (same vehicles per minute)."""
+    cyclists_per_minute: float = 0.0
+    """Cyclists per minute (Poisson), besides the motor vehicles; 0 = none. They ride the
+    vehicles' routes ``cyclist_offset`` m right of the lane centre line."""
+    cyclist_speed: tuple[float, float] = (4.0, 7.0)
+    """Cyclists' cruise speed range (m/s); 70 % of it in junction turns."""
+    cyclist_offset: float = 1.4
+    """How far (m) right of the lane centre line cyclists ride (on a 3.5 m lane: 0.35 m from
+    its edge)."""
     platoon_headway: tuple[float, float] = (1.0, 1.0)
     """Time headway (s, front to front) of each platoon follower behind its predecessor,
     uniform in this range; never closer than ``headway`` between them (time gap, rear to
     front)."""
 
     def __post_init__(self) -> None:
+        if self.cyclists_per_minute < 0 or not 0 < self.cyclist_speed[0] <= self.cyclist_speed[1]:
+            raise ValueError(f"cyclists_per_minute must be >= 0 and cyclist_speed [low, high] with "
+                             f"0 < low <= high (m/s), got {self.cyclists_per_minute} and "
+                             f"{list(self.cyclist_speed)}")
         lo, hi = self.platoon_size
         if not 1 <= lo <= hi:
             raise ValueError(f"platoon_size must be [low, high] with 1 <= low <= high, "

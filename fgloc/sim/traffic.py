@@ -13,6 +13,10 @@ leader's route at the leader's speed profile, ``platoon_headway`` s (front to fr
 their predecessor. Vehicles never overlap: each vehicle's entry time is delayed until its
 occupancy of every point it shares with an earlier vehicle's route (same lane, merge or
 crossing) is separated from that vehicle's occupancy by at least the headway.
+
+Cyclists (``cyclists_per_minute``; none by default) ride the same routes ``cyclist_offset`` m
+right of the lane centre line, at the lane's edge: road users that are not motor vehicles,
+whose detections and tracks a localizer must not take for vehicles on the lane centres.
 """
 
 from __future__ import annotations
@@ -57,7 +61,10 @@ VEHICLE_CLASSES: tuple[VehicleClass, ...] = (
     VehicleClass("car", (4.5, 0.25), (1.8, 0.06), 1.5, 10.0),
     VehicleClass("van", (5.5, 0.3), (2.0, 0.05), 2.2, 13.0),
     VehicleClass("truck", (11.0, 0.6), (2.5, 0.03), 3.6, 20.0),
+    VehicleClass("bicycle", (1.8, 0.1), (0.6, 0.05), 1.7, 0.0),
 )
+#: index of the bicycle class in VEHICLE_CLASSES (``class_mix`` draws from the classes before it)
+BICYCLE = len(VEHICLE_CLASSES) - 1
 
 
 @dataclass
@@ -226,7 +233,7 @@ def _new_vehicle(rng: np.random.Generator, cfg: TrafficSimConfig, routes: list[R
     """A random vehicle entering at ``t_nominal``; a platoon follower (``leader`` given) takes
     the leader's route and speed profile and enters one platoon headway (front to front)
     behind it."""
-    kind = int(rng.choice(len(VEHICLE_CLASSES), p=np.asarray(cfg.class_mix) / sum(cfg.class_mix)))
+    kind = int(rng.choice(len(cfg.class_mix), p=np.asarray(cfg.class_mix) / sum(cfg.class_mix)))
     vc = VEHICLE_CLASSES[kind]
     if leader is None:
         lo, hi = cfg.speed_straight
@@ -283,8 +290,10 @@ def simulate_traffic(rng: np.random.Generator, cfg: TrafficSimConfig, net: RoadN
                      times: np.ndarray, count: int | None) -> Traffic:
     """Vehicles on random routes, sampled at ``times`` (s); tracks with < 2 samples dropped.
 
-    count: vehicles generated in total (None: Poisson arrivals every ``arrival_interval`` s on
-    average). Arrivals start before times[0] so the scene is already filled at the start.
+    count: motor vehicles generated in total (None: Poisson arrivals every ``arrival_interval``
+    s on average). Arrivals start before times[0] so the scene is already filled at the start.
+    Cyclists (``cyclists_per_minute``, none by default) come after the motor vehicles, so
+    adding them leaves those unchanged.
     """
     routes = [build_route(net, r, cfg.transition_length) for r in net.routes()]
     v_mean = float(np.mean(cfg.speed_straight))
@@ -296,22 +305,69 @@ def simulate_traffic(rng: np.random.Generator, cfg: TrafficSimConfig, net: RoadN
         leader = None
         for _ in range(size):
             f = _new_vehicle(rng, cfg, routes, t_nom, leader)
-            intervals = []
-            for lead in vehicles:
-                key = (f.route, lead.route)
-                if key not in cache:
-                    cache[key] = _conflicts(routes[f.route], routes[lead.route])
-                iv = _forbidden(f, routes[f.route], lead, routes[lead.route], cache[key],
-                                cfg.headway)
-                if iv is not None:
-                    intervals.append(iv)
-            f.t0 = _earliest(f.t0, intervals)
-            vehicles.append(f)
+            _enter(f, vehicles, routes, cache, cfg.headway)
             leader = f
+    rides = [(veh, routes[veh.route]) for veh in vehicles]
+    if cfg.cyclists_per_minute > 0:
+        rides += _cyclists(rng, cfg, routes, times[0], duration)
     tracks, kinds = [], []
-    for veh in vehicles:
-        states = _states(veh, routes[veh.route], times)
+    for veh, route in rides:
+        states = _states(veh, route, times)
         if len(states) >= 2:
             tracks.append(TrackTruth(len(tracks), veh.length, veh.width, states))
             kinds.append(veh.kind)
     return Traffic(tracks, np.asarray(kinds, dtype=np.int64))
+
+
+def _enter(f: Vehicle, earlier: list[Vehicle], routes: list[Route],
+           cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]],
+           headway: float) -> None:
+    """Delay ``f``'s entry until it overlaps none of the ``earlier`` vehicles (on ``routes``;
+    ``cache`` keeps the conflicts per route pair), then append it to them."""
+    intervals = []
+    for lead in earlier:
+        key = (f.route, lead.route)
+        if key not in cache:
+            cache[key] = _conflicts(routes[f.route], routes[lead.route])
+        iv = _forbidden(f, routes[f.route], lead, routes[lead.route], cache[key], headway)
+        if iv is not None:
+            intervals.append(iv)
+    f.t0 = _earliest(f.t0, intervals)
+    earlier.append(f)
+
+
+def offset_route(route: Route, right: float) -> Route:
+    """The route moved ``right`` m to the right of its direction of travel (left: negative),
+    resampled every ROUTE_DS m. Its heading is the original's at the same station; its
+    curvature kappa / (1 + kappa right) (a left turn's radius grows by ``right``)."""
+    normal = np.column_stack([np.sin(route.heading), -np.cos(route.heading)])
+    xy = route.xy + right * normal
+    s_old = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    s = np.arange(int(s_old[-1] / ROUTE_DS) + 1) * ROUTE_DS
+    kappa = route.kappa / np.maximum(1.0 + route.kappa * right, 0.2)
+    return Route(route.pieces, s,
+                 np.column_stack([np.interp(s, s_old, xy[:, 0]), np.interp(s, s_old, xy[:, 1])]),
+                 np.interp(s, s_old, np.unwrap(route.heading)), np.interp(s, s_old, kappa))
+
+
+def _cyclists(rng: np.random.Generator, cfg: TrafficSimConfig, routes: list[Route],
+              start: float, duration: float) -> list[tuple[Vehicle, Route]]:
+    """Cyclists (class BICYCLE): Poisson arrivals, ``cyclists_per_minute`` on average, each on
+    a random route ``cyclist_offset`` m right of its lane centre line at a cruise speed drawn
+    from ``cyclist_speed`` (70 % of it in junction turns). They keep their headway to each
+    other and ride beside the motor vehicles (which pass them in the same lane)."""
+    rides = [offset_route(r, cfg.cyclist_offset) for r in routes]
+    v_mean = float(np.mean(cfg.cyclist_speed))
+    warm = 0.8 * float(np.median([r.s[-1] for r in rides])) / v_mean
+    n = int(rng.poisson(cfg.cyclists_per_minute * (duration + warm) / 60.0))
+    vc = VEHICLE_CLASSES[BICYCLE]
+    cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    cyclists: list[Vehicle] = []
+    for t0 in np.sort(rng.uniform(start - warm, start + duration, n)):
+        r = int(rng.integers(len(rides)))
+        v_cruise = rng.uniform(*cfg.cyclist_speed)
+        v = speed_profile(rides[r], v_cruise, 0.7 * v_cruise, cfg)
+        f = Vehicle(BICYCLE, rng.normal(*vc.length), rng.normal(*vc.width), r, float(t0), v,
+                    _cumtrapz(1.0 / v, ROUTE_DS))
+        _enter(f, cyclists, rides, cache, cfg.headway)
+    return [(c, rides[c.route]) for c in cyclists]
