@@ -6,9 +6,11 @@ platoons of 2-4 vehicles at 0.8-1.2 s headway; 15 % trucks 9-12 m long; low retu
 above the road); far and sparse returns (25 per vehicle and frame at 20 m falling to 4 at
 150 m); an oblique 70-80 deg junction with a large junction box; 10 vehicles per minute;
 30 % of the returns at the wheels with their micro-Doppler (0 to twice the body's speed along
-the heading: "wheel-doppler"); and all of these but the micro-Doppler at once ("combined",
-with returns at every visible corner and at the wheels and more clutter). Seeds: odd ones
-simulate an intersection, even ones a T-junction.
+the heading: "wheel-doppler"); 4 cyclists per minute riding 1.4 m right of the lane centres
+besides the motor vehicles ("cyclists": the tracking figures count the motor vehicles only, a
+cyclist's track that fgloc keeps is a false track); and all of these but the micro-Doppler
+and the cyclists at once ("combined", with returns at every visible corner and at the wheels
+and more clutter). Seeds: odd ones simulate an intersection, even ones a T-junction.
 
 Per run: tracks per eligible true vehicle (all tracks, false ones included), tracks covering
 two vehicles (a track whose contour covers at least half of the footprints of two true
@@ -35,7 +37,7 @@ import math
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -72,6 +74,7 @@ SETTINGS: dict[str, dict] = {
     "oblique": {"road": _OBLIQUE},
     "10-per-min": {"traffic": {"arrival_interval": 6.0}},
     "wheel-doppler": {"radar": {"wheel_fraction": 0.3, "wheel_radius": 0.35}},
+    "cyclists": {"traffic": {"cyclists_per_minute": 4.0}},
     "combined": {
         "traffic": {**_PLATOONS, **_TRUCKS, "class_mix": [0.75, 0.15, 0.1]},
         "radar": {**_SPARSE, "return_height": [0.2, 1.5], "corners": "visible",
@@ -214,9 +217,15 @@ def tracking_figures(scn: Scenario, cfg: Config) -> dict[str, float]:
 def run_one(setting: str, seed: int, duration: float, cfg: Config,
             localization: bool) -> RunResult:
     case = "intersection" if seed % 2 else "tjunction"
-    scn = simulate_detailed(case, seed, duration, config=sim_config(setting)).scenario
+    sim = simulate_detailed(case, seed, duration, config=sim_config(setting))
+    scn = sim.scenario
     assert scn.truth is not None
-    out = RunResult(setting, seed, case, len(scn.truth.tracks), tracking_figures(scn, cfg))
+    # the tracking figures are about the motor vehicles (a cyclist's track counts as false)
+    motor = replace(scn.truth, tracks=[gt for gt, kind in zip(scn.truth.tracks,
+                                                               sim.vehicle_class)
+                                       if kind != "bicycle"])
+    out = RunResult(setting, seed, case, len(motor.tracks),
+                    tracking_figures(replace(scn, truth=motor), cfg))
     f = out.figures
     if localization:
         for meth, r in localize_many(scn, list(METHODS), cfg).items():

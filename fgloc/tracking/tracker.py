@@ -56,6 +56,7 @@ from fgloc.tracking.measure import (
 )
 from fgloc.tracking.relink import relink
 from fgloc.tracking.retrodict import length_variance, retrodict_length
+from fgloc.tracking.road_users import split_road_users
 from fgloc.tracks import (
     N_KIN,
     N_STATE,
@@ -1138,8 +1139,10 @@ def track_scenario(scn: Scenario, T_coarse: np.ndarray, cfg: TrackingConfig | No
 
     T_coarse: 4x4 S -> L estimate (pass the true sensor pose for oracle tracking: C == L).
     Birth zones come from ``cfg.birth_zones`` (L) or the lanelet map and the FOV of
-    ``scn.sensor`` (hfov_deg, max_range) seen from T_coarse. Returns the confirmed tracks in
-    frame "C" with T_frame_to_L = identity (fine registration fills it later).
+    ``scn.sensor`` (hfov_deg, max_range) seen from T_coarse. Returns the confirmed tracks of
+    motor vehicles in frame "C" with T_frame_to_L = identity (fine registration fills it
+    later); those of other road users (:mod:`fgloc.tracking.road_users`) are dropped, their ids
+    in the diagnostics' ``not_motor_vehicles``.
     measurement_model ("sensor-aware" or "plain") overrides cfg.measurement_model.
     """
     t0 = time.perf_counter()
@@ -1159,10 +1162,12 @@ def track_scenario(scn: Scenario, T_coarse: np.ndarray, cfg: TrackingConfig | No
     for t, det in zip(times, frames):
         tracker.step(float(t), det)
     tracks, links = relink(tracker.finish(), tracker.lost, times, cfg)
+    tracks, others = split_road_users(tracks, cfg)
     diag = {
         "measurement_model": cfg.measurement_model,
         "frames": len(times),
         "tracks": len(tracks),
+        "not_motor_vehicles": [tr.id for tr in others],
         "relinked": [[k.first, k.then] for k in links],
         "birth_zones": np.column_stack([zones.centre, zones.radius,
                                         np.rad2deg(zones.yaw)]).tolist(),

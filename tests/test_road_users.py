@@ -1,0 +1,72 @@
+"""Tracks of road users that are not motor vehicles (cyclists) are told from the vehicles' and
+kept out of the registration, against the simulator's truth."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from factors.gp import rectangle_radius
+from fgloc.config import Config, from_dict
+from fgloc.pipeline import track
+from fgloc.sim import SimConfig, simulate_detailed
+from fgloc.tracking.config import TrackingConfig
+from fgloc.tracking.road_users import is_motor_vehicle, split_road_users
+from fgloc.tracks import N_KIN, N_STATE, Track, contour_angles
+
+
+def _box_track(track_id: int, length: float, width: float, steps: int = 5) -> Track:
+    states = np.zeros((steps, N_STATE))
+    states[:, N_KIN:] = rectangle_radius(contour_angles(), length, width)
+    return Track(track_id, np.arange(steps) * 0.05, states, np.zeros(steps, dtype=np.int8))
+
+
+@pytest.mark.parametrize(("length", "width", "vehicle"),
+                         [(4.5, 1.8, True), (3.1, 1.5, True), (11.0, 2.5, True), (4.5, 1.35, True),
+                          (1.8, 0.6, False), (2.9, 1.8, False), (4.5, 1.2, False)])
+def test_contour_size_tells_a_motor_vehicle(length: float, width: float,
+                                            vehicle: bool) -> None:
+    assert is_motor_vehicle(_box_track(0, length, width), TrackingConfig()) is vehicle
+    # both thresholds at 0 keep every track
+    keep_all = TrackingConfig(min_vehicle_length=0.0, min_vehicle_width=0.0)
+    assert is_motor_vehicle(_box_track(0, length, width), keep_all)
+
+
+def test_split_keeps_order_and_uses_the_median_over_steps() -> None:
+    car = _box_track(1, 4.5, 1.8)
+    bike = _box_track(2, 1.8, 0.6)
+    # a car whose contour was cyclist-sized in 2 of 5 steps is still a car
+    mixed = _box_track(3, 4.5, 1.8)
+    mixed.states[:2, N_KIN:] = rectangle_radius(contour_angles(), 1.8, 0.6)
+    vehicles, others = split_road_users([bike, car, mixed], TrackingConfig())
+    assert [t.id for t in vehicles] == [1, 3] and [t.id for t in others] == [2]
+
+
+def test_cyclists_tracks_are_dropped_and_the_cars_kept() -> None:
+    sim = from_dict(SimConfig, {"traffic": {"cyclists_per_minute": 8.0}}, None)
+    res = simulate_detailed("intersection", 1, 30.0, config=sim)
+    run = track(res.scenario, Config(), oracle_pose=True)
+    kept = run.tracks.tracks
+    dropped = set(run.tracks.diagnostics["not_motor_vehicles"])
+    assert dropped and not dropped & {t.id for t in kept}
+
+    def majority(det_index: np.ndarray) -> str:
+        src = res.source[det_index]
+        src = src[src >= 0]
+        return res.vehicle_class[np.bincount(src).argmax()] if len(src) else "clutter"
+
+    # at most two kept tracks with most of their detections on a cyclist (seen too sparsely
+    # to leave the car-sized prior), and less than half of the cyclists' tracked returns in
+    # the kept tracks (38 % here)
+    classes = [majority(t.det_index) for t in kept]
+    on_bike = np.concatenate([res.source[t.det_index] for t in kept])
+    bike_ids = [i for i, c in enumerate(res.vehicle_class) if c == "bicycle"]
+    bike_returns_kept = np.isin(on_bike, bike_ids).sum()
+    assert classes.count("bicycle") <= 2
+    everything = track(res.scenario, Config(tracking=TrackingConfig(
+        min_vehicle_length=0.0, min_vehicle_width=0.0)), oracle_pose=True).tracks.tracks
+    on_bike_all = np.concatenate([res.source[t.det_index] for t in everything])
+    assert bike_returns_kept < 0.5 * np.isin(on_bike_all, bike_ids).sum()
+    # no car track lost: the cars' tracks with and without the rule are the same
+    cars = sorted(t.id for t in everything if majority(t.det_index) != "bicycle")
+    assert cars == sorted(t.id for t, c in zip(kept, classes) if c != "bicycle")
