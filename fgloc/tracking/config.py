@@ -118,11 +118,12 @@ class TrackingConfig:
     mean_width: float = 1.9
     """Width (m) of that rectangle."""
     min_vehicle_length: float = 3.0
-    """A track whose contour's median length (m) is below this is not a motor vehicle (a
-    cyclist, a pedestrian): it is dropped from the tracks the registration and the smoothers
-    use (:mod:`fgloc.tracking.road_users`); 0 keeps every track."""
+    """A track whose contour's longer side (median length or width over its steps, m) is
+    below this is not a motor vehicle (a cyclist, a pedestrian): it is dropped from the tracks
+    the registration and the smoothers use (:mod:`fgloc.tracking.road_users`); 0 keeps every
+    track."""
     min_vehicle_width: float = 1.3
-    """Likewise for the contour's median width (m); 0 keeps every track."""
+    """Likewise for the contour's shorter side (m); 0 keeps every track."""
     long_trigger_width: float = 2.8
     """Long-vehicle hypothesis: a track whose contour is at least this wide (m) less half the std.
     dev. of its width (cars and vans are narrower, trucks and buses about 2.5 m; above 2.5 m
