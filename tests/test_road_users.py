@@ -23,7 +23,8 @@ def _box_track(track_id: int, length: float, width: float, steps: int = 5) -> Tr
 
 @pytest.mark.parametrize(("length", "width", "vehicle"),
                          [(4.5, 1.8, True), (3.1, 1.5, True), (11.0, 2.5, True), (4.5, 1.35, True),
-                          (2.7, 3.2, True), (1.8, 0.6, False), (2.9, 1.8, False),
+                          (2.7, 3.2, True), (2.9, 2.5, True), (2.5, 2.0, True),
+                          (1.8, 0.6, False), (2.9, 1.8, False), (2.5, 1.99, False),
                           (4.5, 1.2, False), (1.2, 4.5, False), (0.6, 1.8, False)])
 def test_contour_size_tells_a_motor_vehicle(length: float, width: float,
                                             vehicle: bool) -> None:

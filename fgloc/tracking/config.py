@@ -124,6 +124,10 @@ class TrackingConfig:
     track."""
     min_vehicle_width: float = 1.3
     """Likewise for the contour's shorter side (m); 0 keeps every track."""
+    wide_vehicle_width: float = 2.0
+    """A track whose contour's shorter side is at least this (m) is a motor vehicle however
+    short its longer side (a car seen end-on whose length came out short; the cyclists'
+    contours stay narrower, their width prior-bound below 2 m)."""
     long_trigger_width: float = 2.8
     """Long-vehicle hypothesis: a track whose contour is at least this wide (m) less half the std.
     dev. of its width (cars and vans are narrower, trucks and buses about 2.5 m; above 2.5 m

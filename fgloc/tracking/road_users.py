@@ -10,9 +10,9 @@ took the mean 2D error over the three synthetic layouts (seeds 1-3) from 0.114 t
 
 A cyclist's track is short and narrow where the radar saw enough of it; a motor vehicle's is
 neither (cars are 3.5-5 m long and 1.6-2 m wide). A track counts as a motor vehicle unless the
-longer of its contour's median length and width (over its steps) is below
-``min_vehicle_length`` or the shorter below ``min_vehicle_width``
-(:class:`fgloc.tracking.config.TrackingConfig`). A sparsely
+shorter of its contour's median length and width (over its steps) is below
+``min_vehicle_width``, or the longer is below ``min_vehicle_length`` while the shorter is
+below ``wide_vehicle_width`` (:class:`fgloc.tracking.config.TrackingConfig`). A sparsely
 seen cyclist keeps a contour near the car-sized prior and passes as a vehicle: the rule drops
 what it can tell, never a well-seen car.
 """
@@ -26,14 +26,16 @@ from fgloc.tracks import Track, contour_length_width
 
 
 def is_motor_vehicle(track: Track, cfg: TrackingConfig) -> bool:
-    """Whether ``track``'s contour (median length and width over its steps, m) has a longer
-    side of at least ``cfg.min_vehicle_length`` and a shorter one of at least
-    ``cfg.min_vehicle_width``: the footprint's size, whichever axis the tracker took for the
-    heading (a car whose contour came out turned by 90 deg, 2.7 m long and 3.2 m wide, is
-    still a car)."""
+    """Whether ``track``'s contour (median length and width over its steps, m) has a shorter
+    side of at least ``cfg.min_vehicle_width`` and either a longer one of at least
+    ``cfg.min_vehicle_length`` or a shorter one of at least ``cfg.wide_vehicle_width``. The
+    footprint's sides, whichever axis the tracker took for the heading (a car whose contour
+    came out turned by 90 deg, 2.7 m long and 3.2 m wide, is a car); and a wide one is a
+    vehicle however short (a car seen end-on, 2.9 m long and 2.5 m wide)."""
     length, width = contour_length_width(track.states)
     short, long = sorted((float(np.median(length)), float(np.median(width))))
-    return long >= cfg.min_vehicle_length and short >= cfg.min_vehicle_width
+    return short >= cfg.min_vehicle_width and (long >= cfg.min_vehicle_length
+                                               or short >= cfg.wide_vehicle_width)
 
 
 def split_road_users(tracks: list[Track], cfg: TrackingConfig) -> tuple[list[Track], list[Track]]:
