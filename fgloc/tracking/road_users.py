@@ -14,7 +14,8 @@ shorter of its contour's median length and width (over its steps) is below
 ``min_vehicle_width``, or the longer is below ``min_vehicle_length`` while the shorter is
 below ``wide_vehicle_width`` (:class:`fgloc.tracking.config.TrackingConfig`). A sparsely
 seen cyclist keeps a contour near the car-sized prior and passes as a vehicle: the rule drops
-what it can tell, never a well-seen car.
+what it can tell (79 % of the cyclists' tracked detections over the robustness settings with
+cyclists) and few vehicles' tracks (5 of 1003 there, 0.04 % of their detections).
 """
 
 from __future__ import annotations
