@@ -45,6 +45,9 @@ LATERAL_MARGIN = 0.6
 #: lateral error decaying as exp(-FOLLOW_WAVENUMBER * distance)
 FOLLOW_WAVENUMBER = 0.1
 
+#: conflicts (:func:`_conflicts`) per pair of route indices, computed once
+_ConflictCache = dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]
+
 
 @dataclass(frozen=True)
 class VehicleClass:
@@ -296,10 +299,9 @@ def simulate_traffic(rng: np.random.Generator, cfg: TrafficSimConfig, net: RoadN
     adding them leaves those unchanged.
     """
     routes = [build_route(net, r, cfg.transition_length) for r in net.routes()]
-    v_mean = float(np.mean(cfg.speed_straight))
-    warm = 0.8 * float(np.median([r.s[-1] for r in routes])) / v_mean
+    warm = _warm_up(routes, cfg.speed_straight)
     duration = float(times[-1] - times[0]) if len(times) else 0.0
-    cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    cache: _ConflictCache = {}
     vehicles: list[Vehicle] = []
     for t_nom, size in _arrivals(rng, cfg, times[0] - warm, times[0] + duration, count):
         leader = None
@@ -319,8 +321,14 @@ def simulate_traffic(rng: np.random.Generator, cfg: TrafficSimConfig, net: RoadN
     return Traffic(tracks, np.asarray(kinds, dtype=np.int64))
 
 
+def _warm_up(routes: list[Route], speed: tuple[float, float]) -> float:
+    """How long (s) before the recording arrivals start so the scene is already filled: 0.8
+    of the median route length at the mean of the cruise ``speed`` range (m/s)."""
+    return 0.8 * float(np.median([r.s[-1] for r in routes])) / float(np.mean(speed))
+
+
 def _enter(f: Vehicle, earlier: list[Vehicle], routes: list[Route],
-           cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]],
+           cache: _ConflictCache,
            headway: float) -> None:
     """Delay ``f``'s entry until it overlaps none of the ``earlier`` vehicles (on ``routes``;
     ``cache`` keeps the conflicts per route pair), then append it to them."""
@@ -357,11 +365,10 @@ def _cyclists(rng: np.random.Generator, cfg: TrafficSimConfig, routes: list[Rout
     from ``cyclist_speed`` (70 % of it in junction turns). They keep their headway to each
     other and ride beside the motor vehicles (which pass them in the same lane)."""
     rides = [offset_route(r, cfg.cyclist_offset) for r in routes]
-    v_mean = float(np.mean(cfg.cyclist_speed))
-    warm = 0.8 * float(np.median([r.s[-1] for r in rides])) / v_mean
+    warm = _warm_up(rides, cfg.cyclist_speed)
     n = int(rng.poisson(cfg.cyclists_per_minute * (duration + warm) / 60.0))
     vc = VEHICLE_CLASSES[BICYCLE]
-    cache: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    cache: _ConflictCache = {}
     cyclists: list[Vehicle] = []
     for t0 in np.sort(rng.uniform(start - warm, start + duration, n)):
         r = int(rng.integers(len(rides)))
