@@ -245,7 +245,9 @@ TABLES: list[Table] = [
           "the map's centre lines makes them); centre-lanelet2: the centre line both ways, "
           "lanelet2's own (Lanelet.centerline, up to 2 m from the arc-length one on "
           "hand-mapped turns), as mapped (as a generator that drives lanelet2's centre lines "
-          "makes them); one row group each; "
+          "makes them); keep-right-users: keep-right with pedestrians (10 per minute) and "
+          "cyclists (6 per minute) on the map's crosswalks, walkways and cycle ways; "
+          "one row group each; "
           "every method, mean and worst seed per junction (the height error dz: its signed "
           "mean and largest magnitude) and the runs whose result was "
           "ambiguous (the pose given is the best mode's; [map] two_way_lanes = auto: the "
@@ -254,7 +256,8 @@ TABLES: list[Table] = [
           produce_real_map,
           {"junctions": 3, "seeds": [1, 2, 3], "duration": 60.0,
            "labels": ["routing", "curvature"],
-           "traffic": ["keep-right", "centre", "keep-right-mapped", "centre-lanelet2"]},
+           "traffic": ["keep-right", "centre", "keep-right-mapped", "centre-lanelet2",
+                       "keep-right-users"]},
           {"junctions": 1, "seeds": [1], "duration": 30.0, "labels": ["routing"],
            "traffic": ["keep-right", "centre"]}, parallel=True),
     Table("straight", "Straight road without a junction", "bench/accuracy.py",

@@ -82,8 +82,18 @@ def _simulate_on_map(args: argparse.Namespace, sim_cfg) -> int:
     w = sim.scenario.frame.to_world(sim.junction[None])[0]
     print(f"wrote a scenario on {args.map} (junction at E {w[0]:.1f} N {w[1]:.1f}, seed "
           f"{args.seed}, {len(sim.scenario.radar)} detections, "
-          f"{len(sim.scenario.truth.tracks)} vehicles) to {args.out}")
+          f"{_road_users(sim.result.vehicle_class)}) to {args.out}")
     return 0
+
+
+def _road_users(classes: list[str]) -> str:
+    """'N vehicles', or with pedestrians or cyclists among ``classes`` (the simulator's class
+    name per true track) how many of each."""
+    walking, riding = classes.count("pedestrian"), classes.count("bicycle")
+    if not walking and not riding:
+        return f"{len(classes)} vehicles"
+    return (f"{len(classes)} road users: {len(classes) - walking - riding} motor vehicles, "
+            f"{walking} pedestrians, {riding} cyclists")
 
 
 def scenario_summary(path: str | Path) -> str:

@@ -281,6 +281,18 @@ class RealMapSimConfig:
     bounds' vertices; on hand-mapped turns up to 2 m away from the resampled one), as a
     generator that drives lanelet2's centre lines makes them. The right half of a two-way
     street (keep-right) is the resampled one's either way."""
+    pedestrians_per_minute: float = 0.0
+    """Pedestrians arriving per minute on the map's pedestrian ways (crosswalks, walkways,
+    lanelets for pedestrians; :mod:`fgloc.sim.map_paths`) within ``route_reach`` of the
+    junction, walking them both ways (0.5 x 0.5 m, 1.7 m high). 0 (default): none, and the
+    scenario bit for bit as without the setting."""
+    pedestrian_speed: tuple[float, float] = (1.0, 1.6)
+    """Range (m/s) of the pedestrians' walking speeds."""
+    path_cyclists_per_minute: float = 0.0
+    """Cyclists arriving per minute on the map's cycle ways (bicycle lanes, lanelets for
+    bicycles) within ``route_reach`` of the junction, at ``[traffic] cyclist_speed``, both
+    ways unless a way is tagged ``one_way=yes``. 0 (default): none. (``[traffic]
+    cyclists_per_minute`` puts cyclists on the vehicles' lanes instead.)"""
     path_half_window: int = 2
     """Half window (samples, 1 m apart) of the "moving-average" path smoothing."""
     path_spline_length: float = 3.0
@@ -299,6 +311,12 @@ class RealMapSimConfig:
                              f"{self.centre_line!r}")
         if self.path_half_window < 0 or not self.path_spline_length > 0:
             raise ValueError("path_half_window must be >= 0 and path_spline_length > 0")
+        if (self.pedestrians_per_minute < 0 or self.path_cyclists_per_minute < 0
+                or not 0 < self.pedestrian_speed[0] <= self.pedestrian_speed[1]):
+            raise ValueError("pedestrians_per_minute and path_cyclists_per_minute must be >= 0 "
+                             "and pedestrian_speed [low, high] with 0 < low <= high (m/s), got "
+                             f"{self.pedestrians_per_minute}, {self.path_cyclists_per_minute} "
+                             f"and {list(self.pedestrian_speed)}")
 
 
 @dataclass

@@ -21,7 +21,7 @@ from fgloc.sim.radar import simulate_radar
 from fgloc.sim.roads import RoadArea, RoadNetwork, build_network, to_lanelets
 from fgloc.sim.scenery import Scenery, place_scenery
 from fgloc.sim.terrain import Terrain
-from fgloc.sim.traffic import VEHICLE_CLASSES, simulate_traffic
+from fgloc.sim.traffic import VEHICLE_CLASSES, PathUsers, simulate_traffic
 
 CASES = ("intersection", "tjunction", "curve", "straight")
 _STAGES = ("road", "sensor", "site", "scenery", "als", "traffic", "radar")
@@ -92,15 +92,16 @@ def drive_and_observe(traffic_rng: np.random.Generator, radar_rng: np.random.Gen
                       mount: Mounting, terrain: Terrain, scenery: Scenery, frame: LocalFrame,
                       approx_en: np.ndarray, als: AlsCloud, lanelets: LaneletMap,
                       duration: float,
-                      vehicles: int | None) -> SimResult:
+                      vehicles: int | None, others: tuple[PathUsers, ...] = ()) -> SimResult:
     """The shared tail of every simulator: traffic on ``net`` for ``duration`` s, the radar's
     detections from the mast ``mount`` over ``terrain`` and ``scenery`` (all in the local
     frame L of ``frame``), the user's sensor prior (``approx_en``: approximate mast easting /
     northing in ``frame.crs``; a yaw guess drawn from ``site_rng``) and the ground truth;
-    ``als`` and ``lanelets`` pass through to the scenario."""
+    ``als`` and ``lanelets`` pass through to the scenario; ``others``: road users on ways of
+    their own (:func:`fgloc.sim.traffic.simulate_traffic`)."""
     n_frames = max(1, int(round(duration * cfg.radar.rate_hz)))
     times = np.arange(n_frames) / cfg.radar.rate_hz
-    traffic = simulate_traffic(traffic_rng, cfg.traffic, net, times, vehicles)
+    traffic = simulate_traffic(traffic_rng, cfg.traffic, net, times, vehicles, others)
     pose = mount.pose(terrain)
     radar, source = simulate_radar(radar_rng, cfg.radar, pose, traffic.tracks, traffic.kinds,
                                    net, scenery, terrain, n_frames)

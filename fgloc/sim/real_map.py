@@ -31,6 +31,7 @@ from fgloc.scenario import Lanelet, LaneletMap, Scenario, resample_polyline
 from fgloc.sim.als import BUILDING, GROUND, synthesize_als
 from fgloc.sim.config import SimConfig
 from fgloc.sim.core import SimResult, drive_and_observe
+from fgloc.sim.map_paths import map_users
 from fgloc.sim.mounting import Mounting
 from fgloc.sim.real_roads import (
     DrivableArea,
@@ -327,7 +328,8 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
     als = synthesize_als(rng["als"], cfg.als, terrain, road, no_boxes, mount.xy)
     _sidewalks_and_roofs(als.xyz, als.classification, lmap, roofs, terrain)
     result = drive_and_observe(rng["traffic"], rng["radar"], site_rng, cfg, net, mount, terrain,
-                               scenery, frame, approx_en, als, lmap, duration, vehicles)
+                               scenery, frame, approx_en, als, lmap, duration, vehicles,
+                               map_users(lmap, centre, route_reach, cfg))
     notices = {p.name: p.read_text(encoding="utf-8")
                for p in sorted(map_path.parent.glob("LICENSE*")) if p.is_file()}
     return MapSimulation(result, text, centre, notices)

@@ -17,6 +17,8 @@ crossing) is separated from that vehicle's occupancy by at least the headway.
 Cyclists (``cyclists_per_minute``; none by default) ride the same routes ``cyclist_offset`` m
 right of the lane centre line, at the lane's edge: road users that are not motor vehicles,
 whose detections and tracks a localizer must not take for vehicles on the lane centres.
+Other users on ways of their own (:class:`PathUsers`: a real map's footpaths and cycle ways,
+:mod:`fgloc.sim.map_paths`) arrive the same way on their own routes.
 """
 
 from __future__ import annotations
@@ -65,9 +67,12 @@ VEHICLE_CLASSES: tuple[VehicleClass, ...] = (
     VehicleClass("van", (5.5, 0.3), (2.0, 0.05), 2.2, 13.0),
     VehicleClass("truck", (11.0, 0.6), (2.5, 0.03), 3.6, 20.0),
     VehicleClass("bicycle", (1.8, 0.1), (0.6, 0.05), 1.7, 0.0),
+    VehicleClass("pedestrian", (0.5, 0.05), (0.5, 0.05), 1.7, -5.0),
 )
 #: index of the bicycle class in VEHICLE_CLASSES (``class_mix`` draws from the classes before it)
-BICYCLE = len(VEHICLE_CLASSES) - 1
+BICYCLE = 3
+#: index of the pedestrian class in VEHICLE_CLASSES
+PEDESTRIAN = 4
 
 
 @dataclass
@@ -93,6 +98,18 @@ class Vehicle:
     t0: float
     v: np.ndarray
     tau: np.ndarray
+
+
+@dataclass
+class PathUsers:
+    """Road users that are not motor vehicles on routes of their own: class index ``kind``
+    (into VEHICLE_CLASSES), Poisson arrivals ``per_minute`` on average on a random one of
+    ``routes``, cruise speeds (m/s) drawn from ``speed`` (70 % of it in junction turns)."""
+
+    routes: list[Route]
+    kind: int
+    per_minute: float
+    speed: tuple[float, float]
 
 
 @dataclass
@@ -290,13 +307,15 @@ def _states(veh: Vehicle, route: Route, times: np.ndarray) -> np.ndarray:
 
 
 def simulate_traffic(rng: np.random.Generator, cfg: TrafficSimConfig, net: RoadNetwork,
-                     times: np.ndarray, count: int | None) -> Traffic:
+                     times: np.ndarray, count: int | None,
+                     others: tuple[PathUsers, ...] = ()) -> Traffic:
     """Vehicles on random routes, sampled at ``times`` (s); tracks with < 2 samples dropped.
 
     count: motor vehicles generated in total (None: Poisson arrivals every ``arrival_interval``
     s on average). Arrivals start before times[0] so the scene is already filled at the start.
-    Cyclists (``cyclists_per_minute``, none by default) come after the motor vehicles, so
-    adding them leaves those unchanged.
+    Cyclists (``cyclists_per_minute``, none by default) and then ``others`` (users of ways of
+    their own, e.g. a real map's footpaths) come after the motor vehicles, so adding them
+    leaves those unchanged.
     """
     routes = [build_route(net, r, cfg.transition_length) for r in net.routes()]
     warm = _warm_up(routes, cfg.speed_straight)
@@ -310,8 +329,13 @@ def simulate_traffic(rng: np.random.Generator, cfg: TrafficSimConfig, net: RoadN
             _enter(f, vehicles, routes, cache, cfg.headway)
             leader = f
     rides = [(veh, routes[veh.route]) for veh in vehicles]
+    groups = list(others)
     if cfg.cyclists_per_minute > 0:
-        rides += _cyclists(rng, cfg, routes, times[0], duration)
+        groups.insert(0, PathUsers([offset_route(r, cfg.cyclist_offset) for r in routes],
+                                   BICYCLE, cfg.cyclists_per_minute, cfg.cyclist_speed))
+    for group in groups:
+        if group.per_minute > 0 and group.routes:
+            rides += _riders(rng, cfg, group, times[0], duration)
     tracks, kinds = [], []
     for veh, route in rides:
         states = _states(veh, route, times)
@@ -358,23 +382,32 @@ def offset_route(route: Route, right: float) -> Route:
                  np.interp(s, s_old, np.unwrap(route.heading)), np.interp(s, s_old, kappa))
 
 
-def _cyclists(rng: np.random.Generator, cfg: TrafficSimConfig, routes: list[Route],
-              start: float, duration: float) -> list[tuple[Vehicle, Route]]:
-    """Cyclists (class BICYCLE): Poisson arrivals, ``cyclists_per_minute`` on average, each on
-    a random route ``cyclist_offset`` m right of its lane centre line at a cruise speed drawn
-    from ``cyclist_speed`` (70 % of it in junction turns). They keep their headway to each
-    other and ride beside the motor vehicles (which pass them in the same lane)."""
-    rides = [offset_route(r, cfg.cyclist_offset) for r in routes]
-    warm = _warm_up(rides, cfg.cyclist_speed)
-    n = int(rng.poisson(cfg.cyclists_per_minute * (duration + warm) / 60.0))
-    vc = VEHICLE_CLASSES[BICYCLE]
+def polyline_route(xy: np.ndarray) -> Route:
+    """A route along the polyline ``xy`` (n, 2) in L (no lane pieces), resampled every
+    ROUTE_DS m by arc length; heading the tangent, curvature its derivative along the route."""
+    s_old = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    s = np.arange(int(s_old[-1] / ROUTE_DS) + 1) * ROUTE_DS
+    pts = np.column_stack([np.interp(s, s_old, xy[:, 0]), np.interp(s, s_old, xy[:, 1])])
+    d = np.gradient(pts, axis=0)
+    heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    return Route([], s, pts, heading, np.gradient(heading) / ROUTE_DS)
+
+
+def _riders(rng: np.random.Generator, cfg: TrafficSimConfig, users: PathUsers,
+            start: float, duration: float) -> list[tuple[Vehicle, Route]]:
+    """The road users of ``users`` over the recording from ``start`` (s) lasting ``duration``
+    s, with their routes. They keep their headway to each other, not to the motor vehicles
+    (which pass cyclists in the same lane)."""
+    warm = _warm_up(users.routes, users.speed)
+    n = int(rng.poisson(users.per_minute * (duration + warm) / 60.0))
+    vc = VEHICLE_CLASSES[users.kind]
     cache: _ConflictCache = {}
-    cyclists: list[Vehicle] = []
+    riders: list[Vehicle] = []
     for t0 in np.sort(rng.uniform(start - warm, start + duration, n)):
-        r = int(rng.integers(len(rides)))
-        v_cruise = rng.uniform(*cfg.cyclist_speed)
-        v = speed_profile(rides[r], v_cruise, 0.7 * v_cruise, cfg)
-        f = Vehicle(BICYCLE, rng.normal(*vc.length), rng.normal(*vc.width), r, float(t0), v,
+        r = int(rng.integers(len(users.routes)))
+        v_cruise = rng.uniform(*users.speed)
+        v = speed_profile(users.routes[r], v_cruise, 0.7 * v_cruise, cfg)
+        f = Vehicle(users.kind, rng.normal(*vc.length), rng.normal(*vc.width), r, float(t0), v,
                     _cumtrapz(1.0 / v, ROUTE_DS))
-        _enter(f, cyclists, rides, cache, cfg.headway)
-    return [(c, rides[c.route]) for c in cyclists]
+        _enter(f, riders, users.routes, cache, cfg.headway)
+    return [(f, users.routes[f.route]) for f in riders]
