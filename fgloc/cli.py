@@ -256,7 +256,7 @@ def cmd_track(args: argparse.Namespace) -> int:
     others = len(run.tracks.diagnostics.get("not_motor_vehicles", []))
     print(f"{len(run.tracks)} tracks ({relinked} joined to a lost track), {n_states} states; "
           f"detections placed with {placed}{smoothed}; {others} tracks of other road users "
-          "(smaller than a motor vehicle) left out")
+          "(smaller or slower than a motor vehicle) left out")
     print("  stage times: " + ", ".join(f"{k} {v:.2f} s" for k, v in run.timings.items()))
     print(f"wrote {Path(args.out) / 'tracks.csv'}")
     return 0

@@ -128,6 +128,11 @@ class TrackingConfig:
     """A track whose contour's shorter side is at least this (m) is a motor vehicle however
     short its longer side (a car seen end-on whose length came out short; the cyclists'
     contours stay narrower, their width prior-bound below 2 m)."""
+    walking_speed: float = 2.5
+    """A track whose speed (m/s; the 90th percentile of |v| over its steps) stays below this
+    is not a motor vehicle whatever its size: a pedestrian, whose few returns leave its
+    contour at the car-sized prior (static returns are not tracked, so a vehicle's track is
+    its moving part); 0 keeps every track."""
     long_trigger_width: float = 2.8
     """Long-vehicle hypothesis: a track whose contour is at least this wide (m) less half the std.
     dev. of its width (cars and vans are narrower, trucks and buses about 2.5 m; above 2.5 m
