@@ -41,6 +41,8 @@ class _Way:
     lanelet: int
 
     def heading(self, end: bool) -> float:
+        """Direction (rad, CCW from L's x axis) of the line's last segment (``end``) or
+        first."""
         d = self.xy[-1] - self.xy[-2] if end else self.xy[1] - self.xy[0]
         return float(np.arctan2(d[1], d[0]))
 
@@ -65,6 +67,7 @@ def _centre(ll: Lanelet) -> np.ndarray:
 
 
 def _directed(lanelets: list[Lanelet], both_ways: bool) -> list[_Way]:
+    """Each lanelet's centre line in its direction and, where it is used both ways, reversed."""
     ways = []
     for k, ll in enumerate(lanelets):
         xy = _centre(ll)
@@ -122,8 +125,9 @@ def map_users(lmap: LaneletMap, centre: np.ndarray, reach: float,
     """The pedestrians and cyclists ``cfg.real_map`` asks for, on the ways of ``lmap`` (in L)
     within ``reach`` m of the junction ``centre`` (2,); none when both rates are 0."""
     rm = cfg.real_map
-    ways = near(lmap.ignored, centre, reach) if (
-        rm.pedestrians_per_minute > 0 or rm.path_cyclists_per_minute > 0) else []
+    if rm.pedestrians_per_minute <= 0 and rm.path_cyclists_per_minute <= 0:
+        return ()
+    ways = near(lmap.ignored, centre, reach)
     groups = []
     if rm.pedestrians_per_minute > 0:
         groups.append(PathUsers(way_routes([w for w in ways if is_pedestrian_way(w)], True),
