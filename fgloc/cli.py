@@ -87,13 +87,14 @@ def _simulate_on_map(args: argparse.Namespace, sim_cfg) -> int:
 
 
 def _road_users(classes: list[str]) -> str:
-    """'N vehicles', or with pedestrians or cyclists among ``classes`` (the simulator's class
-    name per true track) how many of each."""
-    walking, riding = classes.count("pedestrian"), classes.count("bicycle")
-    if not walking and not riding:
+    """'N vehicles', or with pedestrians, cyclists or trams among ``classes`` (the simulator's
+    class name per true track) how many of each."""
+    others = {name: classes.count(kind) for kind, name in
+              (("pedestrian", "pedestrians"), ("bicycle", "cyclists"), ("tram", "trams"))}
+    if not any(others.values()):
         return f"{len(classes)} vehicles"
-    return (f"{len(classes)} road users: {len(classes) - walking - riding} motor vehicles, "
-            f"{walking} pedestrians, {riding} cyclists")
+    return (f"{len(classes)} road users: {len(classes) - sum(others.values())} motor vehicles, "
+            + ", ".join(f"{n} {name}" for name, n in others.items()))
 
 
 def scenario_summary(path: str | Path) -> str:

@@ -1,7 +1,8 @@
-"""Pedestrians and cyclists on a real map's own ways (``[real_map] pedestrians_per_minute``,
-``path_cyclists_per_minute``): the ways found by their tags, chained where they continue one
-another, walked both ways; the routes in closed form; and on the example crop the users on
-their ways while the motor traffic stays track for track."""
+"""Pedestrians, cyclists and trams on a real map's own ways (``[real_map]
+pedestrians_per_minute``, ``path_cyclists_per_minute``, ``trams_per_minute``): the ways found
+by their tags, chained where they continue one another, walked both ways; the routes in closed
+form; and on the example crop the users on their ways while the motor traffic stays track for
+track."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from scipy.spatial import cKDTree
 
 from fgloc.scenario import Lanelet
 from fgloc.sim.config import SimConfig
-from fgloc.sim.map_paths import is_cycle_way, is_pedestrian_way, way_routes
+from fgloc.sim.map_paths import is_cycle_way, is_pedestrian_way, is_rail, way_routes
 from fgloc.sim.real_map import simulate_on_map
 from fgloc.sim.traffic import ROUTE_DS, polyline_route
 
@@ -52,6 +53,8 @@ def test_ways_are_found_by_subtype_and_participant_tags() -> None:
                                                          "participant:bicycle": "yes"})
     assert is_pedestrian_way(shared) and is_cycle_way(shared)
     assert is_cycle_way(_way(4, (0, 0), (5, 0), subtype="bicycle_lane"))
+    assert is_rail(_way(9, (0, 0), (5, 0), subtype="rail"))
+    assert not is_rail(_way(10, (0, 0), (5, 0), subtype="road"))
     for ll in (_way(5, (0, 0), (5, 0), subtype="road"), _way(6, (0, 0), (5, 0), subtype="rail"),
                _way(7, (0, 0), (5, 0), subtype="crosswalk", **{"participant:pedestrian": "no"})):
         assert not is_cycle_way(ll)
@@ -89,6 +92,7 @@ def test_users_walk_and_ride_the_crops_ways_and_motor_traffic_stays() -> None:
     cfg = SimConfig()
     cfg.real_map.pedestrians_per_minute = 30.0
     cfg.real_map.path_cyclists_per_minute = 30.0
+    cfg.real_map.trams_per_minute = 6.0
     sim = simulate_on_map(CROP, 3, duration=20.0, crop_radius=150.0, config=cfg)
     kinds = np.array(sim.result.vehicle_class)
     tracks = sim.result.scenario.truth.tracks
@@ -97,10 +101,11 @@ def test_users_walk_and_ride_the_crops_ways_and_motor_traffic_stays() -> None:
     for a, b in zip(motor, base.result.scenario.truth.tracks):
         assert np.array_equal(a.states, b.states) and a.length == b.length
     ignored = sim.result.scenario.lanelets.ignored
-    for kind, is_way, speeds in (("pedestrian", is_pedestrian_way, (1.0, 1.6)),
-                                 ("bicycle", is_cycle_way, (1.0, 7.0))):
+    for kind, is_way, speeds, least in (("pedestrian", is_pedestrian_way, (1.0, 1.6), 3),
+                                        ("bicycle", is_cycle_way, (1.0, 7.0), 3),
+                                        ("tram", is_rail, (1.0, 12.0), 1)):
         users = [t for t, k in zip(tracks, kinds) if k == kind]
-        assert len(users) >= 3, kind
+        assert len(users) >= least, kind
         lines = [ll.centerline(40) for ll in ignored if is_way(ll)]
         others = [ll.centerline(40) for ll in sim.result.scenario.lanelets.lanelets]
         for t in users:
@@ -111,9 +116,12 @@ def test_users_walk_and_ride_the_crops_ways_and_motor_traffic_stays() -> None:
             v = t.states[:, 4]
             assert speeds[0] - 1e-9 <= v.min() and v.max() <= speeds[1] + 1e-9
         size = np.array([(t.length, t.width) for t in users])
-        assert np.all(size < 2.2) and np.all(size[:, 1] < 0.8)
+        if kind == "tram":
+            assert np.all(np.abs(size - (35.0, 2.65)) < (8.0, 0.2))
+        else:
+            assert np.all(size < 2.2) and np.all(size[:, 1] < 0.8)
     # the radar sees them
-    for kind in ("pedestrian", "bicycle"):
+    for kind in ("pedestrian", "bicycle", "tram"):
         assert np.isin(sim.result.source, np.flatnonzero(kinds == kind)).any(), kind
 
 
@@ -124,6 +132,8 @@ def test_user_rates_are_validated() -> None:
         RealMapSimConfig(pedestrians_per_minute=-1.0)
     with pytest.raises(ValueError, match="pedestrian_speed"):
         RealMapSimConfig(pedestrian_speed=(1.5, 1.0))
+    with pytest.raises(ValueError, match="tram_speed"):
+        RealMapSimConfig(tram_speed=(0.0, 10.0))
 
 
 def test_cli_simulate_map_counts_the_road_users(tmp_path: Path,
@@ -131,13 +141,14 @@ def test_cli_simulate_map_counts_the_road_users(tmp_path: Path,
     from fgloc.cli import main
 
     toml = tmp_path / "sim.toml"
-    toml.write_text("[real_map]\npedestrians_per_minute = 30.0\npath_cyclists_per_minute = 30.0\n")
+    toml.write_text("[real_map]\npedestrians_per_minute = 30.0\npath_cyclists_per_minute = 30.0\n"
+                    "trams_per_minute = 6.0\n")
     assert main(["simulate", "--map", str(CROP), "--seed", "3", "--duration", "5",
                  "--sim-config", str(toml), "--out", str(tmp_path / "scn")]) == 0
-    m = re.search(r"(\d+) road users: (\d+) motor vehicles, (\d+) pedestrians, (\d+) cyclists",
-                  capsys.readouterr().out)
-    assert m and int(m[1]) == sum(int(m[k]) for k in (2, 3, 4)) and min(
-        int(m[2]), int(m[3]), int(m[4])) > 0
+    m = re.search(r"(\d+) road users: (\d+) motor vehicles, (\d+) pedestrians, (\d+) cyclists, "
+                  r"(\d+) trams", capsys.readouterr().out)
+    assert m and int(m[1]) == sum(int(m[k]) for k in (2, 3, 4, 5)) and min(
+        int(m[k]) for k in (2, 3, 4, 5)) > 0
     toml.write_text("[real_map]\npedestrian_speed = [2.0, 1.0]\n")
     assert main(["simulate", "--map", str(CROP), "--sim-config", str(toml),
                  "--out", str(tmp_path / "bad")]) == 2

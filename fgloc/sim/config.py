@@ -293,6 +293,12 @@ class RealMapSimConfig:
     bicycles) within ``route_reach`` of the junction, at ``[traffic] cyclist_speed``, both
     ways unless a way is tagged ``one_way=yes``. 0 (default): none. (``[traffic]
     cyclists_per_minute`` puts cyclists on the vehicles' lanes instead.)"""
+    trams_per_minute: float = 0.0
+    """Trams arriving per minute on the map's rails (lanelets of subtype ``rail``) within
+    ``route_reach`` of the junction, in each rail's direction (both ways unless it is tagged
+    ``one_way=yes``); 35 x 2.65 m, 3.5 m high. 0 (default): none."""
+    tram_speed: tuple[float, float] = (8.0, 12.0)
+    """Range (m/s) of the trams' cruise speeds."""
     path_half_window: int = 2
     """Half window (samples, 1 m apart) of the "moving-average" path smoothing."""
     path_spline_length: float = 3.0
@@ -311,12 +317,16 @@ class RealMapSimConfig:
                              f"{self.centre_line!r}")
         if self.path_half_window < 0 or not self.path_spline_length > 0:
             raise ValueError("path_half_window must be >= 0 and path_spline_length > 0")
-        if (self.pedestrians_per_minute < 0 or self.path_cyclists_per_minute < 0
-                or not 0 < self.pedestrian_speed[0] <= self.pedestrian_speed[1]):
-            raise ValueError("pedestrians_per_minute and path_cyclists_per_minute must be >= 0 "
-                             "and pedestrian_speed [low, high] with 0 < low <= high (m/s), got "
-                             f"{self.pedestrians_per_minute}, {self.path_cyclists_per_minute} "
-                             f"and {list(self.pedestrian_speed)}")
+        if (min(self.pedestrians_per_minute, self.path_cyclists_per_minute,
+                self.trams_per_minute) < 0
+                or not 0 < self.pedestrian_speed[0] <= self.pedestrian_speed[1]
+                or not 0 < self.tram_speed[0] <= self.tram_speed[1]):
+            raise ValueError("pedestrians_per_minute, path_cyclists_per_minute and "
+                             "trams_per_minute must be >= 0 and pedestrian_speed and tram_speed "
+                             "[low, high] with 0 < low <= high (m/s), got "
+                             f"{self.pedestrians_per_minute}, {self.path_cyclists_per_minute}, "
+                             f"{self.trams_per_minute}, {list(self.pedestrian_speed)} and "
+                             f"{list(self.tram_speed)}")
 
 
 @dataclass

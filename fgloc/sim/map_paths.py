@@ -1,15 +1,16 @@
-"""The ways of a real Lanelet2 map that are not for motor vehicles, as routes for pedestrians
-and cyclists (``fgloc simulate --map``, ``[real_map] pedestrians_per_minute`` and
-``path_cyclists_per_minute``).
+"""The ways of a real Lanelet2 map that are not for motor vehicles, as routes for pedestrians,
+cyclists and trams (``fgloc simulate --map``, ``[real_map] pedestrians_per_minute``,
+``path_cyclists_per_minute`` and ``trams_per_minute``).
 
 A pedestrian way is a lanelet of subtype ``crosswalk`` or ``walkway``, or one tagged
 ``participant:pedestrian=yes``; a cycle way one of subtype ``bicycle_lane`` or tagged
-``participant:bicycle=yes``. Only the lanelets the map's traffic rules close to motor vehicles
-(``LaneletMap.ignored``) are taken. Pedestrians walk a way in both directions; cyclists ride it
-in both unless it is tagged ``one_way=yes``. Ways that continue one another (the end of one
-centre line within :data:`JOIN_DISTANCE` m of the start of the next, turning by less than
+``participant:bicycle=yes``; a rail one of subtype ``rail``. Only the lanelets the map's
+traffic rules close to motor vehicles (``LaneletMap.ignored``) are taken. Pedestrians walk a
+way in both directions; cyclists and trams use it in both unless it is tagged
+``one_way=yes``. Ways that continue one another (the end of one centre line within
+:data:`JOIN_DISTANCE` m of the start of the next, turning by less than
 :data:`JOIN_ANGLE_DEG`) are chained into one route, so users do not appear and vanish where
-two lanelets of a footpath meet.
+two lanelets of a footpath or a rail meet.
 """
 
 from __future__ import annotations
@@ -20,7 +21,15 @@ import numpy as np
 
 from fgloc.scenario import Lanelet, LaneletMap
 from fgloc.sim.config import SimConfig
-from fgloc.sim.traffic import BICYCLE, PEDESTRIAN, ROUTE_DS, PathUsers, Route, polyline_route
+from fgloc.sim.traffic import (
+    BICYCLE,
+    PEDESTRIAN,
+    ROUTE_DS,
+    TRAM,
+    PathUsers,
+    Route,
+    polyline_route,
+)
 
 #: largest gap (m) between the end of one way's centre line and the start of the next
 JOIN_DISTANCE = 1.0
@@ -57,6 +66,11 @@ def is_cycle_way(ll: Lanelet) -> bool:
     """Whether cyclists ride the lanelet ``ll`` (by subtype or participant tag)."""
     return (ll.attributes.get("subtype") in CYCLE_SUBTYPES
             or ll.attributes.get("participant:bicycle") == "yes")
+
+
+def is_rail(ll: Lanelet) -> bool:
+    """Whether trams run on the lanelet ``ll`` (subtype ``rail``)."""
+    return ll.attributes.get("subtype") == "rail"
 
 
 def _centre(ll: Lanelet) -> np.ndarray:
@@ -122,17 +136,17 @@ def near(lanelets: list[Lanelet], centre: np.ndarray, reach: float) -> list[Lane
 
 def map_users(lmap: LaneletMap, centre: np.ndarray, reach: float,
               cfg: SimConfig) -> tuple[PathUsers, ...]:
-    """The pedestrians and cyclists ``cfg.real_map`` asks for, on the ways of ``lmap`` (in L)
-    within ``reach`` m of the junction ``centre`` (2,); none when both rates are 0."""
+    """The pedestrians, cyclists and trams ``cfg.real_map`` asks for, on the ways of ``lmap``
+    (in L) within ``reach`` m of the junction ``centre`` (2,); none when every rate is 0."""
     rm = cfg.real_map
-    if rm.pedestrians_per_minute <= 0 and rm.path_cyclists_per_minute <= 0:
+    wanted = [(rm.pedestrians_per_minute, is_pedestrian_way, True, PEDESTRIAN,
+               rm.pedestrian_speed),
+              (rm.path_cyclists_per_minute, is_cycle_way, False, BICYCLE,
+               cfg.traffic.cyclist_speed),
+              (rm.trams_per_minute, is_rail, False, TRAM, rm.tram_speed)]
+    if all(rate <= 0 for rate, *_ in wanted):
         return ()
     ways = near(lmap.ignored, centre, reach)
-    groups = []
-    if rm.pedestrians_per_minute > 0:
-        groups.append(PathUsers(way_routes([w for w in ways if is_pedestrian_way(w)], True),
-                                PEDESTRIAN, rm.pedestrians_per_minute, rm.pedestrian_speed))
-    if rm.path_cyclists_per_minute > 0:
-        groups.append(PathUsers(way_routes([w for w in ways if is_cycle_way(w)], False),
-                                BICYCLE, rm.path_cyclists_per_minute, cfg.traffic.cyclist_speed))
-    return tuple(groups)
+    return tuple(PathUsers(way_routes([w for w in ways if is_way(w)], both_ways), kind, rate,
+                           speed)
+                 for rate, is_way, both_ways, kind, speed in wanted if rate > 0)

@@ -17,8 +17,8 @@ crossing) is separated from that vehicle's occupancy by at least the headway.
 Cyclists (``cyclists_per_minute``; none by default) ride the same routes ``cyclist_offset`` m
 right of the lane centre line, at the lane's edge: road users that are not motor vehicles,
 whose detections and tracks a localizer must not take for vehicles on the lane centres.
-Other users on ways of their own (:class:`PathUsers`: a real map's footpaths and cycle ways,
-:mod:`fgloc.sim.map_paths`) arrive the same way on their own routes.
+Other users on ways of their own (:class:`PathUsers`: a real map's footpaths, cycle ways and
+rails, :mod:`fgloc.sim.map_paths`) arrive the same way on their own routes.
 """
 
 from __future__ import annotations
@@ -68,11 +68,14 @@ VEHICLE_CLASSES: tuple[VehicleClass, ...] = (
     VehicleClass("truck", (11.0, 0.6), (2.5, 0.03), 3.6, 20.0),
     VehicleClass("bicycle", (1.8, 0.1), (0.6, 0.05), 1.7, 0.0),
     VehicleClass("pedestrian", (0.5, 0.05), (0.5, 0.05), 1.7, -5.0),
+    VehicleClass("tram", (35.0, 2.0), (2.65, 0.02), 3.5, 25.0),
 )
 #: index of the bicycle class in VEHICLE_CLASSES (``class_mix`` draws from the classes before it)
 BICYCLE = 3
 #: index of the pedestrian class in VEHICLE_CLASSES
 PEDESTRIAN = 4
+#: index of the tram class in VEHICLE_CLASSES
+TRAM = 5
 
 
 @dataclass
