@@ -3,6 +3,8 @@ vehicles' and kept out of the registration, against the simulator's truth."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -10,6 +12,7 @@ from factors.gp import rectangle_radius
 from fgloc.config import Config, from_dict
 from fgloc.pipeline import track
 from fgloc.sim import SimConfig, simulate_detailed
+from fgloc.sim.real_map import simulate_on_map
 from fgloc.tracking.config import TrackingConfig
 from fgloc.tracking.road_users import is_motor_vehicle, split_road_users
 from fgloc.tracks import N_KIN, N_STATE, Track, V, contour_angles
@@ -96,10 +99,6 @@ def test_pedestrians_tracks_are_dropped_by_their_speed() -> None:
     """On the example crop with pedestrians on its crosswalks and shared paths: their tracks
     keep car-sized contours, the size rule keeps them, the speed bound drops them; no motor
     vehicle's track goes."""
-    from pathlib import Path
-
-    from fgloc.sim.real_map import simulate_on_map
-
     sim_cfg = SimConfig()
     sim_cfg.real_map.pedestrians_per_minute = 30.0
     res = simulate_on_map(Path(__file__).parent / "data" / "lanelet2_example_crop.osm", 2,

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from fgloc.geo import wrap_angle
 from fgloc.scenario import Lanelet, LaneletMap
 from fgloc.sim.config import SimConfig
 from fgloc.sim.traffic import (
@@ -98,7 +99,7 @@ def _successor(ways: list[_Way], k: int) -> int | None:
     for j, w in enumerate(ways):
         if w.lanelet == ways[k].lanelet or np.hypot(*(w.xy[0] - end)) > JOIN_DISTANCE:
             continue
-        turn = abs(float(np.angle(np.exp(1j * (w.heading(False) - h)))))
+        turn = abs(wrap_angle(w.heading(False) - h))
         if turn < best_turn:
             best, best_turn = j, turn
     return best

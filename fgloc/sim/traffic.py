@@ -105,9 +105,10 @@ class Vehicle:
 
 @dataclass
 class PathUsers:
-    """Road users that are not motor vehicles on routes of their own: class index ``kind``
-    (into VEHICLE_CLASSES), Poisson arrivals ``per_minute`` on average on a random one of
-    ``routes``, cruise speeds (m/s) drawn from ``speed`` (70 % of it in junction turns)."""
+    """Road users other than the lanes' motor vehicles (cyclists, pedestrians, trams) on
+    routes of their own: class index ``kind`` (into VEHICLE_CLASSES), Poisson arrivals
+    ``per_minute`` on average on a random one of ``routes``, cruise speeds (m/s) drawn from
+    ``speed`` (70 % of it in junction turns)."""
 
     routes: list[Route]
     kind: int
@@ -371,26 +372,30 @@ def _enter(f: Vehicle, earlier: list[Vehicle], routes: list[Route],
     earlier.append(f)
 
 
+def _every_route_step(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The polyline ``xy`` (n, 2) resampled every ROUTE_DS m by arc length: its vertices' arc
+    lengths (n,), the new stations (m,) and the points there (m, 2)."""
+    s_old = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+    s = np.arange(int(s_old[-1] / ROUTE_DS) + 1) * ROUTE_DS
+    return s_old, s, np.column_stack([np.interp(s, s_old, xy[:, 0]),
+                                      np.interp(s, s_old, xy[:, 1])])
+
+
 def offset_route(route: Route, right: float) -> Route:
     """The route moved ``right`` m to the right of its direction of travel (left: negative),
     resampled every ROUTE_DS m. Its heading is the original's at the same station; its
     curvature kappa / (1 + kappa right) (a left turn's radius grows by ``right``)."""
     normal = np.column_stack([np.sin(route.heading), -np.cos(route.heading)])
-    xy = route.xy + right * normal
-    s_old = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
-    s = np.arange(int(s_old[-1] / ROUTE_DS) + 1) * ROUTE_DS
+    s_old, s, xy = _every_route_step(route.xy + right * normal)
     kappa = route.kappa / np.maximum(1.0 + route.kappa * right, 0.2)
-    return Route(route.pieces, s,
-                 np.column_stack([np.interp(s, s_old, xy[:, 0]), np.interp(s, s_old, xy[:, 1])]),
-                 np.interp(s, s_old, np.unwrap(route.heading)), np.interp(s, s_old, kappa))
+    return Route(route.pieces, s, xy, np.interp(s, s_old, np.unwrap(route.heading)),
+                 np.interp(s, s_old, kappa))
 
 
 def polyline_route(xy: np.ndarray) -> Route:
     """A route along the polyline ``xy`` (n, 2) in L (no lane pieces), resampled every
     ROUTE_DS m by arc length; heading the tangent, curvature its derivative along the route."""
-    s_old = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
-    s = np.arange(int(s_old[-1] / ROUTE_DS) + 1) * ROUTE_DS
-    pts = np.column_stack([np.interp(s, s_old, xy[:, 0]), np.interp(s, s_old, xy[:, 1])])
+    _, s, pts = _every_route_step(xy)
     d = np.gradient(pts, axis=0)
     heading = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
     return Route([], s, pts, heading, np.gradient(heading) / ROUTE_DS)
