@@ -107,7 +107,8 @@ def test_track_oracle_and_evaluate_tracks(scenario_dir, tmp_path, capsys):
     n_tracks = len({row.split(",")[0] for row in
                     (out / "tracks.csv").read_text().splitlines()[1:]})
     assert re.search(rf"^{n_tracks} tracks \(\d+ joined to a lost track\)", printed, re.M)
-    assert re.search(r"; \d+ tracks of other road users .* left out$", printed, re.M)
+    assert re.search(r"; \d+ tracks of other road users left out \(\d+ smaller or slower "
+                     r"than a motor vehicle, \d+ off the drivable lanelets", printed, re.M)
     gt = scenario_dir / "ground_truth.json"
     assert main(["evaluate", str(out), str(gt), "--json"]) == 0
     tracking = json.loads(capsys.readouterr().out)["tracking"]

@@ -7,23 +7,48 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from factors.gp import rectangle_radius
 from fgloc.config import Config, from_dict
 from fgloc.pipeline import track
+from fgloc.scenario import Lanelet, LaneletMap
 from fgloc.sim import SimConfig, simulate_detailed
 from fgloc.sim.real_map import simulate_on_map
 from fgloc.tracking.config import TrackingConfig
-from fgloc.tracking.road_users import is_motor_vehicle, split_road_users
-from fgloc.tracks import N_KIN, N_STATE, Track, V, contour_angles
+from fgloc.tracking.road_users import MapWays, area_samples, is_motor_vehicle, split_road_users
+from fgloc.tracks import N_KIN, N_STATE, YAW, Track, V, X, Y, contour_angles
+
+CROP = Path(__file__).parent / "data" / "lanelet2_example_crop.osm"
 
 
 def _box_track(track_id: int, length: float, width: float, steps: int = 5,
-               speed: float = 10.0) -> Track:
+               speed: float = 10.0, y: float = 0.0, detections: int = 0,
+               heading_deg: float = 0.0, x: float = 0.0) -> Track:
+    """A box of ``length`` x ``width`` m driving ``speed`` m/s from (x, y) m, heading
+    ``heading_deg``, with ``detections`` detection indices."""
     states = np.zeros((steps, N_STATE))
+    yaw = np.deg2rad(heading_deg)
     states[:, V] = speed
+    states[:, YAW] = yaw
+    states[:, X] = x + np.cos(yaw) * speed * np.arange(steps) * 0.05
+    states[:, Y] = y + np.sin(yaw) * speed * np.arange(steps) * 0.05
     states[:, N_KIN:] = rectangle_radius(contour_angles(), length, width)
-    return Track(track_id, np.arange(steps) * 0.05, states, np.zeros(steps, dtype=np.int8))
+    return Track(track_id, np.arange(steps) * 0.05, states, np.zeros(steps, dtype=np.int8),
+                 det_index=np.arange(detections))
+
+
+def _strip(lanelet_id: int, y_right: float, y_left: float, subtype: str,
+           along_y: bool = False) -> Lanelet:
+    """A straight lanelet along x from -50 to 150 m between y_right and y_left (m); with
+    ``along_y`` the same turned by 90 deg (along y, between x = -y_right and -y_left)."""
+    x = np.array([-50.0, 150.0])
+    left = np.column_stack([x, [y_left] * 2, [0.0] * 2])
+    right = np.column_stack([x, [y_right] * 2, [0.0] * 2])
+    if along_y:
+        turn = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+        left, right = left @ turn.T, right @ turn.T
+    return Lanelet(lanelet_id, left, right, {"subtype": subtype})
 
 
 @pytest.mark.parametrize(("length", "width", "vehicle"),
@@ -60,8 +85,8 @@ def test_split_keeps_order_and_uses_the_median_over_steps() -> None:
     # a car whose contour was cyclist-sized in 2 of 5 steps is still a car
     mixed = _box_track(3, 4.5, 1.8)
     mixed.states[:2, N_KIN:] = rectangle_radius(contour_angles(), 1.8, 0.6)
-    vehicles, others = split_road_users([bike, car, mixed], TrackingConfig())
-    assert [t.id for t in vehicles] == [1, 3] and [t.id for t in others] == [2]
+    users = split_road_users([bike, car, mixed], TrackingConfig())
+    assert [t.id for t in users.vehicles] == [1, 3] and [t.id for t in users.others] == [2]
 
 
 def test_cyclists_tracks_are_dropped_and_the_cars_kept() -> None:
@@ -101,11 +126,11 @@ def test_pedestrians_tracks_are_dropped_by_their_speed() -> None:
     vehicle's track goes."""
     sim_cfg = SimConfig()
     sim_cfg.real_map.pedestrians_per_minute = 30.0
-    res = simulate_on_map(Path(__file__).parent / "data" / "lanelet2_example_crop.osm", 2,
+    res = simulate_on_map(CROP, 2,
                           duration=40.0, crop_radius=150.0, config=sim_cfg).result
     with_speed = track(res.scenario, Config(), oracle_pose=True).tracks.tracks
-    size_only = track(res.scenario, Config(tracking=TrackingConfig(walking_speed=0.0)),
-                      oracle_pose=True).tracks.tracks
+    size_only = track(res.scenario, Config(tracking=TrackingConfig(
+        walking_speed=0.0, off_lane_margin=np.inf)), oracle_pose=True).tracks.tracks
 
     def walkers(tracks: list[Track]) -> list[int]:
         ids = []
@@ -120,3 +145,105 @@ def test_pedestrians_tracks_are_dropped_by_their_speed() -> None:
     assert len(walkers(with_speed)) <= 0.25 * len(walkers(size_only))
     vehicles = sorted(set(t.id for t in size_only) - set(walkers(size_only)))
     assert vehicles == sorted(set(t.id for t in with_speed) - set(walkers(with_speed)))
+
+
+def test_area_samples_cover_the_lanelet() -> None:
+    road = _strip(1, -1.75, 1.75, "road")
+    pts, axis = area_samples([road], step=0.5)
+    assert np.allclose(np.sin(axis), 0.0)                   # along x, either way
+    assert np.allclose(area_samples([_strip(2, -1, 1, "rail", along_y=True)])[1], np.pi / 2)
+    assert pts[:, 0].min() == -50.0 and pts[:, 0].max() == 150.0
+    assert pts[:, 1].min() == -1.75 and pts[:, 1].max() == 1.75
+    # every point of the area within half the sampling diagonal of a sample
+    rng = np.random.default_rng(0)
+    inside = np.column_stack([rng.uniform(-50, 150, 2000), rng.uniform(-1.75, 1.75, 2000)])
+    assert cKDTree(pts).query(inside)[0].max() <= 0.5 * np.hypot(0.5, 0.5) + 1e-9
+
+
+def test_a_track_on_the_rail_bed_beside_the_road_is_not_a_motor_vehicle() -> None:
+    """Road y in [-1.75, 5.25] (two lanes), a rail bed y in [6.5, 9.5] (a grass verge between),
+    a bicycle lane y in [-3.5, -1.75] (abutting the road): a tram on the rail's centre is off
+    lane, a truck on either lane or on the road's edge is not, nor a car whose placement puts
+    it 0.8 m into the bicycle lane."""
+    lmap = LaneletMap([_strip(1, -1.75, 1.75, "road"), _strip(2, 1.75, 5.25, "road")],
+                      ignored=[_strip(3, 6.5, 9.5, "rail"), _strip(4, -3.5, -1.75,
+                                                                  "bicycle_lane")])
+    ways = MapWays.of(lmap)
+    cfg = TrackingConfig()
+    tram = _box_track(1, 30.0, 2.65, y=8.0, detections=10)
+    trucks = [_box_track(k, 12.0, 2.5, y=y, detections=10)
+              for k, y in ((2, 0.0), (3, 3.5), (4, 5.2), (5, -2.55))]
+    users = split_road_users([tram, *trucks], cfg, ways)
+    assert [t.id for t in users.others] == [1] and users.off_lane == [1]
+    assert [t.id for t in users.vehicles] == [2, 3, 4, 5] and users.doubted == []
+    # a tram 2.75 m from the road's edge, on the rail bed (up to the samples' spacing)
+    assert ways.nearer_other(tram.states[:, [X, Y]], tram.states[:, YAW]) == pytest.approx(
+        2.75, abs=0.36)
+    # inf keeps every track; a map without other ways leaves the rule idle
+    assert split_road_users([tram], TrackingConfig(off_lane_margin=np.inf), ways).others == []
+    assert MapWays.of(LaneletMap(lmap.lanelets)) is None
+    # a cyclist rule still applies first: a bike on the bicycle lane goes for its size
+    bike = _box_track(6, 1.8, 0.6, y=-2.6, detections=10)
+    users = split_road_users([bike, *trucks], cfg, ways)
+    assert [t.id for t in users.others] == [6] and users.off_lane == []
+
+
+def test_the_off_lane_rule_goes_by_the_heading() -> None:
+    """A rail and a crosswalk across a road (along y, x in [20, 23] and [40, 44]): a tram on
+    the rail crossing the road is off lane (no lane runs its way there), a truck driving along
+    the road over the rail and the crosswalk is not."""
+    lmap = LaneletMap([_strip(1, -3.5, 3.5, "road")],
+                      ignored=[_strip(2, -23.0, -20.0, "rail", along_y=True),
+                               _strip(3, -44.0, -40.0, "crosswalk", along_y=True)])
+    ways = MapWays.of(lmap)
+    tram = _box_track(1, 30.0, 2.65, steps=20, y=-10.0, x=21.5, heading_deg=90.0,
+                      detections=10)
+    truck = _box_track(2, 12.0, 2.5, steps=200, speed=6.0, y=1.5, x=0.0, detections=10)
+    users = split_road_users([tram, truck], TrackingConfig(), ways)
+    assert users.off_lane == [1] and [t.id for t in users.vehicles] == [2]
+    # heading is an axis: the tram going the other way is off lane too
+    back = _box_track(4, 30.0, 2.65, steps=20, y=10.0, x=21.5, heading_deg=-90.0,
+                      detections=10)
+    assert split_road_users([back, truck], TrackingConfig(), ways).off_lane == [4]
+
+
+def test_the_off_lane_rule_doubts_a_placement_that_drops_most_detections() -> None:
+    """A coarse pose 7 m off puts most vehicles on the rail bed: the rule keeps them all and
+    says which it doubted."""
+    lmap = LaneletMap([_strip(1, -1.75, 1.75, "road")], ignored=[_strip(2, 5.0, 9.0, "rail")])
+    ways = MapWays.of(lmap)
+    shifted = [_box_track(k, 4.5, 1.8, y=7.0, detections=30) for k in (1, 2)]
+    on_road = _box_track(3, 4.5, 1.8, y=0.5, detections=50)
+    users = split_road_users([*shifted, on_road], TrackingConfig(), ways)
+    assert [t.id for t in users.vehicles] == [1, 2, 3]
+    assert users.doubted == [1, 2] and users.off_lane == []
+    # with fewer detections on the rail than the DOUBT_SHARE, they go
+    users = split_road_users([shifted[0], on_road], TrackingConfig(), ways)
+    assert [t.id for t in users.vehicles] == [3] and users.off_lane == [1]
+
+
+def test_trams_tracks_off_the_roads_are_dropped_and_every_vehicle_kept() -> None:
+    """On the example crop with trams on its rails: the trams' tracks are long, wide and fast
+    (size and speed keep them); those on the rails' own bed go by the map, those crossing the
+    junction on the road's area stay (there a tram shares the lanes); no motor vehicle's track
+    goes."""
+    sim_cfg = SimConfig()
+    sim_cfg.real_map.trams_per_minute = 4.0
+    res = simulate_on_map(CROP, 1, duration=40.0, crop_radius=150.0, config=sim_cfg).result
+    ruled = track(res.scenario, Config(), oracle_pose=True).tracks
+    unruled = track(res.scenario, Config(tracking=TrackingConfig(off_lane_margin=np.inf)),
+                    oracle_pose=True).tracks.tracks
+    tram_ids = [i for i, c in enumerate(res.vehicle_class) if c == "tram"]
+
+    def on_tram(t: Track) -> np.ndarray:
+        """Whether each of the track's detections is a tram's."""
+        return np.isin(res.source[t.det_index], tram_ids)
+
+    trams = {t.id for t in unruled if on_tram(t).mean() > 0.5}
+    assert len(trams) >= 4
+    # the dropped tracks are trams', at least 4 of them and a third of their detections
+    dropped = set(ruled.diagnostics["off_lane"])
+    assert dropped <= trams and len(dropped) >= 4
+    tram_returns = sum(on_tram(t).sum() for t in unruled)
+    assert sum(on_tram(t).sum() for t in ruled.tracks) < 2 / 3 * tram_returns
+    assert {t.id for t in unruled} - dropped == {t.id for t in ruled.tracks}

@@ -133,6 +133,11 @@ class TrackingConfig:
     is not a motor vehicle whatever its size: a pedestrian, whose few returns leave its
     contour at the car-sized prior (static returns are not tracked, so a vehicle's track is
     its moving part); 0 keeps every track."""
+    off_lane_margin: float = 1.0
+    """A track whose centre keeps at least this much nearer (m; the median over its steps) the
+    area of a lanelet no motor vehicle may drive (a rail, a bicycle lane, a walkway) than any
+    drivable lanelet's is not a motor vehicle (a tram on its own track bed); ``inf`` keeps
+    every track. Inactive on maps without such lanelets."""
     long_trigger_width: float = 2.8
     """Long-vehicle hypothesis: a track whose contour is at least this wide (m) less half the std.
     dev. of its width (cars and vans are narrower, trucks and buses about 2.5 m; above 2.5 m

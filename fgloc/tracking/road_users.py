@@ -22,14 +22,49 @@ with 10 pedestrians per minute on its crosswalks and walkways, their kept tracks
 prior's 4.4 x 1.9 m), but it walks: a track whose speed stays below ``walking_speed`` for 90 %
 of its steps is not a motor vehicle either (static returns are not tracked: a vehicle waiting
 at a stop line leaves no track there, its track is its moving part).
+
+A tram is as long, wide and fast as a truck, but it runs on rails: where the map has them
+(lanelets no motor vehicle may drive: rails, bicycle lanes, walkways, crosswalks; the
+``ignored`` ones of :class:`fgloc.scenario.LaneletMap`), a track that keeps at least
+``off_lane_margin`` m nearer one of those than any drivable lanelet (the median over its steps
+of the difference of its two distances) is not a motor vehicle either. A distance is to the
+nearest part of a lanelet's area whose axis lies along the track's heading (within
+:data:`ALONG_DEG`, either way): a car on a lane is 0 m from the drivable area wherever it
+drives on it, a crosswalk across the road is not along the cars crossing it, a rail laid in a
+lane shares that lane's area (a tram there counts as a vehicle and drives the lane's line),
+and a tram crossing the junction's lanes on its rail is far from every lane along it. The
+tracks are in the coarse frame: a coarse pose a lane off would put a lane's vehicles on the
+sidewalk or the rail bed beside it; when the rule would take more than :data:`DOUBT_SHARE` of
+the detections of the tracks it judges, it doubts the placement and drops none (a warning says
+so).
 """
 
 from __future__ import annotations
 
-import numpy as np
+import logging
+from dataclasses import dataclass, field
 
+import numpy as np
+from scipy.spatial import cKDTree
+
+from fgloc.geo import wrap_angle
+from fgloc.scenario import Lanelet, LaneletMap
 from fgloc.tracking.config import TrackingConfig
-from fgloc.tracks import Track, V, contour_length_width
+from fgloc.tracks import YAW, Track, V, X, Y, contour_length_width
+
+log = logging.getLogger(__name__)
+
+#: Spacing (m) of the samples of a lanelet's area (along and across it): a point inside reads
+#: at most half the diagonal, 0.35 m, from the area.
+AREA_STEP = 0.5
+#: A lanelet's area counts for a track where its axis lies within this (deg, either direction)
+#: of the track's heading (up to ALONG_DEG + SECTOR_DEG, see :class:`DirectedAreas`).
+ALONG_DEG = 30.0
+#: Width (deg) of the heading sectors of :class:`DirectedAreas`.
+SECTOR_DEG = 15.0
+#: The off-lane rule doubts the placement when it would drop more than this share of the
+#: detections of the tracks it judges (those the size and speed rules kept).
+DOUBT_SHARE = 0.5
 
 
 def is_motor_vehicle(track: Track, cfg: TrackingConfig) -> bool:
@@ -48,9 +83,123 @@ def is_motor_vehicle(track: Track, cfg: TrackingConfig) -> bool:
                                                or short >= cfg.wide_vehicle_width)
 
 
-def split_road_users(tracks: list[Track], cfg: TrackingConfig) -> tuple[list[Track], list[Track]]:
-    """The motor vehicles' tracks and the others (:func:`is_motor_vehicle`), each in input
-    order."""
+def area_samples(lanelets: list[Lanelet], step: float = AREA_STEP
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Points (n, 2) about ``step`` m apart along and across every lanelet of ``lanelets``,
+    covering its area (bounds included), in the lanelets' frame, and (n,) the lanelet's axis
+    there (rad in [0, pi): the direction of the line through the point, either way)."""
+    xy, axis = [np.zeros((0, 2))], [np.zeros(0)]
+    for ll in lanelets:
+        n = ll.samples(step)
+        for share in np.linspace(0.0, 1.0, max(2, int(np.ceil(ll.width() / step)) + 1)):
+            line = ll.line_at(share, n)
+            d = np.gradient(line, axis=0)
+            xy.append(line)
+            axis.append(np.arctan2(d[:, 1], d[:, 0]) % np.pi)
+    return np.vstack(xy), np.concatenate(axis)
+
+
+@dataclass(frozen=True)
+class DirectedAreas:
+    """Lanelet areas by direction: one KD-tree of :func:`area_samples` per heading sector
+    (``SECTOR_DEG`` wide over [0, 180) deg), holding the samples whose axis lies within
+    ``ALONG_DEG + SECTOR_DEG / 2`` of the sector's centre (None where none does)."""
+
+    trees: tuple[cKDTree | None, ...]
+
+    @classmethod
+    def of(cls, lanelets: list[Lanelet]) -> DirectedAreas:
+        xy, axis = area_samples(lanelets)
+        sector = np.deg2rad(SECTOR_DEG)
+        reach = np.deg2rad(ALONG_DEG) + sector / 2
+        trees = []
+        for centre in (np.arange(round(180.0 / SECTOR_DEG)) + 0.5) * sector:
+            off = np.abs(wrap_angle(2.0 * (axis - centre))) / 2.0     # axes: modulo pi
+            near = off <= reach
+            trees.append(cKDTree(xy[near]) if near.any() else None)
+        return cls(tuple(trees))
+
+    def distance(self, xy: np.ndarray, heading: np.ndarray) -> np.ndarray:
+        """(n,) distance (m) of each point (n, 2) to the nearest area sample whose axis lies
+        along ``heading`` (n,) rad (within ALONG_DEG to ALONG_DEG + SECTOR_DEG); inf where
+        there is none."""
+        sector = (np.asarray(heading) % np.pi // np.deg2rad(SECTOR_DEG)).astype(int)
+        sector = np.minimum(sector, len(self.trees) - 1)
+        out = np.full(len(xy), np.inf)
+        for k in np.unique(sector):
+            tree = self.trees[k]
+            if tree is not None:
+                rows = sector == k
+                out[rows] = tree.query(xy[rows])[0]
+        return out
+
+
+@dataclass(frozen=True)
+class MapWays:
+    """The areas of the lanelets a motor vehicle may drive and of the other ways of the map
+    (frame L)."""
+
+    drivable: DirectedAreas
+    other: DirectedAreas
+
+    @classmethod
+    def of(cls, lanelet_map: LaneletMap) -> MapWays | None:
+        """The ways of ``lanelet_map``: its drivable lanelets and its ``ignored`` ones; None
+        when it has no ignored lanelet (nothing to tell a track's way by)."""
+        if not lanelet_map.ignored:
+            return None
+        return cls(DirectedAreas.of(lanelet_map.lanelets), DirectedAreas.of(lanelet_map.ignored))
+
+    def nearer_other(self, xy: np.ndarray, heading: np.ndarray) -> np.ndarray:
+        """(n,) how much nearer (m) each point (n, 2) heading ``heading`` (n,) rad lies to
+        another way's area than to the drivable area, both along the heading: the distance to
+        the drivable area minus that to the other ways' (-inf where no other way runs along
+        the heading, +inf where only other ways do)."""
+        other = self.other.distance(xy, heading)
+        return np.where(np.isfinite(other), self.drivable.distance(xy, heading) - other,
+                        -np.inf)
+
+
+def is_off_lane(track: Track, ways: MapWays, cfg: TrackingConfig) -> bool:
+    """Whether ``track`` keeps at least ``cfg.off_lane_margin`` m nearer a way no motor
+    vehicle may use than any drivable lanelet, both along its heading (median over its steps;
+    its centres in the frame of ``ways``)."""
+    nearer = ways.nearer_other(track.states[:, [X, Y]], track.states[:, YAW])
+    return bool(np.median(nearer) >= cfg.off_lane_margin)
+
+
+@dataclass
+class RoadUsers:
+    """Tracks split by :func:`split_road_users`, each list in input order.
+
+    vehicles: the motor vehicles'; others: the rest; off_lane: ids among ``others`` that the
+    map's ways told (:func:`is_off_lane`); doubted: ids the map's ways would have told but
+    that were kept, the placement doubted (:data:`DOUBT_SHARE`)."""
+
+    vehicles: list[Track]
+    others: list[Track]
+    off_lane: list[int] = field(default_factory=list)
+    doubted: list[int] = field(default_factory=list)
+
+
+def split_road_users(tracks: list[Track], cfg: TrackingConfig,
+                     ways: MapWays | None = None) -> RoadUsers:
+    """The motor vehicles' tracks and the others: by size and speed (:func:`is_motor_vehicle`),
+    then, with ``ways``, by where they run (:func:`is_off_lane`, unless that would drop more
+    than :data:`DOUBT_SHARE` of the detections of the tracks left)."""
     vehicle = [is_motor_vehicle(tr, cfg) for tr in tracks]
-    return ([tr for tr, v in zip(tracks, vehicle) if v],
-            [tr for tr, v in zip(tracks, vehicle) if not v])
+    off = [v and ways is not None and is_off_lane(tr, ways, cfg)
+           for tr, v in zip(tracks, vehicle)]
+    judged = sum(len(tr.det_index) for tr, v in zip(tracks, vehicle) if v)
+    off_dets = sum(len(tr.det_index) for tr, o in zip(tracks, off) if o)
+    off_ids = [tr.id for tr, o in zip(tracks, off) if o]
+    if off_dets > DOUBT_SHARE * judged:
+        log.warning("%d of %d motor-vehicle tracks (%d of %d detections) run off every "
+                    "drivable lanelet and on the map's other ways (rails, bicycle lanes, "
+                    "walkways): the coarse placement is doubted and they are kept",
+                    len(off_ids), sum(vehicle), off_dets, judged)
+        return RoadUsers([tr for tr, v in zip(tracks, vehicle) if v],
+                         [tr for tr, v in zip(tracks, vehicle) if not v], doubted=off_ids)
+    keep = [v and not o for v, o in zip(vehicle, off)]
+    return RoadUsers([tr for tr, k in zip(tracks, keep) if k],
+                     [tr for tr, k in zip(tracks, keep) if not k], off_lane=off_ids)

@@ -56,7 +56,7 @@ from fgloc.tracking.measure import (
 )
 from fgloc.tracking.relink import relink
 from fgloc.tracking.retrodict import length_variance, retrodict_length
-from fgloc.tracking.road_users import split_road_users
+from fgloc.tracking.road_users import MapWays, split_road_users
 from fgloc.tracks import (
     N_KIN,
     N_STATE,
@@ -1162,12 +1162,15 @@ def track_scenario(scn: Scenario, T_coarse: np.ndarray, cfg: TrackingConfig | No
     for t, det in zip(times, frames):
         tracker.step(float(t), det)
     tracks, links = relink(tracker.finish(), tracker.lost, times, cfg)
-    tracks, others = split_road_users(tracks, cfg)
+    users = split_road_users(tracks, cfg, MapWays.of(scn.lanelets))
+    tracks = users.vehicles
     diag = {
         "measurement_model": cfg.measurement_model,
         "frames": len(times),
         "tracks": len(tracks),
-        "not_motor_vehicles": [tr.id for tr in others],
+        "not_motor_vehicles": [tr.id for tr in users.others],
+        "off_lane": users.off_lane,
+        "off_lane_doubted": users.doubted,
         "relinked": [[k.first, k.then] for k in links],
         "birth_zones": np.column_stack([zones.centre, zones.radius,
                                         np.rad2deg(zones.yaw)]).tolist(),
