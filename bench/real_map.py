@@ -5,7 +5,7 @@ the routing graph per driving direction), each kind of traffic on two-way lanele
 (``--two-way-traffic``: ``[real_map] two_way_traffic`` of the simulator, "keep-right" and
 "centre", keep-right on the lane lines as mapped, "keep-right-mapped", lanelet2's centre
 lines as mapped, "centre-lanelet2", and keep-right with pedestrians and cyclists on the map's
-own ways, "keep-right-users"; :data:`TRAFFIC`)
+own ways and trams on its rails, "keep-right-users"; :data:`TRAFFIC`)
 and each seed, ``fgloc.sim.real_map.simulate_on_map`` builds a scenario at that
 junction (``--duration`` s of traffic) and ``fgloc.localize_many`` runs every method on it; once
 per ``[map] labels`` mode (routing graph, Menger curvature); the 2D, yaw and height errors
@@ -49,7 +49,8 @@ METHODS = ["icp", "filter-sicp", "smoother-sicp", "joint"]
 #: (``centre_line = "lanelet2"``, up to 2 m from fgloc's resampled one on hand-mapped turns),
 #: as mapped, as a generator that routes with lanelet2 and drives its ``centerline`` makes them;
 #: "keep-right-users": keep-right with pedestrians (10 per minute) and cyclists (6 per minute)
-#: on the map's crosswalks, walkways and cycle ways (:mod:`fgloc.sim.map_paths`).
+#: on the map's crosswalks, walkways and cycle ways and trams (2 per minute) on its rails
+#: (:mod:`fgloc.sim.map_paths`; of the three junctions only the third has rails in view).
 TRAFFIC: dict[str, dict[str, str | float]] = {
     "keep-right": {"two_way_traffic": "keep-right"},
     "centre": {"two_way_traffic": "centre"},
@@ -57,7 +58,7 @@ TRAFFIC: dict[str, dict[str, str | float]] = {
     "centre-lanelet2": {"two_way_traffic": "centre", "centre_line": "lanelet2",
                         "path_smoothing": "none"},
     "keep-right-users": {"two_way_traffic": "keep-right", "pedestrians_per_minute": 10.0,
-                         "path_cyclists_per_minute": 6.0},
+                         "path_cyclists_per_minute": 6.0, "trams_per_minute": 2.0},
 }
 
 
