@@ -248,6 +248,19 @@ def test_iteration_limit_is_not_converged(stages):
     assert any("iteration limit" in w for w in res.warnings)
 
 
+def test_a_doubted_off_lane_rule_is_a_warning(stages):
+    """The tracker kept tracks the map's other ways would have told (the placement doubted,
+    :mod:`fgloc.tracking.road_users`): the result says so."""
+    scn, cfg, target, coarse, tracks = stages
+    res = register_tracks(scn, cfg, target, coarse, tracks, Timer(), "filter-sicp")
+    assert not any("lane off" in w for w in res.warnings)
+    flagged = dataclasses.replace(tracks, diagnostics={**tracks.diagnostics,
+                                                       "off_lane_doubted": [3, 5]})
+    res = register_tracks(scn, cfg, target, coarse, flagged, Timer(), "filter-sicp")
+    assert any(w.startswith("tracking: 2 tracks ran off") and "lane off" in w
+               for w in res.warnings)
+
+
 def test_no_tracks_keeps_the_coarse_pose(stages):
     scn, cfg, target, coarse, _ = stages
     res = register_tracks(scn, cfg, target, coarse, TrackSet([]), Timer(), "filter-sicp")

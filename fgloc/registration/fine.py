@@ -313,6 +313,11 @@ def register_tracks(
     res, targets = runs[best]
     T_fine = res.T
     warnings = [*target.warnings, *coarse.warnings, *res.warnings, *choice.warnings(method)]
+    doubted = tracks.diagnostics.get("off_lane_doubted") or []
+    if doubted:
+        warnings.append(f"tracking: {len(doubted)} tracks ran off every drivable lanelet along "
+                        "the map's other ways (rails, walkways, bicycle lanes), more than half "
+                        "the detections: kept as vehicles, the coarse pose may be a lane off")
     if res.stop_reason == "max_iterations":
         warnings.append(f"SICP stopped on its iteration limit ({scfg.max_iterations}) before "
                         f"the RMSE settled: not converged")

@@ -1141,8 +1141,10 @@ def track_scenario(scn: Scenario, T_coarse: np.ndarray, cfg: TrackingConfig | No
     Birth zones come from ``cfg.birth_zones`` (L) or the lanelet map and the FOV of
     ``scn.sensor`` (hfov_deg, max_range) seen from T_coarse. Returns the confirmed tracks of
     motor vehicles in frame "C" with T_frame_to_L = identity (fine registration fills it
-    later); those of other road users (:mod:`fgloc.tracking.road_users`) are dropped, their ids
-    in the diagnostics' ``not_motor_vehicles``.
+    later); those of other road users (:mod:`fgloc.tracking.road_users`: by size, speed and,
+    on maps with lanelets no motor vehicle may drive, where they run) are dropped, their ids in
+    the diagnostics' ``not_motor_vehicles`` (``off_lane``: those the map's ways told;
+    ``off_lane_doubted``: those it would have told, kept with the placement doubted).
     measurement_model ("sensor-aware" or "plain") overrides cfg.measurement_model.
     """
     t0 = time.perf_counter()
