@@ -182,6 +182,9 @@ def test_a_track_on_the_rail_bed_beside_the_road_is_not_a_motor_vehicle() -> Non
     # inf keeps every track; a map without other ways leaves the rule idle
     assert split_road_users([tram], TrackingConfig(off_lane_margin=np.inf), ways).others == []
     assert MapWays.of(LaneletMap(lmap.lanelets)) is None
+    # only the lanelets within reach count: from 300 m away along y the rail is out of reach
+    assert MapWays.of(lmap, np.array([50.0, 300.0]), 250.0) is None
+    assert MapWays.of(lmap, np.array([50.0, 300.0]), 295.0) is not None
     # a cyclist rule still applies first: a bike on the bicycle lane goes for its size
     bike = _box_track(6, 1.8, 0.6, y=-2.6, detections=10)
     users = split_road_users([bike, *trucks], cfg, ways)

@@ -143,12 +143,25 @@ class MapWays:
     other: DirectedAreas
 
     @classmethod
-    def of(cls, lanelet_map: LaneletMap) -> MapWays | None:
-        """The ways of ``lanelet_map``: its drivable lanelets and its ``ignored`` ones; None
-        when it has no ignored lanelet (nothing to tell a track's way by)."""
-        if not lanelet_map.ignored:
+    def of(cls, lanelet_map: LaneletMap, centre: np.ndarray | None = None,
+           reach: float = np.inf) -> MapWays | None:
+        """The ways of ``lanelet_map``: its drivable lanelets and its ``ignored`` ones whose
+        bounding box comes within ``reach`` m of ``centre`` (2,) in L (every lanelet without
+        ``centre``); None when no ignored lanelet does (nothing to tell a track's way by)."""
+        def near(lanelets: list[Lanelet]) -> list[Lanelet]:
+            if centre is None:
+                return lanelets
+            out = []
+            for ll in lanelets:
+                xy = np.vstack([ll.left[:, :2], ll.right[:, :2]])
+                gap = np.maximum(0.0, np.maximum(xy.min(axis=0) - centre, centre - xy.max(axis=0)))
+                if np.hypot(*gap) <= reach:
+                    out.append(ll)
+            return out
+        other = near(lanelet_map.ignored)
+        if not other:
             return None
-        return cls(DirectedAreas.of(lanelet_map.lanelets), DirectedAreas.of(lanelet_map.ignored))
+        return cls(DirectedAreas.of(near(lanelet_map.lanelets)), DirectedAreas.of(other))
 
     def nearer_other(self, xy: np.ndarray, heading: np.ndarray) -> np.ndarray:
         """(n,) how much nearer (m) each point (n, 2) heading ``heading`` (n,) rad lies to

@@ -1112,6 +1112,11 @@ class Tracker:
         )
 
 
+#: Lanelets within the sensor's range plus this (m) tell the tracks' ways
+#: (:class:`fgloc.tracking.road_users.MapWays`).
+WAYS_MARGIN = 50.0
+
+
 def _frames(scn: Scenario, T: np.ndarray, doppler_min: float,
             sensor3: np.ndarray) -> tuple[np.ndarray, list[_Frame]]:
     """Frame times (F,) and each frame's dynamic detections in C."""
@@ -1164,7 +1169,8 @@ def track_scenario(scn: Scenario, T_coarse: np.ndarray, cfg: TrackingConfig | No
     for t, det in zip(times, frames):
         tracker.step(float(t), det)
     tracks, links = relink(tracker.finish(), tracker.lost, times, cfg)
-    users = split_road_users(tracks, cfg, MapWays.of(scn.lanelets))
+    ways = MapWays.of(scn.lanelets, T[:2, 3], scn.sensor.max_range + WAYS_MARGIN)
+    users = split_road_users(tracks, cfg, ways)
     tracks = users.vehicles
     diag = {
         "measurement_model": cfg.measurement_model,
