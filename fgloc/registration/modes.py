@@ -178,8 +178,13 @@ def separation_z(worse: np.ndarray, best: np.ndarray) -> float:
 
 def distinct(fit: ModeFit, others: list[ModeFit], cfg: CoarseConfig) -> bool:
     """Whether ``fit`` lies at least ``mode_separation`` m or ``mode_separation_deg`` away
-    from each of ``others`` (a pose of its own, not one of theirs)."""
-    return all(np.hypot(*(fit.sensor[:2] - k.sensor[:2])) >= cfg.mode_separation
+    from each of ``others`` of its lane model (a pose of its own, not one of theirs). Fits of
+    two lane models are two hypotheses however near they end (the coarse stage keeps each
+    model's modes apart too): on the example map's junction 5 the keep-right fit ended 0.05 m
+    from the truth and the centre-lane fit 0.81 m away with a 1 % lower cost; merged, the
+    truth was gone."""
+    return all(fit.lanes != k.lanes
+               or np.hypot(*(fit.sensor[:2] - k.sensor[:2])) >= cfg.mode_separation
                or abs(wrap_angle(fit.sensor[2] - k.sensor[2]))
                >= np.deg2rad(cfg.mode_separation_deg) for k in others)
 
