@@ -202,6 +202,18 @@ def is_two_way(tags: Mapping[str, str]) -> bool:
     return tags.get("one_way", "yes").strip().lower() in ("no", "false")
 
 
+def lanelets_near(lanelets: list[Lanelet], centre: np.ndarray, radius: float) -> list[Lanelet]:
+    """The lanelets of ``lanelets`` whose bounding box comes within ``radius`` m of ``centre``
+    (2,), in input order."""
+    out = []
+    for ll in lanelets:
+        poly = ll.polygon()
+        gap = np.maximum(0.0, np.maximum(poly.min(axis=0) - centre, centre - poly.max(axis=0)))
+        if float(np.hypot(*gap)) <= radius:
+            out.append(ll)
+    return out
+
+
 def lane_lines(lanelets: list[Lanelet], step: float,
                two_way_min_width: float = TWO_WAY_MIN_WIDTH
                ) -> list[tuple[Lanelet, np.ndarray, bool]]:

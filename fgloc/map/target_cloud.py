@@ -29,7 +29,14 @@ from fgloc.config import MapConfig
 from fgloc.errors import InputError, LocalizationError
 from fgloc.labels import NAMES
 from fgloc.map.lanelet_labels import map_labels
-from fgloc.scenario import AlsCloud, Lanelet, LaneletMap, Scenario, nearest_on_segments
+from fgloc.scenario import (
+    AlsCloud,
+    Lanelet,
+    LaneletMap,
+    Scenario,
+    lanelets_near,
+    nearest_on_segments,
+)
 
 #: ASPRS codes that mean "not classified"; an ALS holding only these has no class information.
 UNCLASSIFIED_CODES: tuple[int, ...] = (0, 1)
@@ -230,17 +237,6 @@ def _near_sensor(scn: Scenario, xy: np.ndarray, radius: float) -> np.ndarray:
     return np.einsum("ij,ij->i", xy - c, xy - c) <= radius * radius
 
 
-def _lanelets_near(lmap: LaneletMap, centre: np.ndarray, radius: float) -> list[Lanelet]:
-    """Lanelets whose bounding box comes within ``radius`` m of ``centre`` (2,)."""
-    out = []
-    for ll in lmap.lanelets:
-        poly = ll.polygon()
-        gap = np.maximum(0.0, np.maximum(poly.min(axis=0) - centre, centre - poly.max(axis=0)))
-        if float(np.hypot(*gap)) <= radius:
-            out.append(ll)
-    return out
-
-
 def build_target_cloud(scn: Scenario, cfg: MapConfig) -> TargetCloud:
     """Target cloud in L from the scenario's ALS and lanelet map (see the module docstring).
 
@@ -258,7 +254,7 @@ def build_target_cloud(scn: Scenario, cfg: MapConfig) -> TargetCloud:
     keep = road & _near_sensor(scn, xyz[:, :2], radius)
     xyz = xyz[keep]
     centre = approx_position_local(scn)
-    near = _lanelets_near(scn.lanelets, centre, radius)
+    near = lanelets_near(scn.lanelets.lanelets, centre, radius)
     pt, lj = crop_to_lanelets(xyz[:, :2], near, cfg.crop_margin)
     if pt.size == 0:
         classes = "any class" if warnings else f"classes {list(cfg.road_classes)}"

@@ -48,7 +48,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from fgloc.geo import wrap_angle
-from fgloc.scenario import Lanelet, LaneletMap
+from fgloc.scenario import Lanelet, LaneletMap, lanelets_near
 from fgloc.tracking.config import TrackingConfig
 from fgloc.tracks import YAW, Track, V, X, Y, contour_length_width
 
@@ -149,15 +149,7 @@ class MapWays:
         bounding box comes within ``reach`` m of ``centre`` (2,) in L (every lanelet without
         ``centre``); None when no ignored lanelet does (nothing to tell a track's way by)."""
         def near(lanelets: list[Lanelet]) -> list[Lanelet]:
-            if centre is None:
-                return lanelets
-            out = []
-            for ll in lanelets:
-                xy = np.vstack([ll.left[:, :2], ll.right[:, :2]])
-                gap = np.maximum(0.0, np.maximum(xy.min(axis=0) - centre, centre - xy.max(axis=0)))
-                if np.hypot(*gap) <= reach:
-                    out.append(ll)
-            return out
+            return lanelets if centre is None else lanelets_near(lanelets, centre, reach)
         other = near(lanelet_map.ignored)
         if not other:
             return None
