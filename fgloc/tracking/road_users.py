@@ -198,13 +198,13 @@ def split_road_users(tracks: list[Track], cfg: TrackingConfig,
     judged = sum(len(tr.det_index) for tr, v in zip(tracks, vehicle) if v)
     off_dets = sum(len(tr.det_index) for tr, o in zip(tracks, off) if o)
     off_ids = [tr.id for tr, o in zip(tracks, off) if o]
-    if off_dets > DOUBT_SHARE * judged:
+    doubted = off_dets > DOUBT_SHARE * judged
+    if doubted:
         log.warning("%d of %d motor-vehicle tracks (%d of %d detections) run off every "
                     "drivable lanelet and on the map's other ways (rails, bicycle lanes, "
                     "walkways): the coarse placement is doubted and they are kept",
                     len(off_ids), sum(vehicle), off_dets, judged)
-        return RoadUsers([tr for tr, v in zip(tracks, vehicle) if v],
-                         [tr for tr, v in zip(tracks, vehicle) if not v], doubted=off_ids)
-    keep = [v and not o for v, o in zip(vehicle, off)]
+    keep = [v and (doubted or not o) for v, o in zip(vehicle, off)]
     return RoadUsers([tr for tr, k in zip(tracks, keep) if k],
-                     [tr for tr, k in zip(tracks, keep) if not k], off_lane=off_ids)
+                     [tr for tr, k in zip(tracks, keep) if not k],
+                     off_lane=[] if doubted else off_ids, doubted=off_ids if doubted else [])
