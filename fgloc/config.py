@@ -225,7 +225,10 @@ class CoarseConfig:
     exceeds it -- the data do not pin the pose to it (a T-junction's main road whose position
     only a few turning vehicles fix). Applies to icp, filter-sicp and smoother-sicp (the
     joint's conservative covariance warns of its weak directions instead, ``[joint]
-    weak_sigma``). Set it to the tolerance you need; ``inf`` = never."""
+    weak_sigma``). Tied modes that all end within ``mode_separation`` of the reported one (fits
+    of the two lane models) count as one resolved pose when the covariance covering them
+    passes it (the joint: their spread alone). Set it to the tolerance you need; ``inf`` =
+    never."""
     min_fitness: float = 0.5
     """A final fitness below this marks the result as not converged."""
     default_height: float = 6.0

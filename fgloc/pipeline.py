@@ -204,11 +204,13 @@ def _icp(scn: Scenario, cfg: Config, timer: Timer, coarse_stage: tuple[TargetClo
 
 def choice_of(res: LocalizationResult) -> ModeChoice:
     """The comparison ``res`` reports: its mode fits (the reported one first) with their
-    ``separation_z`` and ``tied`` flags from ``res.modes``."""
-    from fgloc.registration.modes import ModeChoice
+    ``separation_z`` and ``tied`` flags from ``res.modes`` (``agreed`` when several tied ones
+    were reported resolved)."""
+    from fgloc.registration.modes import RESOLVED, ModeChoice
 
+    tied = [k for k, m in enumerate(res.modes) if m["tied"]]
     return ModeChoice(list(res.mode_fits), np.array([float(m["separation_z"]) for m in res.modes]),
-                      [k for k, m in enumerate(res.modes) if m["tied"]])
+                      tied, agreed=len(tied) > 1 and res.status == RESOLVED)
 
 
 def valley_result(res: LocalizationResult, choice: ModeChoice, cfg: CoarseConfig,

@@ -147,6 +147,45 @@ def test_ambiguous_covariance_covers_every_tied_mode():
     assert clear.status == RESOLVED and clear.covariance(cfg) is own
 
 
+def test_tied_lane_models_that_agree_to_the_tolerance_are_resolved():
+    """Fits of two lane models never merge (above), so they can tie 0.12 m apart (the example
+    map's junction 6): with covariances that cover both within the tolerance the pose is
+    resolved, reporting the covering covariance and a note. Own covariances beyond the
+    tolerance keep icp / filter-sicp / smoother-sicp ambiguous but not the joint, whose
+    tolerance judges only the tie's spread; ties 0.8 m apart (0.57 m spread) or farther than
+    the mode separation stay ambiguous for every method and any tolerance."""
+    cfg = CoarseConfig()
+    own = np.diag([0.08**2, 0.05**2, np.deg2rad(0.05) ** 2])
+    keep = _fit(0.0, 0.0, 0.0, [1.0, 1.1, 0.9, 1.0])
+    centre = dataclasses.replace(_fit(0.1, 0.066, 0.05, [1.02, 1.05, 0.95, 1.0]),
+                                 lanes="centre")
+
+    def tie(a: ModeFit, b: ModeFit, cov: np.ndarray | None, **kw) -> ModeChoice:
+        return choose_mode([dataclasses.replace(a, covariance=cov),
+                            dataclasses.replace(b, covariance=cov)], cfg, **kw)
+
+    ch = tie(keep, centre, own)
+    assert ch.tied == [0, 1] and ch.agreed and ch.status == RESOLVED and ch.weak is None
+    cov = ch.covariance(cfg)
+    assert not np.allclose(cov, own)                         # the covering one
+    for k in ch.tied:
+        e = ch.fits[k].sensor - ch.best.sensor
+        assert e @ np.linalg.solve(cov, e) <= 2 + 1e-9
+    assert [w for w in ch.warnings("filter-sicp") if "tied modes agree" in w]
+    assert not [w for w in ch.warnings("filter-sicp") if "ambiguous" in w]
+
+    loose_own = np.diag([0.35**2, 0.05**2, np.deg2rad(0.05) ** 2])
+    assert tie(keep, centre, loose_own).status == AMBIGUOUS
+    assert tie(keep, centre, loose_own, tolerance=False).status == RESOLVED
+    apart = dataclasses.replace(centre, T_local=se2_to_se3(se2(0.8, 0.0, 0.0)))
+    assert tie(keep, apart, own).status == AMBIGUOUS
+    assert tie(keep, apart, own, tolerance=False).status == AMBIGUOUS
+    never = dataclasses.replace(cfg, resolved_max_std=np.inf)
+    far = dataclasses.replace(centre, T_local=se2_to_se3(se2(1.5, 0.0, 0.0)))
+    assert choose_mode([keep, far], never).status == AMBIGUOUS
+    assert choose_mode([keep, apart], never).status == RESOLVED
+
+
 def test_one_mode_not_pinned_to_the_tolerance_is_ambiguous():
     """One mode left, its covariance 0.45 m along 30 deg (the truth 0.4 m along it): not
     pinned to resolved_max_std = 0.3 m, so ambiguous with that direction, its covariance and

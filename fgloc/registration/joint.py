@@ -923,7 +923,8 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
     if tilt is not None and cov_model is not None:
         cov_model = cov_model + tilt
     degen = degeneracy_report(jr.covariance, jr.T, jr.matched, cfg.joint.weak_sigma)
-    warnings = [w for w in start.warnings if not w.startswith(f"{start.method}: ambiguous")]
+    warnings = [w for w in start.warnings
+                if not w.startswith((f"{start.method}: ambiguous", f"{start.method}: tied"))]
     warnings += choice.warnings("joint")
     if not jr.converged:
         warnings.append(f"joint: the pose or the noise levels still moved after {jr.rounds} "

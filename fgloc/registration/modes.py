@@ -55,6 +55,14 @@ placed by the best mode, moved rigidly by the mode's start) and hands its final 
   every mode not ruled out: ``mean_k (C_k + e_k e_k^T)``, ``e_k`` the mode's (x, y, yaw) minus the
   reported one and ``C_k`` its own covariance (where the method has one), so the truth at any
   of them lies within about ``sqrt(number of modes)`` standard deviations.
+* **Tied but agreeing**: fits of two lane models stay two modes however near they end (above),
+  so they may tie 0.1 m apart (the example map's junction 6: the keep-right and the
+  centre-lane fit). Tied modes that all lie within the mode separation of the reported one
+  count as one resolved pose when the covariance that covers them passes the tolerance
+  (:meth:`ModeChoice.agreeing`): for icp, filter-sicp and smoother-sicp the covering
+  covariance above, for the joint (whose own covariance the tolerance does not judge) its
+  spread ``mean_k e_k e_k^T`` alone. The reported pose, the covering covariance and the tied
+  flags stay; the status is ``resolved``.
 """
 
 from __future__ import annotations
@@ -246,21 +254,41 @@ class ModeChoice:
     """The comparison of merged fits, the reported one first (the least cost, or when
     ambiguous the tied mode :func:`choose_mode` selects with the prior): z (M,) standard errors
     by which the least-cost fit beats each (0 for itself); tied: indices of the modes not ruled
-    out (the reported one included); status "resolved" (only one, pinned to the tolerance) or
-    "ambiguous". valley: the line the tied modes are samples of (:mod:`fgloc.coarse.valley`),
-    or None; with one the reported pose is its posterior mean (:meth:`reported`), not the first
-    fit's. weak: the direction in which the only mode left is not pinned to the tolerance
-    (:meth:`with_tolerance`), or None."""
+    out (the reported one included); status "resolved" (only one, or tied ones that agree,
+    pinned to the tolerance) or "ambiguous". valley: the line the tied modes are samples of
+    (:mod:`fgloc.coarse.valley`), or None; with one the reported pose is its posterior mean
+    (:meth:`reported`), not the first fit's. weak: the direction in which the only mode left is
+    not pinned to the tolerance (:meth:`with_tolerance`), or None. agreed: the tied modes count
+    as one resolved pose (:meth:`agreeing`)."""
 
     fits: list[ModeFit]
     z: np.ndarray
     tied: list[int]
     valley: Valley | None = None
     weak: WeakDirection | None = None
+    agreed: bool = False
 
     @property
     def status(self) -> str:
-        return RESOLVED if len(self.tied) == 1 and self.weak is None else AMBIGUOUS
+        one = len(self.tied) == 1 or (self.agreed and self.valley is None)
+        return RESOLVED if one and self.weak is None else AMBIGUOUS
+
+    def agreeing(self, cfg: CoarseConfig, own_covariance: bool = True) -> ModeChoice:
+        """The same comparison, ``agreed`` (resolved) when there are tied modes, all within
+        ``cfg.mode_separation`` m and ``mode_separation_deg`` of the reported one, and the
+        covariance covering them is pinned to ``cfg.resolved_max_std`` (no
+        :func:`weak_direction`): :meth:`covariance`'s, or without ``own_covariance`` only
+        the tied modes' spread about the reported pose (module docstring)."""
+        if len(self.tied) < 2 or self.valley is not None:
+            return self
+        c = self.best.sensor
+        near = all(np.hypot(*(self.fits[k].sensor[:2] - c[:2])) < cfg.mode_separation
+                   and abs(wrap_angle(self.fits[k].sensor[2] - c[2]))
+                   < np.deg2rad(cfg.mode_separation_deg) for k in self.tied)
+        if not near:
+            return self
+        cov = self._covering(cfg, own_covariance)
+        return replace(self, agreed=weak_direction(cov, cfg.resolved_max_std) is None)
 
     def with_tolerance(self, cfg: CoarseConfig) -> ModeChoice:
         """The same comparison, ambiguous when one mode is left but its covariance's std. dev.
@@ -295,33 +323,47 @@ class ModeChoice:
         return np.array([*self.valley.point(self.valley.posterior()[0]), self.valley.yaw])
 
     def covariance(self, cfg: CoarseConfig) -> np.ndarray | None:
-        """The best mode's covariance when resolved; else the covering one (module
-        docstring), about the reported pose (None when resolved without a covariance). A
+        """The best mode's covariance when one mode is resolved; else (also when tied modes
+        agree) the covering one (module docstring), about the reported pose (None when resolved
+        without a covariance). A
         mode without a covariance of its own counts with the mode set's resolution, half the
         separation (``cfg.mode_separation`` m, ``mode_separation_deg``) as std. dev. With a
         valley, the variance along it is the posterior's (plus that resolution) instead of the
         modes' spread along it."""
-        if self.status == RESOLVED:
+        if self.status == RESOLVED and len(self.tied) == 1:
             return self.best.covariance
-        centre = self.reported()
-        res = 0.5 * np.array([cfg.mode_separation, cfg.mode_separation,
-                              np.deg2rad(cfg.mode_separation_deg)])
-        floor = np.diag(np.square(res))
-        acc = np.zeros((3, 3))
-        for k in self.tied:
-            e = self.fits[k].sensor - centre
-            e[2] = wrap_angle(e[2])
-            own = self.fits[k].covariance
-            acc += np.outer(e, e) + (floor if own is None else own)
-        acc /= len(self.tied)
+        acc = self._covering(cfg)
         if self.valley is None:
             return acc
+        res = self._resolution(cfg)
         u = self.valley.direction
         B = np.array([[u[0], u[1], 0.0], [-u[1], u[0], 0.0], [0.0, 0.0, 1.0]])
         along = B @ acc @ B.T               # rows / columns: along, across, yaw
         along[0, :] = along[:, 0] = 0.0
         along[0, 0] = self.valley.posterior()[1] + res[0] ** 2
         return B.T @ along @ B
+
+    @staticmethod
+    def _resolution(cfg: CoarseConfig) -> np.ndarray:
+        """The mode set's resolution (m, m, rad): half the mode separation."""
+        return 0.5 * np.array([cfg.mode_separation, cfg.mode_separation,
+                               np.deg2rad(cfg.mode_separation_deg)])
+
+    def _covering(self, cfg: CoarseConfig, own_covariance: bool = True) -> np.ndarray:
+        """``mean_k (C_k + e_k e_k^T)`` over the tied modes about the reported pose (module
+        docstring; ``C_k`` the resolution's when the mode has none), or without
+        ``own_covariance`` ``mean_k e_k e_k^T``."""
+        centre = self.reported()
+        floor = np.diag(np.square(self._resolution(cfg)))
+        acc = np.zeros((3, 3))
+        for k in self.tied:
+            e = self.fits[k].sensor - centre
+            e[2] = wrap_angle(e[2])
+            acc += np.outer(e, e)
+            if own_covariance:
+                own = self.fits[k].covariance
+                acc += floor if own is None else own
+        return acc / len(self.tied)
 
     def summary(self, frame: LocalFrame) -> list[dict[str, object]]:
         """JSON-ready modes, best first: world pose, cost, z, tied, lane score, std. devs."""
@@ -370,8 +412,9 @@ class ModeChoice:
                 "to": {"x": float(ends[1, 0]), "y": float(ends[1, 1])}}
 
     def warnings(self, method: str) -> list[str]:
-        """The ambiguity warning (none when resolved)."""
-        if self.status == RESOLVED:
+        """The ambiguity warning (none when one mode is resolved; a note of the tie when tied
+        modes agree)."""
+        if self.status == RESOLVED and len(self.tied) == 1:
             return []
         if self.weak is not None:
             w = self.weak
@@ -395,6 +438,10 @@ class ModeChoice:
                  f"{np.rad2deg(abs(wrap_angle(self.fits[k].sensor[2] - c[2]))):.1f} deg "
                  f"(z {self.z[k]:.1f}{other_model_note(self.fits[k].lanes, self.best.lanes)})"
                  for k in self.tied[1:]]
+        if self.status == RESOLVED:
+            return [f"{method}: tied modes agree: {len(self.tied)} modes fit the data alike "
+                    f"(the reported one and {'; '.join(parts)} away), all pinned to the tolerance "
+                    "coarse.resolved_max_std: resolved, the covariance covers them all"]
         return [f"{method}: ambiguous pose: {len(self.tied)} modes fit the data alike (the "
                 f"reported one and {'; '.join(parts)} away); the covariance covers them all"]
 
@@ -411,7 +458,7 @@ def coarse_choice(coarse: CoarseResult, cfg: CoarseConfig,
                     coarse.converged, m.start, m.z_std, m.lanes)
             for k, m in enumerate(coarse.modes)]
     choice = ModeChoice(fits, np.zeros(len(fits)), list(range(len(fits))))
-    return choice.selected_by(prior).with_tolerance(cfg)
+    return choice.selected_by(prior).agreeing(cfg).with_tolerance(cfg)
 
 
 def choose_mode(fits: list[ModeFit], cfg: CoarseConfig,
@@ -431,7 +478,7 @@ def choose_mode(fits: list[ModeFit], cfg: CoarseConfig,
     best = merged[0].track_cost
     z = np.array([separation_z(f.track_cost, best) for f in merged])
     tied = [k for k in range(len(merged)) if k == 0 or z[k] < cfg.mode_z]
-    choice = ModeChoice(merged, z, tied).selected_by(prior)
+    choice = ModeChoice(merged, z, tied).selected_by(prior).agreeing(cfg, tolerance)
     return choice.with_tolerance(cfg) if tolerance else choice
 
 
