@@ -50,7 +50,7 @@ METHODS = ["icp", "filter-sicp", "smoother-sicp", "joint"]
 #: as mapped, as a generator that routes with lanelet2 and drives its ``centerline`` makes them;
 #: "keep-right-users": keep-right with pedestrians (10 per minute) and cyclists (6 per minute)
 #: on the map's crosswalks, walkways and cycle ways and trams (2 per minute) on its rails
-#: (:mod:`fgloc.sim.map_paths`; of the three junctions only the third has rails in view).
+#: (:mod:`fgloc.sim.map_paths`; of the six largest junctions only the third has rails in view).
 TRAFFIC: dict[str, dict[str, str | float]] = {
     "keep-right": {"two_way_traffic": "keep-right"},
     "centre": {"two_way_traffic": "centre"},

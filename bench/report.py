@@ -237,7 +237,7 @@ TABLES: list[Table] = [
            "duration": 60.0, "height": False, "timing": False}, parallel=True),
     Table("real_map", "Real Lanelet2 map", "bench/real_map.py",
           "Scenarios simulated on the Lanelet2 example map (Karlsruhe, BSD-3-Clause, FZI) at "
-          "its largest junctions of the routing graph; vehicles drive its two-way lanelets "
+          "its six largest junctions of the routing graph; vehicles drive its two-way lanelets "
           "(two-way streets drawn as one lanelet) both ways, keeping to the right half of "
           "their direction (keep-right) or on the centre line (centre), on paths smoothed "
           "through the lanelet joins; keep-right-mapped: keep-right on the lane lines as "
@@ -255,7 +255,7 @@ TABLES: list[Table] = [
           "lane models of two-way streets are modes); each scenario localized with the "
           "routing-graph labels (the default) and with Menger-curvature labels only.",
           produce_real_map,
-          {"junctions": 3, "seeds": [1, 2, 3], "duration": 60.0,
+          {"junctions": 6, "seeds": [1, 2, 3], "duration": 60.0,
            "labels": ["routing", "curvature"],
            "traffic": ["keep-right", "centre", "keep-right-mapped", "centre-lanelet2",
                        "keep-right-users"]},
