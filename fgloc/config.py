@@ -227,7 +227,7 @@ class CoarseConfig:
     joint's conservative covariance warns of its weak directions instead, ``[joint]
     weak_sigma``). Tied modes that all end within ``mode_separation`` of the reported one (fits
     of the two lane models) count as one resolved pose when the covariance covering them
-    passes it (the joint: their spread alone). Set it to the tolerance you need; ``inf`` =
+    passes it (the joint's too). Set it to the tolerance you need; ``inf`` =
     never."""
     min_fitness: float = 0.5
     """A final fitness below this marks the result as not converged."""

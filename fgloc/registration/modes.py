@@ -58,11 +58,11 @@ placed by the best mode, moved rigidly by the mode's start) and hands its final 
 * **Tied but agreeing**: fits of two lane models stay two modes however near they end (above),
   so they may tie 0.1 m apart (the example map's junction 6: the keep-right and the
   centre-lane fit). Tied modes that all lie within the mode separation of the reported one
-  count as one resolved pose when the covariance that covers them passes the tolerance
-  (:meth:`ModeChoice.agreeing`): for icp, filter-sicp and smoother-sicp the covering
-  covariance above, for the joint (whose own covariance the tolerance does not judge) its
-  spread ``mean_k e_k e_k^T`` alone. The reported pose, the covering covariance and the tied
-  flags stay; the status is ``resolved``.
+  count as one resolved pose when the covariance that covers them (above) passes the
+  tolerance (:meth:`ModeChoice.agreeing`; for every method, the joint too: its own
+  covariance is not judged when one mode is left, but two tied ones must agree to it with
+  it). The reported pose, the covering covariance and the tied flags stay; the status is
+  ``resolved``.
 """
 
 from __future__ import annotations
@@ -273,12 +273,11 @@ class ModeChoice:
         one = len(self.tied) == 1 or (self.agreed and self.valley is None)
         return RESOLVED if one and self.weak is None else AMBIGUOUS
 
-    def agreeing(self, cfg: CoarseConfig, own_covariance: bool = True) -> ModeChoice:
+    def agreeing(self, cfg: CoarseConfig) -> ModeChoice:
         """The same comparison, ``agreed`` (resolved) when there are tied modes, all within
         ``cfg.mode_separation`` m and ``mode_separation_deg`` of the reported one, and the
-        covariance covering them is pinned to ``cfg.resolved_max_std`` (no
-        :func:`weak_direction`): :meth:`covariance`'s, or without ``own_covariance`` only
-        the tied modes' spread about the reported pose (module docstring)."""
+        covariance covering them (:meth:`covariance`) is pinned to ``cfg.resolved_max_std``
+        (no :func:`weak_direction`; module docstring)."""
         if len(self.tied) < 2 or self.valley is not None:
             return self
         c = self.best.sensor
@@ -287,8 +286,8 @@ class ModeChoice:
                    < np.deg2rad(cfg.mode_separation_deg) for k in self.tied)
         if not near:
             return self
-        cov = self._covering(cfg, own_covariance)
-        return replace(self, agreed=weak_direction(cov, cfg.resolved_max_std) is None)
+        return replace(self, agreed=weak_direction(self._covering(cfg),
+                                                   cfg.resolved_max_std) is None)
 
     def with_tolerance(self, cfg: CoarseConfig) -> ModeChoice:
         """The same comparison, ambiguous when one mode is left but its covariance's std. dev.
@@ -349,20 +348,17 @@ class ModeChoice:
         return 0.5 * np.array([cfg.mode_separation, cfg.mode_separation,
                                np.deg2rad(cfg.mode_separation_deg)])
 
-    def _covering(self, cfg: CoarseConfig, own_covariance: bool = True) -> np.ndarray:
+    def _covering(self, cfg: CoarseConfig) -> np.ndarray:
         """``mean_k (C_k + e_k e_k^T)`` over the tied modes about the reported pose (module
-        docstring; ``C_k`` the resolution's when the mode has none), or without
-        ``own_covariance`` ``mean_k e_k e_k^T``."""
+        docstring; ``C_k`` the resolution's when the mode has none)."""
         centre = self.reported()
         floor = np.diag(np.square(self._resolution(cfg)))
         acc = np.zeros((3, 3))
         for k in self.tied:
             e = self.fits[k].sensor - centre
             e[2] = wrap_angle(e[2])
-            acc += np.outer(e, e)
-            if own_covariance:
-                own = self.fits[k].covariance
-                acc += floor if own is None else own
+            own = self.fits[k].covariance
+            acc += np.outer(e, e) + (floor if own is None else own)
         return acc / len(self.tied)
 
     def summary(self, frame: LocalFrame) -> list[dict[str, object]]:
@@ -478,7 +474,7 @@ def choose_mode(fits: list[ModeFit], cfg: CoarseConfig,
     best = merged[0].track_cost
     z = np.array([separation_z(f.track_cost, best) for f in merged])
     tied = [k for k in range(len(merged)) if k == 0 or z[k] < cfg.mode_z]
-    choice = ModeChoice(merged, z, tied).selected_by(prior).agreeing(cfg, tolerance)
+    choice = ModeChoice(merged, z, tied).selected_by(prior).agreeing(cfg)
     return choice.with_tolerance(cfg) if tolerance else choice
 
 
