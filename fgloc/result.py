@@ -21,11 +21,15 @@ if TYPE_CHECKING:
 
 
 def json_ready(value: Any) -> Any:
-    """A diagnostics value with numpy arrays and scalars turned into JSON types (recursively)."""
+    """A diagnostics value with numpy arrays and scalars turned into JSON types (recursively);
+    a NaN or infinite number becomes None (JSON has no such numbers: a SICP left with no
+    correspondences has no RMSE)."""
     if isinstance(value, np.ndarray):
-        return value.tolist()
+        return json_ready(value.tolist())
     if isinstance(value, (np.floating, np.integer, np.bool_)):
-        return value.item()
+        return json_ready(value.item())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
     if isinstance(value, dict):
         return {k: json_ready(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):

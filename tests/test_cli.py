@@ -90,6 +90,22 @@ def test_localize_too_few_dynamic_points_writes_nothing(scenario_dir, tmp_path, 
     assert not out.exists()
 
 
+def test_localize_without_vehicle_tracks_exits_2_and_writes_nothing(scenario_dir, tmp_path,
+                                                                     capsys):
+    """Every track slower than the walking bound: filter-sicp has no vehicle to register and
+    says why (exit 2, nothing written); icp needs no tracks."""
+    cfg = tmp_path / "walk.toml"
+    cfg.write_text("[tracking]\nwalking_speed = 100.0\n")
+    out = tmp_path / "never"
+    rc = main(["-q", "localize", str(scenario_dir), "--method", "filter-sicp", "--out",
+               str(out), "--config", str(cfg)])
+    err = capsys.readouterr().err
+    assert rc == 2 and not out.exists()
+    assert "no vehicle track to register" in err and "smaller or slower" in err
+    assert main(["-q", "localize", str(scenario_dir), "--method", "icp", "--out",
+                 str(tmp_path / "icp"), "--config", str(cfg)]) == 0
+
+
 def test_config_dump_round_trips(tmp_path, capsys):
     assert main(["config", "--dump"]) == 0
     p = tmp_path / "c.toml"

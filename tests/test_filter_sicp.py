@@ -4,6 +4,7 @@ covariance and tracks, and accuracy end to end on a short simulated scenario."""
 from __future__ import annotations
 
 import dataclasses
+import json
 from types import SimpleNamespace
 
 import numpy as np
@@ -13,6 +14,7 @@ from fgloc.coarse import CoarseResult, coarse_localize
 from fgloc.coarse.icp import _kabsch_2d
 from fgloc.coarse.vertical import rodrigues
 from fgloc.config import Config, dump_config, load_config
+from fgloc.errors import LocalizationError
 from fgloc.evaluation.pose import pose_error
 from fgloc.geo import rot_from_ypr, rot_z, se2, se3, transform_points
 from fgloc.labels import LEFT, RIGHT, STRAIGHT
@@ -22,6 +24,7 @@ from fgloc.progress import Timer
 from fgloc.registration.config import FineConfig
 from fgloc.registration.fine import coarse_tilt_covariance, register_tracks, sensor_covariance
 from fgloc.registration.source import build_source_cloud, choose_tracks, voxel_per_label
+from fgloc.result import json_ready
 from fgloc.scenario import RadarData
 from fgloc.sim import simulate
 from fgloc.tracking import track_scenario
@@ -261,11 +264,26 @@ def test_a_doubted_off_lane_rule_is_a_warning(stages):
                for w in res.warnings)
 
 
-def test_no_tracks_keeps_the_coarse_pose(stages):
+def test_no_vehicle_track_is_a_localization_error(stages):
+    """Without a vehicle track filter-sicp has nothing of its own to register (before, it
+    returned the coarse pose, and the CLI failed writing its NaN RMSE): a LocalizationError
+    says how many tracks the tracker found and why it left them out."""
     scn, cfg, target, coarse, _ = stages
-    res = register_tracks(scn, cfg, target, coarse, TrackSet([]), Timer(), "filter-sicp")
-    np.testing.assert_allclose(res.T_local, coarse.T_coarse)
-    assert not res.converged and any("coarse one" in w for w in res.warnings)
+    with pytest.raises(LocalizationError, match="found no track"):
+        register_tracks(scn, cfg, target, coarse, TrackSet([]), Timer(), "filter-sicp")
+    others = TrackSet([], diagnostics={"not_motor_vehicles": [1, 2, 4], "off_lane": [4]})
+    with pytest.raises(LocalizationError, match=r"smoother-sicp: .*all 3 of its tracks .*2 "
+                       r"smaller or slower .*1 off the drivable lanelets.*walking_speed"):
+        register_tracks(scn, cfg, target, coarse, others, Timer(), "smoother-sicp")
+
+
+def test_json_ready_turns_non_finite_numbers_into_null():
+    """A SICP left with too few correspondences has NaN RMSE and sigma; result.json is
+    strict JSON (no NaN / Infinity), so they become null."""
+    doc = json_ready({"a": np.float64("nan"), "b": [1.0, float("inf")],
+                      "c": np.array([np.nan, 2.0]), "d": np.int64(3)})
+    assert doc == {"a": None, "b": [1.0, None], "c": [None, 2.0], "d": 3}
+    json.dumps(doc, allow_nan=False)
 
 
 @pytest.mark.slow

@@ -11,6 +11,7 @@ import pytest
 
 from factors.gp import rectangle_radius
 from fgloc.config import Config
+from fgloc.errors import LocalizationError
 from fgloc.geo import se2, se2_params, transform_points, wrap_angle
 from fgloc.labels import STRAIGHT
 from fgloc.registration.joint import LaneLines, degeneracy_report, joint_refine
@@ -255,6 +256,17 @@ def test_considered_lane_biases_are_the_pose_shifts_real_lane_biases_cause(senso
     assert np.sqrt(expected[0, 0] + expected[1, 1]) > 0.02      # the lanes do move the pose
     scale = np.sqrt(np.outer(np.diag(expected), np.diag(expected)))
     assert np.all(np.abs(extra - expected) <= 0.1 * scale + 1e-12), (extra, expected)
+
+
+def test_tracks_too_short_for_the_graph_are_a_localization_error():
+    """No track long enough for ``[joint] min_track_steps``: the data do not support the
+    joint graph (exit 2 from the CLI), with the longest track's length in the message."""
+    tracks, det, sensor_c, lines = _scene(True, np.eye(3), np.array([12.0, -12.0]), 1)
+    longest = max(len(tr) for tr in tracks.tracks)
+    with pytest.raises(LocalizationError, match=rf"no track has {longest + 1} steps at stride "
+                       rf"1 \({len(tracks)} tracks, the longest {longest} steps"):
+        joint_refine(tracks, det, sensor_c, lines, np.eye(3),
+                     _cfg(min_track_steps=longest + 1))
 
 
 def test_config_fields_are_checked():

@@ -48,6 +48,7 @@ from fgloc.registration.source import (
     build_source_cloud,
     check_fine_config,
     measures_visible_side,
+    require_tracks,
 )
 from fgloc.registration.visible_side import VisibleSide
 from fgloc.result import LocalizationResult, json_ready
@@ -273,8 +274,10 @@ def register_tracks(
     best one is reported; when they cannot be told apart, or the one left is not pinned to
     ``coarse.resolved_max_std``, the result is ``ambiguous`` and its covariance covers the
     modes (their spread plus each one's own covariance).
+    Raises :class:`fgloc.errors.LocalizationError` when ``tracks`` holds no vehicle track
+    (:func:`fgloc.registration.source.require_tracks`).
     """
-
+    require_tracks(tracks, method)
     with timer.stage("source cloud"):
         src = build_source_cloud(scn, tracks, coarse.T_coarse, cfg)
         src_constant = None

@@ -86,6 +86,7 @@ from factors.gp import ContourGP
 from factors.gtsam_factors import ContourMeasurement, huber_weights
 from factors.registration_factors import line_sqrt_info
 from fgloc.config import Config
+from fgloc.errors import LocalizationError
 from fgloc.geo import se2, se2_params, se2_to_se3, transform_points, wrap_angle
 from fgloc.labels import NAMES
 from fgloc.map.lane_models import min_width
@@ -655,7 +656,8 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     start of T (C -> L); the pose prior is at the identity (the coarse pose). det_trusted
     (N,) / det_range_rate (N, 2): the detections that may mark a vehicle's end and their
     Doppler and 3D range, for the track factors (None = all / no range-rate rows). Raises
-    ValueError on an invalid ``cfg.joint`` or when no track is long enough.
+    ValueError on an invalid ``cfg.joint``, :class:`fgloc.errors.LocalizationError` when no
+    track is long enough.
     """
     jc: JointConfig = cfg.joint
     check_joint_config(jc)
@@ -663,7 +665,11 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     t0 = time.perf_counter()
     dec = decimate(tracks, jc.step_stride, jc.min_track_steps)
     if not dec.tracks:
-        raise ValueError(f"no track has {jc.min_track_steps} steps at stride {jc.step_stride}")
+        longest = max((len(tr) for tr in tracks.tracks), default=0)
+        raise LocalizationError(
+            f"joint: no track has {jc.min_track_steps} steps at stride {jc.step_stride} "
+            f"({len(tracks)} tracks, the longest {longest} steps before the stride): too short for "
+            "the joint graph; record longer, or lower [joint] min_track_steps or step_stride")
     lengths = [len(tr) for tr in dec.tracks]
     start = np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64)
     owner = np.repeat(np.arange(len(lengths)), lengths)

@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from fgloc.config import Config
+from fgloc.errors import LocalizationError
 from fgloc.geo import transform_points
 from fgloc.labels import NAMES
 from fgloc.registration.config import (
@@ -104,6 +105,28 @@ def check_fine_config(cfg: FineConfig) -> None:
     bad = [k for k, v in problems.items() if v]
     if bad:
         raise ValueError(f"invalid fine config field {bad[0]}: {getattr(cfg, bad[0])!r}")
+
+
+def require_tracks(tracks: TrackSet, method: str) -> None:
+    """Raise :class:`fgloc.errors.LocalizationError` when ``tracks`` holds no vehicle track:
+    the message says how many the tracker found and why it left them out (its diagnostics'
+    ``not_motor_vehicles`` and ``off_lane``) and what to change."""
+    if tracks.tracks:
+        return
+    others = len(tracks.diagnostics.get("not_motor_vehicles", []))
+    off_lane = len(tracks.diagnostics.get("off_lane", []))
+    if others == 0:
+        found = ("the tracker found no track (too few moving detections that stay together "
+                 "over several frames)")
+        change = "record longer or with more traffic"
+    else:
+        found = (f"the tracker left out all {others} of its tracks as other road users "
+                 f"({others - off_lane} smaller or slower than a motor vehicle, {off_lane} off "
+                 "the drivable lanelets)")
+        change = ("record longer or with more traffic, or loosen [tracking] walking_speed, "
+                  "min_vehicle_length, min_vehicle_width or off_lane_margin")
+    raise LocalizationError(f"{method}: no vehicle track to register: {found}; {change} "
+                            "(icp needs no tracks)")
 
 
 def choose_tracks(n: int, cfg: FineConfig, rng: np.random.Generator) -> np.ndarray:
