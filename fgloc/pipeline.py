@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from fgloc.config import Config
-from fgloc.errors import FglocError
+from fgloc.errors import FglocError, LocalizationError
 from fgloc.geo import transform_points
 from fgloc.labels import STRAIGHT
 from fgloc.progress import Timer
@@ -359,7 +359,11 @@ def localize_many(scenario: Scenario, methods: list[str], config: Config | None 
             own: dict[str, float] = {}
             kw = {}
             if spec.start is not None:
-                kw["start"], read, own = run(spec.start)
+                try:
+                    kw["start"], read, own = run(spec.start)
+                except LocalizationError as exc:
+                    raise LocalizationError(f"{method} starts from {spec.start}'s result, "
+                                            f"which failed: {exc}") from exc
             with st.reading() as now:
                 inputs = [st.get(name, cfg) for name in spec.needs]
             timer = Timer()

@@ -93,7 +93,8 @@ def test_localize_too_few_dynamic_points_writes_nothing(scenario_dir, tmp_path, 
 def test_localize_without_vehicle_tracks_exits_2_and_writes_nothing(scenario_dir, tmp_path,
                                                                      capsys):
     """Every track slower than the walking bound: filter-sicp has no vehicle to register and
-    says why (exit 2, nothing written); icp needs no tracks."""
+    says why (exit 2, nothing written), the joint says its start failed; icp needs no
+    tracks."""
     cfg = tmp_path / "walk.toml"
     cfg.write_text("[tracking]\nwalking_speed = 100.0\n")
     out = tmp_path / "never"
@@ -102,6 +103,11 @@ def test_localize_without_vehicle_tracks_exits_2_and_writes_nothing(scenario_dir
     err = capsys.readouterr().err
     assert rc == 2 and not out.exists()
     assert "no vehicle track to register" in err and "smaller or slower" in err
+    rc = main(["-q", "localize", str(scenario_dir), "--method", "joint", "--out", str(out),
+               "--config", str(cfg)])
+    err = capsys.readouterr().err
+    assert rc == 2 and not out.exists()
+    assert "joint starts from filter-sicp's result, which failed" in err
     assert main(["-q", "localize", str(scenario_dir), "--method", "icp", "--out",
                  str(tmp_path / "icp"), "--config", str(cfg)]) == 0
 
