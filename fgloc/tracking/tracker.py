@@ -80,6 +80,9 @@ FACE_BAND = 0.5
 #: detections continuing a vehicle towards the sensor lie within its contour's half width
 #: and this (m) sideways (``occupancy_toward``)
 TOWARD_SIDE_MARGIN = 0.3
+#: lanelets within the sensor's range plus this (m) tell the tracks' ways
+#: (:class:`fgloc.tracking.road_users.MapWays`)
+WAYS_MARGIN = 50.0
 
 
 def _connected_reach(d: np.ndarray, gap: float, k: int) -> float:
@@ -1110,11 +1113,6 @@ class Tracker:
             det_step=det_step[kept],
             length_floor=max(rec.occupied[:n], default=0.0),
         )
-
-
-#: Lanelets within the sensor's range plus this (m) tell the tracks' ways
-#: (:class:`fgloc.tracking.road_users.MapWays`).
-WAYS_MARGIN = 50.0
 
 
 def _frames(scn: Scenario, T: np.ndarray, doppler_min: float,
