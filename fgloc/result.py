@@ -25,7 +25,9 @@ def json_ready(value: Any) -> Any:
     a NaN or infinite number becomes None (JSON has no such numbers: a SICP left with no
     correspondences has no RMSE)."""
     if isinstance(value, np.ndarray):
-        return json_ready(value.tolist())
+        clean = value.dtype.kind in "biu" or (value.dtype.kind == "f"
+                                              and bool(np.isfinite(value).all()))
+        return value.tolist() if clean else json_ready(value.tolist())
     if isinstance(value, (np.floating, np.integer, np.bool_)):
         return json_ready(value.item())
     if isinstance(value, float) and not math.isfinite(value):

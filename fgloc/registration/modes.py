@@ -324,11 +324,10 @@ class ModeChoice:
     def covariance(self, cfg: CoarseConfig) -> np.ndarray | None:
         """The best mode's covariance when one mode is resolved; else (also when tied modes
         agree) the covering one (module docstring), about the reported pose (None when resolved
-        without a covariance). A
-        mode without a covariance of its own counts with the mode set's resolution, half the
-        separation (``cfg.mode_separation`` m, ``mode_separation_deg``) as std. dev. With a
-        valley, the variance along it is the posterior's (plus that resolution) instead of the
-        modes' spread along it."""
+        without a covariance). A mode without a covariance of its own counts with the mode
+        set's resolution, half the separation (``cfg.mode_separation`` m,
+        ``mode_separation_deg``) as std. dev. With a valley, the variance along it is the
+        posterior's (plus that resolution) instead of the modes' spread along it."""
         if self.status == RESOLVED and len(self.tied) == 1:
             return self.best.covariance
         acc = self._covering(cfg)
