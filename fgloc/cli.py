@@ -254,12 +254,10 @@ def cmd_track(args: argparse.Namespace) -> int:
     placed = "ground-truth pose (oracle)" if args.oracle_pose else "T_coarse"
     smoothed = "" if args.smoother == "none" else f", {args.smoother} smoother"
     relinked = len(run.tracks.diagnostics.get("relinked", []))
-    others = len(run.tracks.diagnostics.get("not_motor_vehicles", []))
-    off_lane = len(run.tracks.diagnostics.get("off_lane", []))
+    others, why = run.tracks.left_out()
     print(f"{len(run.tracks)} tracks ({relinked} joined to a lost track), {n_states} states; "
           f"detections placed with {placed}{smoothed}; {others} tracks of other road users "
-          f"left out ({others - off_lane} smaller or slower than a motor vehicle, {off_lane} "
-          "off the drivable lanelets on the map's other ways)")
+          f"left out {why}")
     print("  stage times: " + ", ".join(f"{k} {v:.2f} s" for k, v in run.timings.items()))
     print(f"wrote {Path(args.out) / 'tracks.csv'}")
     return 0

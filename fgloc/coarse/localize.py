@@ -183,11 +183,16 @@ def _lane_fit(lev: np.ndarray, receding: np.ndarray, target: SignedLanes | LaneC
     return robust_score(d, tau), end
 
 
+def same_pose(a: np.ndarray, b: np.ndarray, cfg: CoarseConfig) -> bool:
+    """Whether planar poses ``a`` and ``b`` (x, y, yaw: m, m, rad) lie within
+    ``cfg.mode_separation`` m and ``mode_separation_deg`` of each other: one mode, not two."""
+    return bool(np.hypot(*(a[:2] - b[:2])) < cfg.mode_separation
+                and abs(wrap_angle(a[2] - b[2])) < np.deg2rad(cfg.mode_separation_deg))
+
+
 def _distinct(pose: np.ndarray, kept: list[tuple[float, np.ndarray]], cfg: CoarseConfig) -> bool:
     """Whether ``pose`` is ``mode_separation`` m or ``mode_separation_deg`` from every kept."""
-    return all(np.hypot(*(pose[:2] - k[1][:2])) >= cfg.mode_separation
-               or abs(wrap_angle(pose[2] - k[1][2])) >= np.deg2rad(cfg.mode_separation_deg)
-               for k in kept)
+    return not any(same_pose(pose, k[1], cfg) for k in kept)
 
 
 def lane_modes(

@@ -73,6 +73,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from fgloc.coarse.localize import same_pose
 from fgloc.coarse.valley import Valley, find_valley
 from fgloc.config import CoarseConfig
 from fgloc.geo import LocalFrame, pose_from_se3, se2_to_se3, transform_points, wrap_angle
@@ -191,10 +192,8 @@ def distinct(fit: ModeFit, others: list[ModeFit], cfg: CoarseConfig) -> bool:
     model's modes apart too): on the example map's junction 5 the keep-right fit ended 0.05 m
     from the truth and the centre-lane fit 0.81 m away with a 1 % lower cost; merged, the
     truth was gone."""
-    return all(fit.lanes != k.lanes
-               or np.hypot(*(fit.sensor[:2] - k.sensor[:2])) >= cfg.mode_separation
-               or abs(wrap_angle(fit.sensor[2] - k.sensor[2]))
-               >= np.deg2rad(cfg.mode_separation_deg) for k in others)
+    return not any(fit.lanes == k.lanes and same_pose(fit.sensor, k.sensor, cfg)
+                   for k in others)
 
 
 def merge_modes(fits: list[ModeFit], cfg: CoarseConfig) -> list[ModeFit]:
@@ -280,11 +279,7 @@ class ModeChoice:
         (no :func:`weak_direction`; module docstring)."""
         if len(self.tied) < 2 or self.valley is not None:
             return self
-        c = self.best.sensor
-        near = all(np.hypot(*(self.fits[k].sensor[:2] - c[:2])) < cfg.mode_separation
-                   and abs(wrap_angle(self.fits[k].sensor[2] - c[2]))
-                   < np.deg2rad(cfg.mode_separation_deg) for k in self.tied)
-        if not near:
+        if not all(same_pose(self.fits[k].sensor, self.best.sensor, cfg) for k in self.tied):
             return self
         return replace(self, agreed=weak_direction(self._covering(cfg),
                                                    cfg.resolved_max_std) is None)

@@ -109,20 +109,17 @@ def check_fine_config(cfg: FineConfig) -> None:
 
 def require_tracks(tracks: TrackSet, method: str) -> None:
     """Raise :class:`fgloc.errors.LocalizationError` when ``tracks`` holds no vehicle track:
-    the message says how many the tracker found and why it left them out (its diagnostics'
-    ``not_motor_vehicles`` and ``off_lane``) and what to change."""
+    the message says how many the tracker found and why it left them out
+    (:meth:`fgloc.tracks.TrackSet.left_out`) and what to change."""
     if tracks.tracks:
         return
-    others = len(tracks.diagnostics.get("not_motor_vehicles", []))
-    off_lane = len(tracks.diagnostics.get("off_lane", []))
+    others, why = tracks.left_out()
     if others == 0:
         found = ("the tracker found no track (too few moving detections that stay together "
                  "over several frames)")
         change = "record longer or with more traffic"
     else:
-        found = (f"the tracker left out all {others} of its tracks as other road users "
-                 f"({others - off_lane} smaller or slower than a motor vehicle, {off_lane} off "
-                 "the drivable lanelets)")
+        found = f"the tracker left out all {others} of its tracks as other road users {why}"
         change = ("record longer or with more traffic, or loosen [tracking] walking_speed, "
                   "min_vehicle_length, min_vehicle_width or off_lane_margin")
     raise LocalizationError(f"{method}: no vehicle track to register: {found}; {change} "
