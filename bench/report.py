@@ -228,8 +228,9 @@ TABLES: list[Table] = [
           "ambiguous with the truth among its tied modes, never confidently wrong. Per case, "
           "traffic rate and method: share resolved, 2D error of the resolved runs, NEES "
           "against the reported covariance, |dz|; then the sensor height of the coarse stage "
-          "under three vehicle return-height models and two curb heights (the static "
-          "ground returns), and the time the mode search costs.",
+          "under three vehicle return-height models, two curb heights (the static "
+          "ground returns) and no static scatterers at all, and the time the mode search "
+          "costs.",
           produce_sparse,
           {"cases": ["intersection", "tjunction"], "rates": [5.0, 10.0, 20.0],
            "seeds": [1, 2, 3, 4, 5], "duration": 60.0, "height": True, "timing": True},

@@ -151,6 +151,25 @@ class CoarseConfig:
     static_noise_range: float = 30.0
     """Range (m) beyond which a static return's height noise grows with its range (elevation
     noise): its row in the vertical fit is divided by ``sqrt(1 + (range / this)^2)``."""
+    static_repeats: int = 3
+    """A static detection counts as a ground return only with at least this many others within
+    ``static_repeat_radius`` (horizontal, in the sensor frame): a fixed scatterer returns
+    again and again, a false alarm with a Doppler near 0 stands alone (0 = no such test)."""
+    static_repeat_radius: float = 1.0
+    """Horizontal radius (m) of that test."""
+    static_traffic_radius: float = 0.5
+    """... and with at most ``static_traffic_max`` moving detections (``|doppler| >=
+    doppler_min``) within this horizontal radius (m, in S): where the traffic passes, a static
+    return is a vehicle standing in a queue, not the ground."""
+    static_traffic_max: int = 10
+    """See ``static_traffic_radius``."""
+    static_consistency: float = 3.0
+    """The vertical fit drops the static ground returns when the sensor height they give
+    differs from the moving returns' own by more than this many std. devs. of the difference."""
+    static_height_gap: float = 0.2
+    """... or when the fit puts them less than this (m) below the moving returns' mean height:
+    a ground return (kerb, road edge) lies lower than a vehicle body's returns on average
+    (bumpers and up); static returns as high as those are standing vehicles or clutter."""
     static_min_points: int = 30
     """Fewer qualifying static returns than this: the vertical fit uses the moving ones only."""
     static_effective_points: float = 100.0

@@ -91,9 +91,9 @@ def test_vertical_fit_covariance_is_the_spread_of_its_estimates() -> None:
     for _ in range(200):
         h = cfg.reflection_height + rng.normal(0, cfg.height_residual_sigma, n)
         lev = np.column_stack([xy, h - truth[2] - truth[0] * xy[:, 1] + truth[1] * xy[:, 0]])
-        w, z, cov = fit_vertical(lev, xy, _FlatRoad(), np.ones(n, bool), (0.0, 0.0), 6.0, cfg)
-        est.append([*w, z])
-        covs.append(cov[:3, :3])
+        fit = fit_vertical(lev, xy, _FlatRoad(), np.ones(n, bool), (0.0, 0.0), 6.0, cfg)
+        est.append([*fit.tilt, fit.z])
+        covs.append(fit.cov[:3, :3])
     est = np.array(est)
     assert np.all(np.abs(est.mean(0) - truth) < 4 * np.sqrt(np.diag(covs[0]) / 200))
     np.testing.assert_allclose(est.std(0), np.sqrt(np.diag(np.mean(covs, axis=0))), rtol=0.15)
@@ -137,29 +137,77 @@ def test_poor_overlap_is_reported_not_raised() -> None:
     assert not res.converged and "fitness" in res.message
 
 
+def _moving_and_fit(rng: np.random.Generator, height: float, z_true: float, n: int,
+                    cfg: CoarseConfig):
+    """n moving returns ``height`` m above a flat road seen from ``z_true`` m, and a fit of
+    them with optional static rows (:func:`fit_vertical` from a 6.3 m height prior)."""
+    xy = np.column_stack([rng.uniform(10, 120, n), rng.uniform(-30, 30, n)])
+    lev = np.column_stack([xy, height + rng.normal(0, 0.3, n) - z_true])
+    return lambda statics=None: fit_vertical(lev, xy, _FlatRoad(), np.ones(n, bool),
+                                             (0.0, 0.0), 6.3, cfg, statics)
+
+
 def test_static_ground_returns_fix_the_height_the_moving_ones_cannot() -> None:
     """Moving returns 0.5 m above the road (the prior says 1.0 +- 0.4) fix only z minus their
     height: alone, z is off by up to the prior's doubt and its std. dev. says so; static returns
     at the kerb height (0.1 m) with 0.3 m of noise and 20 % outliers at 2-8 m pin z."""
     rng = np.random.default_rng(3)
     cfg = CoarseConfig()
-    z_true, n, m = 6.0, 600, 800
-    xy = np.column_stack([rng.uniform(10, 120, n), rng.uniform(-30, 30, n)])
-    lev = np.column_stack([xy, 0.5 + rng.normal(0, 0.3, n) - z_true])
-    alone = fit_vertical(lev, xy, _FlatRoad(), np.ones(n, bool), (0.0, 0.0), 6.3, cfg)
+    z_true, m = 6.0, 800
+    fit_with = _moving_and_fit(rng, 0.5, z_true, 600, cfg)
+    alone = fit_with()
     assert alone is not None
-    z_alone, sd_alone = alone[1], np.sqrt(alone[2][2, 2])
+    z_alone, sd_alone = alone.z, np.sqrt(alone.cov[2, 2])
+    assert alone.n_static == 0
     assert sd_alone > 0.3 and abs(z_alone - z_true) < 2.5 * sd_alone
     s_xy = np.column_stack([rng.uniform(5, 100, m), rng.uniform(-40, 40, m)])
     h = cfg.static_height + rng.normal(0, 0.3, m)
     out = rng.random(m) < 0.2
     h[out] = rng.uniform(2.0, 8.0, out.sum())
     s_lev = np.column_stack([s_xy, h - z_true])
-    w, z, cov = fit_vertical(lev, xy, _FlatRoad(), np.ones(n, bool), (0.0, 0.0), 6.3, cfg,
-                             (s_lev, np.zeros(m)))
-    sd = np.sqrt(cov[2, 2])
-    assert sd < min(0.1, sd_alone / 3.0) and abs(z - z_true) < 3.0 * sd
-    assert np.all(np.abs(w) < np.deg2rad(0.1))
+    fit = fit_with((s_lev, np.zeros(m)))
+    sd = np.sqrt(fit.cov[2, 2])
+    assert sd < min(0.1, sd_alone / 3.0) and abs(fit.z - z_true) < 3.0 * sd
+    assert np.all(np.abs(fit.tilt) < np.deg2rad(0.1))
+    assert 0.75 * m < fit.n_static < m
+
+
+@pytest.mark.parametrize("static_height", [0.9, 1.4, 2.5])
+def test_static_returns_that_contradict_the_moving_ones_are_dropped(static_height: float
+                                                                    ) -> None:
+    """Moving returns where the prior puts them (1.0 m above the road) and "static returns"
+    0.9, 1.4 or 2.5 m above it (standing vehicles, false alarms, a gantry): taken as ground,
+    they would put the moving returns less than ``static_height_gap`` above themselves, and
+    (2.5 m) the height 2.4 m from the moving returns' own, beyond what the priors allow; so
+    they are dropped and z keeps the moving returns' estimate and its large std. dev.; at the
+    kerb height they are kept."""
+    rng = np.random.default_rng(11)
+    cfg = CoarseConfig()
+    z_true, m = 6.0, 300
+    fit_with = _moving_and_fit(rng, 1.0, z_true, 600, cfg)
+    alone = fit_with()
+    s_xy = np.column_stack([rng.uniform(5, 60, m), rng.uniform(-20, 20, m)])
+    noise = rng.normal(0, 0.2, m)
+    for h, kept in ((static_height, False), (cfg.static_height, True)):
+        s_lev = np.column_stack([s_xy, h + noise - z_true])
+        fit = fit_with((s_lev, np.zeros(m)))
+        assert (fit.n_static > 0) == kept
+        if kept:
+            assert abs(fit.z - z_true) < 3.0 * np.sqrt(fit.cov[2, 2]) < 0.3
+        else:
+            assert fit.z == pytest.approx(alone.z) and fit.cov[2, 2] == alone.cov[2, 2]
+            assert abs(fit.z - z_true) < 2.0 * np.sqrt(fit.cov[2, 2])
+
+
+def test_a_ground_return_repeats_a_false_alarm_stands_alone() -> None:
+    """A kerb line hit every 0.3 m counts; scattered points 5 m apart and a pair do not."""
+    from fgloc.coarse.vertical import repeated
+
+    kerb = np.column_stack([np.arange(0.0, 6.0, 0.3), np.full(20, 4.0)])
+    lone = np.array([[20.0, 0.0], [25.0, 0.0], [30.0, 0.0], [40.0, 5.0], [40.5, 5.0]])
+    mask = repeated(np.vstack([kerb, lone]), 1.0, 3)
+    assert mask[:20].all() and not mask[20:].any()
+    assert repeated(lone, 1.0, 0).all() and not repeated(lone[:2], 1.0, 3).any()
 
 
 class _RoadBand:
@@ -188,3 +236,26 @@ def test_static_ground_returns_are_kerbs_not_vehicles_poles_or_far_off() -> None
     lev, zr = ground.rows(np.eye(3), np.zeros(3), _RoadBand(), cfg)
     np.testing.assert_allclose(lev, src[:2])
     np.testing.assert_allclose(zr, 0.0)
+
+
+def test_static_ground_leaves_out_lone_returns_and_vehicles_standing_in_the_traffic() -> None:
+    """Static detections: a kerb hit again and again (kept), false alarms scattered alone, and
+    a vehicle standing where 200 moving detections pass (both left out)."""
+    from fgloc.coarse import StaticGround
+    from fgloc.scenario import RadarData
+
+    rng = np.random.default_rng(5)
+    cfg = CoarseConfig()
+    kerb = np.column_stack([rng.uniform(10, 30, 300), 5.0 + rng.normal(0, 0.1, 300),
+                            np.full(300, -5.9)])
+    lone = np.column_stack([np.arange(12.0, 60.0, 6.0), np.full(8, -8.0), np.full(8, -5.0)])
+    queue = np.column_stack([20.0 + rng.normal(0, 0.3, 100), rng.normal(0, 0.3, 100),
+                             np.full(100, -5.0)])
+    traffic = np.column_stack([rng.uniform(15, 25, 2000), rng.normal(0, 0.3, 2000),
+                               np.full(2000, -5.0)])
+    xyz = np.vstack([kerb, lone, queue, traffic])
+    doppler = np.concatenate([np.zeros(300 + 8 + 100), np.full(2000, 5.0)])
+    radar = RadarData(np.zeros(len(xyz)), xyz, doppler)
+    ground = StaticGround.build(radar, np.zeros((1, 3)), np.array([2]), np.zeros(2), 100.0,
+                                np.zeros((1, 2)), cfg)
+    np.testing.assert_array_equal(np.sort(ground.src[:, 0]), np.sort(kerb[:, 0]))

@@ -10,13 +10,14 @@ stage and its modes); their public names are re-exported here.
 from fgloc.coarse.icp import LaneCentres, icp_planar
 from fgloc.coarse.localize import CoarseMode, CoarseResult, coarse_localize, target_and_coarse
 from fgloc.coarse.points import dynamic_points
-from fgloc.coarse.vertical import StaticGround, below_fov_floor, fit_vertical
+from fgloc.coarse.vertical import StaticGround, VerticalFit, below_fov_floor, fit_vertical
 
 __all__ = [
     "CoarseMode",
     "CoarseResult",
     "LaneCentres",
     "StaticGround",
+    "VerticalFit",
     "below_fov_floor",
     "coarse_localize",
     "dynamic_points",

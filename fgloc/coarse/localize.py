@@ -272,7 +272,7 @@ def _height_at(src: np.ndarray, road: RoadModel, statics: StaticGround, final: _
     pitch, roll = ypr_from_rot(final.r_tilt)[1:]
     out = fit_vertical(lev, xy_l, road, seen, (pitch, roll), z_prior, cfg,
                        statics.rows(final.r_tilt, pose2d, road, cfg))
-    return (final.z, final.z_std) if out is None else (out[1], float(np.sqrt(out[2][2, 2])))
+    return (final.z, final.z_std) if out is None else (out.z, float(np.sqrt(out.cov[2, 2])))
 
 
 def lane_valley(kept: list[tuple[float, np.ndarray, str]], ref: _Refined, src: np.ndarray,
@@ -434,9 +434,8 @@ def _refine(
         vertical = fit_vertical(lev, xy_l, road, seen, (pitch, roll), z_prior, cfg, rows)
         if vertical is None:
             break
-        w, z, cov = vertical
+        w, z, cov, n_static = vertical.tilt, vertical.z, vertical.cov, vertical.n_static
         z_std = float(np.sqrt(cov[2, 2]))
-        n_static = 0 if rows is None else len(rows[1])
         # (wx, wy) turn about the levelled axes, which are L's turned by the yaw
         to_l = rot_z(pose2d[2])
         tilt_cov = to_l[:2, :2] @ cov[:2, :2] @ to_l[:2, :2].T

@@ -23,10 +23,14 @@ class StaticGround:
     """Static returns near the ground whose height the ALS gives (kerbs, the road's edge).
 
     src: (M, 3) detections in S with ``|doppler| <= static_doppler_max`` (a regular subsample
-    of at most ``static_points``). high: 2D KD-tree over the ALS points outside the road
-    classes (buildings, vegetation, poles) and their heights ``high_z`` (M',) in L. lanes: a
-    KD-tree over the lane centre samples (a return within ``static_lane_clearance`` of a lane
-    centre may be a vehicle that stands or crosses the beam, not the ground).
+    of at most ``static_points``) that repeat (:func:`repeated`: ``static_repeats`` others
+    within ``static_repeat_radius``) where the traffic does not pass (at most
+    ``static_traffic_max`` moving detections within ``static_traffic_radius``: not a vehicle
+    standing in a queue; both tests horizontal, in S). high: 2D KD-tree over the ALS points
+    outside the road classes (buildings, vegetation, poles) and their heights ``high_z`` (M',)
+    in L. lanes: a KD-tree over the lane centre samples (a return within
+    ``static_lane_clearance`` of a lane centre may be a vehicle that stands or crosses the
+    beam, not the ground).
     """
 
     src: np.ndarray
@@ -42,8 +46,15 @@ class StaticGround:
         m of ``centre`` (2,) (every class but ground, road, water, noise and ignored ground
         may be an obstacle; the height test decides for unclassified points) and the lane
         centre samples ``lane_xy`` (K, 2) m in L (of every lane model)."""
-        st = np.asarray(radar.xyz, dtype=float)[np.abs(radar.doppler) <= cfg.static_doppler_max]
+        xyz = np.asarray(radar.xyz, dtype=float)
+        st = xyz[np.abs(radar.doppler) <= cfg.static_doppler_max]
         st = st[:: max(1, len(st) // cfg.static_points)] if len(st) else np.zeros((0, 3))
+        st = st[repeated(st[:, :2], cfg.static_repeat_radius, cfg.static_repeats)]
+        moving = xyz[np.abs(radar.doppler) >= cfg.doppler_min, :2]
+        if len(moving) and len(st):
+            near = cKDTree(moving).query_ball_point(st[:, :2], r=cfg.static_traffic_radius,
+                                                    return_length=True)
+            st = st[near <= cfg.static_traffic_max]
         near = np.hypot(*(als_xyz[:, :2] - centre).T) <= reach
         off = near & ~np.isin(als_class, _GROUND_LIKE)
         high = cKDTree(als_xyz[off, :2]) if off.any() else None
@@ -70,11 +81,35 @@ class StaticGround:
         return lev[ok], zr[ok]
 
 
+def repeated(xy: np.ndarray, radius: float, repeats: int) -> np.ndarray:
+    """Mask of the points (xy (N, 2) m, in S) with at least ``repeats`` others within ``radius``
+    m: a fixed scatterer (a kerb) returns again and again from where it stands, a false alarm
+    with a Doppler near 0 by chance stands alone."""
+    if repeats <= 0 or len(xy) == 0:
+        return np.ones(len(xy), dtype=bool)
+    if len(xy) <= repeats:
+        return np.zeros(len(xy), dtype=bool)
+    d = cKDTree(xy).query(xy, k=repeats + 1)[0][:, -1]
+    return d <= radius
+
+
+@dataclass
+class VerticalFit:
+    """The vertical fit's small tilt (wx, wy) rad about the levelled axes, the sensor height z
+    (m in L), the 5x5 covariance of (wx, wy, z, h_v, h_s) (z's variance at [2, 2]) and how
+    many static ground returns it used (0: the moving returns alone)."""
+
+    tilt: np.ndarray
+    z: float
+    cov: np.ndarray
+    n_static: int
+
+
 def fit_vertical(
     lev: np.ndarray, xy_l: np.ndarray, road: RoadModel, allowed: np.ndarray,
     tilt: tuple[float, float], z_prior: float, cfg: CoarseConfig,
     statics: tuple[np.ndarray, np.ndarray] | None = None,
-) -> tuple[np.ndarray, float, np.ndarray] | None:
+) -> VerticalFit | None:
     """Small tilt (wx, wy) rad about the levelled axes and the sensor height z (m in L) from the
     moving returns ``lev`` (N, 3, levelled, sensor-centred) and the static ground returns
     ``statics`` ((K, 3) levelled, (K,) ALS road height under each; :meth:`StaticGround.rows`).
@@ -93,8 +128,12 @@ def fit_vertical(
     ones (at least ``static_min_points``) weigh as at most ``static_effective_points``
     measurements of their own scatter (1.4826 MAD), each row divided by
     ``sqrt(1 + (range / static_noise_range)^2)`` (the elevation noise grows with range).
-    Returns (wx, wy), z and the 5x5 covariance of the unknowns (z's variance at [2, 2]), or
-    None when fewer than 10 moving points lie on the road.
+    The static returns are dropped (the fit redone on the moving ones) when they are no ground
+    returns by the fit's own account (false alarms, returns off standing vehicles or other
+    structures): the fit puts them less than ``static_height_gap`` below the moving returns
+    (``h_v - h_s``), or the z they give differs from the moving returns' own by more than
+    ``static_consistency`` std. devs. of that difference. None when fewer than 10 moving
+    points lie on the road.
     """
     zr, dn = road.road_height(xy_l)
     use = allowed & (dn <= cfg.icp_ranges[-1])
@@ -118,18 +157,23 @@ def fit_vertical(
                         cfg.static_height]) / sd
     keep = [np.ones(len(b), dtype=bool) for _, b in groups]
     sigma = [cfg.height_residual_sigma, np.inf]
-    for it in range(4):
+
+    def solve(with_statics: bool) -> tuple[np.ndarray, np.ndarray]:
         aw, bw = [a_prior], [b_prior]
         for g, ((a, b), k) in enumerate(zip(groups, keep)):
-            if it == 0 and g == 1:          # the statics join once a first solution exists
+            if g == 1 and not with_statics:
                 continue
             eff = cfg.vertical_effective_points if g == 0 else min(
                 cfg.static_effective_points, k.sum())
             wd = np.sqrt(eff / k.sum()) / sigma[g]
             aw.append(a[k] * wd)
             bw.append(b[k] * wd)
-        aw, bw = np.vstack(aw), np.concatenate(bw)
-        sol = np.linalg.lstsq(aw, bw, rcond=None)[0]
+        a_all = np.vstack(aw)
+        return np.linalg.lstsq(a_all, np.concatenate(bw), rcond=None)[0], \
+            np.linalg.inv(a_all.T @ a_all)
+
+    for it in range(4):
+        sol, cov = solve(it > 0)            # the statics join once a first solution exists
         for g, (a, b) in enumerate(groups):
             r = b - a @ sol
             med = np.median(r[keep[g]]) if it else np.median(r)
@@ -137,7 +181,16 @@ def fit_vertical(
             keep[g] = np.abs(r - med) <= 3.0 * (mad + 1e-6)
             if g == 1:
                 sigma[1] = max(mad, 0.05)
-    return sol[:2], float(sol[2]), np.linalg.inv(aw.T @ aw)
+    if len(groups) == 1:
+        return VerticalFit(sol[:2], float(sol[2]), cov, 0)
+    # the statics' z against the moving returns' alone: nested estimates, so the difference's
+    # variance is the difference of their variances
+    alone, cov_alone = solve(False)
+    d = sol[2] - alone[2]
+    if sol[3] - sol[4] < cfg.static_height_gap or d * d > cfg.static_consistency ** 2 * max(
+            cov_alone[2, 2] - cov[2, 2], 1e-12):
+        return fit_vertical(lev, xy_l, road, allowed, tilt, z_prior, cfg)
+    return VerticalFit(sol[:2], float(sol[2]), cov, int(keep[1].sum()))
 
 
 def below_fov_floor(
