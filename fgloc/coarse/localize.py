@@ -86,7 +86,9 @@ class CoarseResult:
     modes are samples of, where the lane score ties every pose along it
     (:mod:`fgloc.coarse.valley`; ``mode_margin`` of the best mode's score), or None.
     tie_covariance: 3x3 of the best mode's sensor (x, y, yaw) in L (m^2, rad^2) over the poses
-    around it whose lane score ties with it (:func:`lane_tie_covariance`), or None.
+    around it whose lane score ties with it (:func:`lane_tie_covariance`), or None. z_std: the
+    vertical fit's std. dev. of z (m). n_static_ground: the static ground returns that fit used
+    (0: the moving returns alone; :class:`~fgloc.coarse.vertical.VerticalFit`).
     """
 
     T_coarse: np.ndarray
