@@ -158,11 +158,15 @@ class CoarseConfig:
     static_repeat_radius: float = 1.0
     """Horizontal radius (m) of that test."""
     static_traffic_radius: float = 0.5
-    """... and with at most ``static_traffic_max`` moving detections (``|doppler| >=
-    doppler_min``) within this horizontal radius (m, in S): where the traffic passes, a static
-    return is a vehicle standing in a queue, not the ground."""
+    """Where more than ``static_traffic_max`` moving detections (``|doppler| >=
+    doppler_min``) lie within this horizontal radius (m, in S) of a static return, the traffic
+    passes: it is a kerb beside a lane or a vehicle standing in a queue."""
     static_traffic_max: int = 10
     """See ``static_traffic_radius``."""
+    static_traffic_tolerance: float = 0.25
+    """The static returns where the traffic passes count as ground only when their median
+    height above the road lies within this (m) of the other static returns' (at least
+    ``static_min_points`` of them): kerbs beside a lane do, standing vehicles lie higher."""
     static_consistency: float = 3.0
     """The vertical fit drops the static ground returns when the sensor height they give
     differs from the moving returns' own by more than this many std. devs. of the difference."""

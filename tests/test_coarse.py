@@ -238,27 +238,38 @@ def test_static_ground_returns_are_kerbs_not_vehicles_poles_or_far_off() -> None
     np.testing.assert_allclose(zr, 0.0)
 
 
-def test_static_ground_leaves_out_lone_returns_and_vehicles_standing_in_the_traffic() -> None:
-    """Static detections: a kerb hit again and again (kept), false alarms scattered alone, and
-    a vehicle standing where 200 moving detections pass (both left out)."""
+def test_static_ground_tells_kerbs_from_lone_returns_and_vehicles_standing_in_the_traffic(
+) -> None:
+    """Static detections: a kerb hit again and again away from the traffic (kept), false
+    alarms scattered alone (left out), and where 2000 moving detections pass either a vehicle
+    standing 1 m above the road (left out) or a kerb as high as the other (kept)."""
     from fgloc.coarse import StaticGround
     from fgloc.scenario import RadarData
 
     rng = np.random.default_rng(5)
     cfg = CoarseConfig()
-    kerb = np.column_stack([rng.uniform(10, 30, 300), 5.0 + rng.normal(0, 0.1, 300),
-                            np.full(300, -5.9)])
-    lone = np.column_stack([np.arange(12.0, 60.0, 6.0), np.full(8, -8.0), np.full(8, -5.0)])
-    queue = np.column_stack([20.0 + rng.normal(0, 0.3, 100), rng.normal(0, 0.3, 100),
-                             np.full(100, -5.0)])
-    traffic = np.column_stack([rng.uniform(15, 25, 2000), rng.normal(0, 0.3, 2000),
-                               np.full(2000, -5.0)])
-    xyz = np.vstack([kerb, lone, queue, traffic])
-    doppler = np.concatenate([np.zeros(300 + 8 + 100), np.full(2000, 5.0)])
-    radar = RadarData(np.zeros(len(xyz)), xyz, doppler)
-    ground = StaticGround.build(radar, np.zeros((1, 3)), np.array([2]), np.zeros(2), 100.0,
-                                np.zeros((1, 2)), cfg)
-    np.testing.assert_array_equal(np.sort(ground.src[:, 0]), np.sort(kerb[:, 0]))
+    z_s = 6.0                                            # sensor 6 m above a flat road
+
+    def along(x0: float, x1: float, y: float, h: float, n: int) -> np.ndarray:
+        return np.column_stack([rng.uniform(x0, x1, n), y + rng.normal(0, 0.1, n),
+                                np.full(n, h - z_s)])
+
+    kerb = along(10, 30, 8.0, 0.15, 300)
+    lone = np.column_stack([np.arange(12.0, 60.0, 6.0), np.full(8, -15.0), np.full(8, -5.0)])
+    traffic = along(15, 25, 0.0, 1.0, 2000)
+    for beside, h, kept in ((along(15, 25, 0.0, 1.0, 200), 1.0, False),
+                            (along(15, 25, 0.4, 0.15, 200), 0.15, True)):
+        xyz = np.vstack([kerb, lone, beside, traffic])
+        doppler = np.concatenate([np.zeros(300 + 8 + 200), np.full(2000, 5.0)])
+        ground = StaticGround.build(RadarData(np.zeros(len(xyz)), xyz, doppler),
+                                    np.zeros((1, 3)), np.array([2]), np.zeros(2), 100.0,
+                                    np.array([[1e4, 1e4]]), cfg)
+        assert len(ground.src) == 500                     # the lone ones left out
+        assert ground.busy is not None and ground.busy.sum() >= 180
+        lev, _ = ground.rows(np.eye(3), np.zeros(3), _FlatRoad(), cfg)
+        heights = np.round(lev[:, 2] + z_s, 2)
+        assert np.sum(heights == 0.15) >= 300 + (180 if kept else 0)
+        assert np.all(heights == 0.15) and (kept or len(lev) == 300), h
 
 
 def test_height_without_static_scatterers_is_not_confidently_wrong() -> None:

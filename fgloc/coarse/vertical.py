@@ -24,9 +24,11 @@ class StaticGround:
 
     src: (M, 3) detections in S with ``|doppler| <= static_doppler_max`` (a regular subsample
     of at most ``static_points``) that repeat (:func:`repeated`: ``static_repeats`` others
-    within ``static_repeat_radius``) where the traffic does not pass (at most
-    ``static_traffic_max`` moving detections within ``static_traffic_radius``: not a vehicle
-    standing in a queue; both tests horizontal, in S). high: 2D KD-tree over the ALS points
+    within ``static_repeat_radius``; horizontal, in S). busy: (M,) True where the traffic
+    passes (more than ``static_traffic_max`` moving detections within
+    ``static_traffic_radius``, horizontal in S): a kerb beside a lane, or a vehicle standing
+    in a queue (:meth:`rows` tells them by their height); None: none. high: 2D KD-tree over
+    the ALS points
     outside the road classes (buildings, vegetation, poles) and their heights ``high_z`` (M',)
     in L. lanes: a KD-tree over the lane centre samples (a return within
     ``static_lane_clearance`` of a lane centre may be a vehicle that stands or crosses the
@@ -37,6 +39,7 @@ class StaticGround:
     high: cKDTree | None
     high_z: np.ndarray
     lanes: cKDTree
+    busy: np.ndarray | None = None
 
     @classmethod
     def build(cls, radar: RadarData, als_xyz: np.ndarray, als_class: np.ndarray,
@@ -51,14 +54,15 @@ class StaticGround:
         st = st[:: max(1, len(st) // cfg.static_points)] if len(st) else np.zeros((0, 3))
         st = st[repeated(st[:, :2], cfg.static_repeat_radius, cfg.static_repeats)]
         moving = xyz[np.abs(radar.doppler) >= cfg.doppler_min, :2]
+        busy = None
         if len(moving) and len(st):
-            near = cKDTree(moving).query_ball_point(st[:, :2], r=cfg.static_traffic_radius,
-                                                    return_length=True)
-            st = st[near <= cfg.static_traffic_max]
+            busy = cKDTree(moving).query_ball_point(
+                st[:, :2], r=cfg.static_traffic_radius, return_length=True
+            ) > cfg.static_traffic_max
         near = np.hypot(*(als_xyz[:, :2] - centre).T) <= reach
         off = near & ~np.isin(als_class, _GROUND_LIKE)
         high = cKDTree(als_xyz[off, :2]) if off.any() else None
-        return cls(st, high, als_xyz[off, 2].astype(float), cKDTree(lane_xy))
+        return cls(st, high, als_xyz[off, 2].astype(float), cKDTree(lane_xy), busy)
 
     def rows(self, r_tilt: np.ndarray, pose2d: np.ndarray, road: RoadModel,
              cfg: CoarseConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -66,7 +70,11 @@ class StaticGround:
         coordinates (K, 3) and the ALS road height under each (K,). A return qualifies within
         ``static_ground_distance`` m of a road point, at least ``static_lane_clearance`` m from
         every lane centre, with no ALS point higher than ``static_clearance_height`` m above
-        that road height within ``static_clearance`` m (no wall, tree or pole it could be)."""
+        that road height within ``static_clearance`` m (no wall, tree or pole it could be).
+        Those where the traffic passes (``busy``) qualify only when at least
+        ``static_min_points`` others do and the two groups' median heights above the road
+        agree within ``static_traffic_tolerance`` m (kerbs beside a lane are as high as the
+        others; a standing vehicle's returns lie higher)."""
         lev = self.src @ r_tilt.T
         xy = apply_planar(lev[:, :2], pose2d)
         zr, dn = road.road_height(xy)
@@ -78,6 +86,12 @@ class StaticGround:
             hz = np.where(found, self.high_z[np.minimum(i, len(self.high_z) - 1)], -np.inf)
             ok[np.flatnonzero(ok)] = ~np.any(hz > zr[ok, None] + cfg.static_clearance_height,
                                              axis=1)
+        if self.busy is not None and (ok & self.busy).any():
+            clear, busy = ok & ~self.busy, ok & self.busy
+            h = lev[:, 2] - zr              # height above the road less the sensor's
+            if clear.sum() < cfg.static_min_points or abs(
+                    np.median(h[busy]) - np.median(h[clear])) > cfg.static_traffic_tolerance:
+                ok = clear
         return lev[ok], zr[ok]
 
 
