@@ -92,7 +92,7 @@ def test_vertical_fit_covariance_is_the_spread_of_its_estimates() -> None:
         h = cfg.reflection_height + rng.normal(0, cfg.height_residual_sigma, n)
         lev = np.column_stack([xy, h - truth[2] - truth[0] * xy[:, 1] + truth[1] * xy[:, 0]])
         fit = fit_vertical(lev, xy, _FlatRoad(), np.ones(n, bool), (0.0, 0.0), 6.0, cfg)
-        est.append([*fit.tilt, fit.z])
+        est.append([*fit.w, fit.z])
         covs.append(fit.cov[:3, :3])
     est = np.array(est)
     assert np.all(np.abs(est.mean(0) - truth) < 4 * np.sqrt(np.diag(covs[0]) / 200))
@@ -168,7 +168,7 @@ def test_static_ground_returns_fix_the_height_the_moving_ones_cannot() -> None:
     fit = fit_with((s_lev, np.zeros(m)))
     sd = np.sqrt(fit.cov[2, 2])
     assert sd < min(0.1, sd_alone / 3.0) and abs(fit.z - z_true) < 3.0 * sd
-    assert np.all(np.abs(fit.tilt) < np.deg2rad(0.1))
+    assert np.all(np.abs(fit.w) < np.deg2rad(0.1))
     assert 0.75 * m < fit.n_static < m
 
 

@@ -436,7 +436,7 @@ def _refine(
         vertical = fit_vertical(lev, xy_l, road, seen, (pitch, roll), z_prior, cfg, rows)
         if vertical is None:
             break
-        w, z, cov, n_static = vertical.tilt, vertical.z, vertical.cov, vertical.n_static
+        w, z, cov, n_static = vertical.w, vertical.z, vertical.cov, vertical.n_static
         z_std = float(np.sqrt(cov[2, 2]))
         # (wx, wy) turn about the levelled axes, which are L's turned by the yaw
         to_l = rot_z(pose2d[2])

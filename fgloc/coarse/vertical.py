@@ -28,9 +28,8 @@ class StaticGround:
     passes (more than ``static_traffic_max`` moving detections within
     ``static_traffic_radius``, horizontal in S): a kerb beside a lane, or a vehicle standing
     in a queue (:meth:`rows` tells them by their height); None: none. high: 2D KD-tree over
-    the ALS points
-    outside the road classes (buildings, vegetation, poles) and their heights ``high_z`` (M',)
-    in L. lanes: a KD-tree over the lane centre samples (a return within
+    the ALS points outside the road classes (buildings, vegetation, poles) and their heights
+    ``high_z`` (M',) in L. lanes: a KD-tree over the lane centre samples (a return within
     ``static_lane_clearance`` of a lane centre may be a vehicle that stands or crosses the
     beam, not the ground).
     """
@@ -109,11 +108,12 @@ def repeated(xy: np.ndarray, radius: float, repeats: int) -> np.ndarray:
 
 @dataclass
 class VerticalFit:
-    """The vertical fit's small tilt (wx, wy) rad about the levelled axes, the sensor height z
-    (m in L), the 5x5 covariance of (wx, wy, z, h_v, h_s) (z's variance at [2, 2]) and how
-    many static ground returns it used (0: the moving returns alone)."""
+    """The vertical fit's small turn w = (wx, wy) rad about the levelled axes (to add to the
+    ``tilt`` it started from), the sensor height z (m in L), the 5x5 covariance of (wx, wy, z,
+    h_v, h_s) (z's variance at [2, 2]) and how many static ground returns it used (0: the
+    moving returns alone)."""
 
-    tilt: np.ndarray
+    w: np.ndarray
     z: float
     cov: np.ndarray
     n_static: int
