@@ -153,6 +153,8 @@ def scenario_summary(path: str | Path) -> str:
         f"over 0.3 m on {int((apart > 0.3).sum())} lanelets",
         f"  ignored     {sum(lmap.ignored_by_kind().values())} not drivable "
         f"({counts(lmap.ignored_by_kind())})",
+        f"  skipped     {len(lmap.skipped)} roads lanelet2 rejected"
+        + (f" (relation {', '.join(str(i) for i in lmap.skipped)})" if lmap.skipped else ""),
         f"map areas     {len(lmap.areas)} ({counts(lmap.areas_by_kind())})",
         f"regulatory    {sum(lmap.regulatory.values())} ({counts(lmap.regulatory)})",
         f"ground truth  {'yes' if scn.truth is not None else 'no'}"

@@ -332,6 +332,8 @@ class LaneletMap:
     directed_successors: the routing graph per driving direction, (lanelet id, inverted) ->
     the (id, inverted) it leads to, where inverted = driven against the lanelet's direction
     (only two-way lanelets are; lanelet2's inverted lanelets); empty when not read from a file.
+    skipped: lanelets that are roads by their tags but that lanelet2 rejected (a missing bound,
+    ...), relation id -> what is wrong; they are in neither list (:meth:`warnings`).
     """
 
     lanelets: list[Lanelet]
@@ -342,6 +344,7 @@ class LaneletMap:
     rules: str = "all lanelets"
     directed_successors: dict[tuple[int, bool], tuple[tuple[int, bool], ...]] = field(
         default_factory=dict)
+    skipped: dict[int, str] = field(default_factory=dict)
 
     def __len__(self) -> int:
         return len(self.lanelets)
@@ -358,6 +361,16 @@ class LaneletMap:
         """Number of ignored lanelets per kind (:func:`lanelet_kind`), sorted by kind."""
         kinds = [lanelet_kind(ll) for ll in self.ignored]
         return {k: kinds.count(k) for k in sorted(set(kinds))}
+
+    def warnings(self) -> list[str]:
+        """What the localization must know about the map: the roads it lacks (:attr:`skipped`)."""
+        if not self.skipped:
+            return []
+        ids = ", ".join(str(i) for i in sorted(self.skipped))
+        return [f"map: {len(self.skipped)} lanelet(s) that are roads by their tags were "
+                f"skipped, lanelet2 rejected them (relation {ids}; first: "
+                f"{next(iter(self.skipped.values()))}); vehicles driving there have no road to "
+                "be registered to"]
 
     def areas_by_kind(self) -> dict[str, int]:
         """Number of areas per subtype, sorted by subtype."""

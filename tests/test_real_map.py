@@ -293,15 +293,55 @@ def test_broken_lanelet_is_skipped_while_the_map_has_drivable_ones(
     assert [ll.id for ll in lmap.lanelets] == [ll.id for ll in ref.lanelets]
     assert victim not in {ll.id for ll in lmap.ignored}
     assert len(lmap.ignored) == len(ref.ignored) - 1
-    # a broken road lanelet is an error naming it: a road must not silently vanish
+    # a broken road lanelet is skipped too, but named in the map's warnings (the result's)
     road = ref.lanelets[0].id
     start = text.index(f'<relation id="{road}"')
     end = text.index("</relation>", start)
     path.write_text(text[:start] + text[start:end].replace('role="right"', 'role="rite"')
                     + text[end:])
-    with pytest.raises(InputError) as ei:
-        read_lanelet_map(path, CRS, site_frame())
-    assert ei.value.field == f"relation {road}"
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        lmap = read_lanelet_map(path, CRS, site_frame())
+    assert f"relation {road} skipped (a road by its tags)" in caplog.text
+    assert [ll.id for ll in lmap.lanelets] == [ll.id for ll in ref.lanelets[1:]]
+    assert list(lmap.skipped) == [road] and "right border" in lmap.skipped[road]
+    assert len(lmap.warnings()) == 1 and f"relation {road}" in lmap.warnings()[0]
+    assert not ref.skipped and not ref.warnings()
+    scn = flat_scenario(lmap, site_frame())
+    assert any(f"relation {road}" in w for w in build_target_cloud(scn, MapConfig()).warnings)
+
+
+def test_lanelet_referencing_an_unknown_regulatory_element_is_read(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Autoware maps tie lanelets to regulatory elements lanelet2 does not implement
+    (detection_area, no_stopping_area, ...): lanelet2 then rejects the lanelet itself. fgloc
+    reads it without that reference (one to a relation the map lacks lanelet2 only logs)."""
+    ref = read_lanelet_map(CROP, CRS, site_frame())
+    text = CROP.read_text()
+    roads = [ll.id for ll in ref.lanelets[:2]]
+    for lid, reg in zip(roads, ("99999990", "99999991")):   # the second one is missing
+        start = text.index(f'<relation id="{lid}"')
+        cut = text.index("<tag", start)
+        text = (text[:cut] + f'<member type="relation" ref="{reg}" role="regulatory_element"/>'
+                + text[cut:])
+    way = re.search(r'<way id="(\d+)"', text).group(1)
+    text = text.replace("</osm>", '<relation id="99999990" visible="true" version="1">'
+                        f'<member type="way" ref="{way}" role="refers"/>'
+                        '<tag k="type" v="regulatory_element"/>'
+                        '<tag k="subtype" v="detection_area"/></relation>\n</osm>')
+    path = tmp_path / "map.osm"
+    path.write_text(text)
+    raw, errors = lanelet2.io.loadRobust(str(path), UtmProjector(Origin(*SITE)))
+    assert any(f"primitive {roads[0]}" in e for e in errors)   # lanelet2 alone rejects it
+    with caplog.at_level(logging.WARNING):
+        got = read_lanelet_map(path, CRS, site_frame())
+    assert f"relation {roads[0]} read without its reference(s) to relation 99999990" \
+        in caplog.text
+    assert "99999991" in caplog.text            # lanelet2 itself reads past a missing one
+    assert [ll.id for ll in got.lanelets] == [ll.id for ll in ref.lanelets]
+    assert not got.skipped and got.successors == ref.successors
+    assert max(np.abs(a.left - b.left).max() for a, b in zip(got.lanelets, ref.lanelets)) < 1e-9
 
 
 def test_nodes_without_ele_take_the_als_ground(crop_map: LaneletMap) -> None:
@@ -382,6 +422,34 @@ def test_local_xy_nodes_with_declared_crs_and_offset(tmp_path: Path, local_crs: 
     assert [ll.id for ll in got.lanelets] == [ll.id for ll in ref.lanelets]
     err = max(np.abs(a.left - b.left).max() for a, b in zip(got.lanelets, ref.lanelets))
     assert err < 1e-3
+
+
+def test_local_xy_nodes_far_from_the_prime_meridian(tmp_path: Path) -> None:
+    """Vector Map Builder nodes (empty lat/lon) of a map in Japan (UTM zone 54): the crop's
+    geometry moved there, local_x/local_y in EPSG:32654. Every node, lanelet and successor is
+    read as in Germany (lanelet2's projector must take its origin from the declared
+    coordinates, not from the empty lat/lon: zone 31 is over 130 deg away)."""
+    frame = site_frame()
+    ref = read_lanelet_map(CROP, CRS, frame)
+    to_utm = transformer("EPSG:4326", CRS)
+
+    def repl(m: re.Match[str]) -> str:
+        e, n = to_utm.transform(float(m.group(3)), float(m.group(2)))
+        return (f'<node id="{m.group(1)}" lat="" lon=""><tag k="local_x" '
+                f'v="{e - frame.origin[0]:.5f}"/><tag k="local_y" v="{n - frame.origin[1]:.5f}"/>'
+                f"{m.group(4)}")
+    pattern = r'<node id="(\d+)" visible="true" version="1" lat="([-\d.]+)" lon="([-\d.]+)"' \
+              r'\s*(/>|>)'
+    text, n = re.subn(pattern, repl, CROP.read_text())
+    assert n > 100
+    path = tmp_path / "japan.osm"
+    path.write_text(text.replace('"/>/>', '"/></node>'))
+    origin = (400_000.0, 3_900_000.0)
+    got = read_lanelet_map(path, "EPSG:32654", LocalFrame(origin + (0.0,), "EPSG:32654"),
+                           settings=MapSettings(local_crs="EPSG:32654", local_offset=origin))
+    assert [ll.id for ll in got.lanelets] == [ll.id for ll in ref.lanelets]
+    assert len(got.ignored) == len(ref.ignored) and got.successors == ref.successors
+    assert max(np.abs(a.left - b.left).max() for a, b in zip(got.lanelets, ref.lanelets)) < 1e-3
 
 
 def test_vector_map_builder_nodes_with_lat_lon_need_no_declaration(tmp_path: Path) -> None:
@@ -604,6 +672,15 @@ def test_cli_simulate_map_and_info(tmp_path: Path, capsys: pytest.CaptureFixture
     m = re.search(r"centre line 'mean'; .* median ([\d.]+) m, max ([\d.]+) m, over 0.3 m on "
                   r"(\d+) lanelets", text)
     assert m and float(m[1]) < 0.2 and 0.3 < float(m[2]) < 2.5 and int(m[3]) >= 1, text
+    assert re.search(r"skipped\s+0 roads lanelet2 rejected\n", text)
+    # a road lanelet lanelet2 rejects (its right bound's role misspelt) is named
+    osm = (out / "map.osm").read_text()
+    road = next(r for r in re.finditer(r'<relation id="(-?\d+)".*?</relation>', osm, re.S)
+                if 'v="road"' in r[0] and 'role="right"' in r[0])
+    (out / "map.osm").write_text(osm[:road.start()] + road[0].replace('role="right"', 'role="x"')
+                                 + osm[road.end():])
+    assert main(["info", str(out)]) == 0
+    assert f"skipped     1 roads lanelet2 rejected (relation {road[1]})" in capsys.readouterr().out
     assert main(["simulate", "--map", str(CROP), "--site", "49.0", "--out",
                  str(tmp_path / "x")]) == 2
     assert main(["simulate", "--map", str(CROP), "--site", "49.1,8.4", "--out",

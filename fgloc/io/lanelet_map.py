@@ -41,6 +41,7 @@ DEFAULT_LANELET_TAGS: dict[str, str] = {
 #: Distance (m) by which the ALS bounding box is grown before testing overlap with the map.
 OVERLAP_MARGIN = 100.0
 _PRIMITIVE_ID = re.compile(r"primitive (-?\d+)")
+_FAILED_ID = re.compile(r"Failed to get id (-?\d+)")
 
 
 # --------------------------------------------------------------------------------------------
@@ -78,7 +79,8 @@ class _Nodes:
 class _Raw:
     """What lanelet2 made of the file: per lanelet (id, left ids, right ids, tags, drivable),
     areas (id, subtype, outline ids), successors among drivable lanelets (in their own
-    direction, and per driving direction), regulatory counts."""
+    direction, and per driving direction), regulatory counts, how drivability was decided and
+    the lanelets lanelet2 rejected that are roads by their tags (id -> what is wrong)."""
 
     lanelets: list[tuple[int, np.ndarray, np.ndarray, dict[str, str], bool]]
     areas: list[tuple[int, str, np.ndarray]]
@@ -86,6 +88,7 @@ class _Raw:
     directed_successors: dict[Directed, tuple[Directed, ...]]
     regulatory: dict[str, int]
     rules: str
+    skipped: dict[int, str]
 
 
 def read_lanelet_map(
@@ -125,9 +128,11 @@ def read_lanelet_map(
         with tempfile.TemporaryDirectory() as tmp:
             patched = Path(tmp) / p.name
             _write_latlon(p, patched, nodes.ids, np.asarray(lat), np.asarray(lon))
-            raw = _load_with_lanelet2(patched, nodes, lanelet_ids, settings)
+            raw = _load_with_lanelet2(patched, nodes, lanelet_ids, settings,
+                                      (float(lat[0]), float(lon[0])))
     else:
-        raw = _load_with_lanelet2(p, nodes, lanelet_ids, settings)
+        raw = _load_with_lanelet2(p, nodes, lanelet_ids, settings,
+                                  (float(nodes.lat[0]), float(nodes.lon[0])))
     index = {int(nid): k for k, nid in enumerate(nodes.ids.tolist())}
     used = np.concatenate([np.concatenate([lft, rgt]) for _, lft, rgt, _, _ in raw.lanelets])
     try:
@@ -150,7 +155,7 @@ def read_lanelet_map(
         raise InputError(p, f"no lanelet of the map is drivable under {raw.rules} (kinds: "
                          f"{LaneletMap([], ignored).ignored_by_kind()})")
     out = LaneletMap(drivable, ignored, areas, raw.successors, raw.regulatory, raw.rules,
-                     directed_successors=raw.directed_successors)
+                     directed_successors=raw.directed_successors, skipped=raw.skipped)
     if ignored:
         log.debug("%s: %d drivable lanelets; ignored %s", p, len(drivable), out.ignored_by_kind())
     return out
@@ -312,7 +317,10 @@ def _directed_successors(lmap: object, rules: object | None, drivable: set[int])
     ``follows``), two-way lanelets (tag ``one_way`` = no) both ways."""
     lanelets = [ll for ll in lmap.laneletLayer if ll.id in drivable]
     if rules is not None:
-        graph = lanelet2.routing.RoutingGraph(lmap, rules)
+        # on the drivable lanelets only: lanelet2's graph over a map that holds lanelets it
+        # rejected (a bound missing) crashes the process
+        graph = lanelet2.routing.RoutingGraph(
+            lanelet2.core.createSubmapFromLanelets(lanelets), rules)
         succ = {(ll.id, d.inverted()): [(f.id, f.inverted()) for f in graph.following(d)]
                 for ll in lanelets
                 for d in ((ll, ll.invert()) if rules.canPass(ll.invert()) else (ll,))}
@@ -339,23 +347,35 @@ def _successors(directed: dict[Directed, tuple[Directed, ...]]) -> dict[int, tup
 
 
 def _load_with_lanelet2(
-    path: Path, nodes: _Nodes, lanelet_ids: dict[int, dict[str, str]], settings: MapSettings
+    path: Path, nodes: _Nodes, lanelet_ids: dict[int, dict[str, str]], settings: MapSettings,
+    origin: tuple[float, float],
 ) -> _Raw:
-    """Lanelets, areas and routing graph, validated by lanelet2.
+    """Lanelets, areas and routing graph, validated by lanelet2 (its projector's origin: a
+    node's (lat, lon) as the file ``path`` has them, so that every node lies in or near the
+    origin's UTM zone; fgloc takes the coordinates from the XML).
 
-    A lanelet lanelet2 rejects (or with a bound of fewer than 2 nodes) is fatal when its tags
-    make it drivable (:func:`passable_by_tags`: a road must not silently vanish) or when no
-    drivable lanelet is left; otherwise (a broken crosswalk, walkway, ...) it is skipped with a
-    warning. Errors about other primitives (areas, regulatory elements fgloc ignores) are
-    logged.
+    A lanelet that references a regulatory element lanelet2 cannot build (a type it does not
+    implement, e.g. Autoware's ``detection_area``, or a missing relation) is read without that
+    reference (logged; fgloc uses no regulatory element). A lanelet lanelet2 rejects (or with a
+    bound of fewer than 2 nodes) is skipped with a warning; when its tags make it drivable
+    (:func:`passable_by_tags`) it is listed in ``_Raw.skipped`` (the result's warnings say
+    so); no drivable lanelet left is fatal. Errors about other primitives (areas, regulatory
+    elements) are logged.
     """
     if not len(nodes.ids):
         raise InputError(path, "the map holds no nodes")
-    projector = UtmProjector(Origin(float(nodes.lat[0]), float(nodes.lon[0])))
-    try:  # any projector: coordinates come from the XML
-        lmap, errors = lanelet2.io.loadRobust(str(path), projector)
-    except RuntimeError as exc:
-        raise InputError(path, f"lanelet2 cannot read the map: {exc}") from None
+    projector = UtmProjector(Origin(*origin))
+    lmap, errors = _load_robust(path, projector)
+    dangling = _regulatory_failures(errors, lanelet_ids)
+    if dangling:
+        with tempfile.TemporaryDirectory() as tmp:
+            patched = Path(tmp) / path.name
+            _drop_regulatory_members(path, patched, dangling)
+            lmap, errors = _load_robust(patched, projector)
+        for lid, refs in sorted(dangling.items()):
+            log.warning("%s: relation %d read without its reference(s) to %s: lanelet2 cannot "
+                        "build them (fgloc uses no regulatory element)", path, lid,
+                        ", ".join(f"relation {r}" for r in sorted(refs)))
     broken: dict[int, str] = {}  # lanelet id -> what is wrong with it
     for msg in errors:
         m = _PRIMITIVE_ID.search(msg)
@@ -376,13 +396,14 @@ def _load_with_lanelet2(
         ok = (bool(rules.canPass(ll)) if rules is not None
               else passable_by_tags(attrs, settings.participant))
         lanelets.append((int(ll.id), left, right, attrs, ok))
-    fatal = [lid for lid in sorted(broken)
-             if passable_by_tags(lanelet_ids.get(lid, {}), settings.participant)]
-    if fatal or (broken and not any(ok for *_, ok in lanelets)):
-        lid = fatal[0] if fatal else min(broken)
+    if broken and not any(ok for *_, ok in lanelets):
+        lid = min(broken)
         raise InputError(path, broken[lid], field=f"relation {lid}")
+    skipped = {lid: msg for lid, msg in sorted(broken.items())
+               if passable_by_tags(lanelet_ids.get(lid, {}), settings.participant)}
     for lid, msg in sorted(broken.items()):
-        log.warning("%s: relation %d skipped (not drivable): %s", path, lid, msg)
+        kind = "a road by its tags" if lid in skipped else "not drivable"
+        log.warning("%s: relation %d skipped (%s): %s", path, lid, kind, msg)
     if not lanelets:
         raise InputError(path, "lanelet2 found no valid lanelet in the map")
     areas = []
@@ -398,7 +419,43 @@ def _load_with_lanelet2(
     drivable = {lid for lid, *_, ok in lanelets if ok}
     directed = _directed_successors(lmap, rules, drivable)
     return _Raw(lanelets, areas, _successors(directed), directed,
-                dict(sorted(regulatory.items())), how)
+                dict(sorted(regulatory.items())), how, skipped)
+
+
+def _load_robust(path: Path, projector: UtmProjector) -> tuple[object, list[str]]:
+    """lanelet2's map and error messages."""
+    try:
+        return lanelet2.io.loadRobust(str(path), projector)
+    except RuntimeError as exc:
+        raise InputError(path, f"lanelet2 cannot read the map: {exc}") from None
+
+
+def _regulatory_failures(errors: list[str], lanelet_ids: dict[int, dict[str, str]]
+                         ) -> dict[int, set[int]]:
+    """Lanelet id -> the ids of non-lanelet relations it failed to get (lanelet2's "Error
+    parsing primitive L: Failed to get id R from map": R is a regulatory element lanelet2
+    could not build or that the map lacks)."""
+    out: dict[int, set[int]] = {}
+    for msg in errors:
+        m = _PRIMITIVE_ID.search(msg)
+        if m is None or int(m.group(1)) not in lanelet_ids:
+            continue
+        refs = {int(r) for r in _FAILED_ID.findall(msg)} - set(lanelet_ids)
+        if refs:
+            out.setdefault(int(m.group(1)), set()).update(refs)
+    return out
+
+
+def _drop_regulatory_members(src: Path, dst: Path, refs: dict[int, set[int]]) -> None:
+    """Copy of the OSM file ``src`` without the ``regulatory_element`` members of the lanelet
+    relations in ``refs`` (lanelet id -> relation ids) that point to those relations."""
+    root = ET.parse(src).getroot()
+    for rel in root.iter("relation"):
+        drop = refs.get(int(rel.get("id", "0")), set())
+        for member in [m for m in rel.iter("member") if m.get("role") == "regulatory_element"
+                       and int(m.get("ref", "0")) in drop]:
+            rel.remove(member)
+    ET.ElementTree(root).write(dst, encoding="utf-8", xml_declaration=True)
 
 
 def _check_overlap(

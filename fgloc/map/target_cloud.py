@@ -51,7 +51,8 @@ class TargetCloud:
     xyz: (N, 3) float64 m in L. label: (N,) int8 codes of :mod:`fgloc.labels`. lanelet_id: (N,)
     int64 id of the lanelet each point lies in. lanelet_labels / lanelet_curvature: label and
     signed Menger curvature (1/m, positive = counter-clockwise = left) of every lanelet of the map.
-    warnings: what the construction had to work around (e.g. an unclassified ALS).
+    warnings: what the construction had to work around (e.g. an unclassified ALS, road
+    lanelets lanelet2 rejected: :meth:`LaneletMap.warnings`).
     label_source: "routing" or "curvature" per lanelet id (see :func:`map_labels`).
     ignored_lanelets: lanelets of the map not drivable by the configured participant, counted
     per kind (they hold no target point).
@@ -273,7 +274,7 @@ def build_target_cloud(scn: Scenario, cfg: MapConfig) -> TargetCloud:
         lanelet_id=lid,
         lanelet_labels=lanelet_labels,
         lanelet_curvature=labels.curvature,
-        warnings=warnings,
+        warnings=[*warnings, *scn.lanelets.warnings()],
         label_source=labels.source,
         ignored_lanelets=scn.lanelets.ignored_by_kind(),
     )
