@@ -218,6 +218,46 @@ def test_one_mode_not_pinned_to_the_tolerance_is_ambiguous():
         is None
     loose = dataclasses.replace(cfg, resolved_max_std=0.5)
     assert choose_mode(fits, loose).status == RESOLVED
+    # the joint's own, wider tolerance (joint.resolved_max_std) and its name in the warning
+    joint = choose_mode(fits, cfg, tolerance=False).with_tolerance(1.0, "joint.resolved_max_std")
+    assert joint.status == RESOLVED
+    wide = [dataclasses.replace(fits[0], covariance=cov(3.8)), fits[1]]
+    joint = choose_mode(wide, cfg, tolerance=False).with_tolerance(1.0, "joint.resolved_max_std")
+    assert joint.status == AMBIGUOUS and joint.weak.std == pytest.approx(3.8)
+    assert any("determined only to 3.80 m" in w and "joint.resolved_max_std = 1 m" in w
+               for w in joint.warnings("joint"))
+
+
+def test_one_mode_without_a_covariance_is_not_resolved_where_the_method_gives_one():
+    """A fit whose data give no covariance (fewer than 3 matched points, a singular
+    information matrix: one straight track) pins nothing: with ``require_covariance`` (SICP
+    against lane lines) one such mode left is ambiguous, with a warning that says why and no
+    weak-direction segment; without it (road points: no covariance model) it stays resolved."""
+    cfg = CoarseConfig()
+    fits = [_fit(0.0, 0.0, 0.0, [1.0] * 16), _fit(4.0, 0.0, 0.0, [2.0] * 16)]
+    assert choose_mode(fits, cfg).status == RESOLVED
+    ch = choose_mode(fits, cfg, require_covariance=True)
+    assert ch.status == AMBIGUOUS and ch.best is fits[0] and ch.covariance(cfg) is None
+    assert ch.weak_summary(LocalFrame((677000.0, 5400000.0, 380.0), "EPSG:25832")) is None
+    (w,) = ch.warnings("filter-sicp")
+    assert "no covariance" in w and "coarse.resolved_max_std = 0.3 m" in w
+
+
+def test_one_vehicle_in_view_on_a_straight_road_is_no_resolved_pose():
+    """Intersection seed 3, 3 vehicles in a minute, one of them in view (on a straight road):
+    nothing fixes the position along that road; the coarse stage ends 20 m along it. No method
+    may call that resolved (filter-sicp did: SICP's fit had no covariance; the joint's std.
+    dev. along the road is over 10 m)."""
+    scn = simulate("intersection", 3, duration=60.0, vehicles=3)
+    truth = scn.truth.sensor_pose
+    out = localize_many(scn, ["icp", "filter-sicp", "smoother-sicp", "joint"])
+    assert min(_error_2d(r.T_local, truth) for r in out.values()) > 5.0
+    for method, res in out.items():
+        assert res.status == AMBIGUOUS, method
+    assert out["filter-sicp"].covariance is None
+    assert any("no covariance" in w for w in out["filter-sicp"].warnings)
+    cov = out["joint"].covariance
+    assert np.sqrt(np.linalg.eigvalsh(np.asarray(cov)[:2, :2])[-1]) > 10.0
 
 
 def sparse(case: str, seed: int, per_minute: float, duration: float = 60.0):

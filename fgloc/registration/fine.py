@@ -272,8 +272,9 @@ def register_tracks(
     the best mode moved rigidly onto it), against the targets seen from its sensor position;
     the fits are compared on the same source cloud (:mod:`fgloc.registration.modes`) and the
     best one is reported; when they cannot be told apart, or the one left is not pinned to
-    ``coarse.resolved_max_std``, the result is ``ambiguous`` and its covariance covers the
-    modes (their spread plus each one's own covariance).
+    ``coarse.resolved_max_std`` (or has no covariance: too few matched points, or one
+    straight track that fixes nothing along its road), the result is ``ambiguous`` and its
+    covariance covers the modes (their spread plus each one's own covariance).
     Raises :class:`fgloc.errors.LocalizationError` when ``tracks`` holds no vehicle track
     (:func:`fgloc.registration.source.require_tracks`).
     """
@@ -311,7 +312,9 @@ def register_tracks(
                                 1.0 if mode is None else mode.lane_score, res.converged,
                                 start, z_std, lanes))
             runs.append((res, targets))
-    choice = choose_mode(fits, cfg.coarse, prior=position_prior(scn, cfg.coarse))
+    # lane-line targets give every fit a covariance unless the data fix no pose
+    choice = choose_mode(fits, cfg.coarse, prior=position_prior(scn, cfg.coarse),
+                         require_covariance=cfg.fine.target != "road-points")
     best = next(i for i, f in enumerate(fits) if f is choice.best)
     res, targets = runs[best]
     T_fine = res.T

@@ -858,11 +858,12 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
     choose_mode`'s ``starts``: sliding along a flat direction is no evidence against it).
     When ambiguous the reported mode is selected with the approximate position as a prior
     (possibly a kept start: then the diagnostics are those of the joint run that left it).
-    One mode left stays ``resolved`` whatever its covariance's weakest std. dev.
-    (``coarse.resolved_max_std`` is not applied; its weakly observed directions are a
-    warning, ``weak_sigma``): the joint's covariance adds considered biases that no amount of
-    data shrinks and is conservative (sparse traffic: mean NEES 1.0), so the rule turned 5 of
-    its 30 sparse runs with 0.05-0.14 m errors ambiguous (docs/experiments.md).
+    One mode left is held to ``cfg.joint.resolved_max_std`` (1 m), not to the other methods'
+    ``coarse.resolved_max_std`` (weakly observed directions below it are a warning,
+    ``weak_sigma``): the joint's covariance adds considered biases that no amount of data
+    shrinks and is conservative (sparse traffic: mean NEES 1.0), so the coarse tolerance
+    turned 5 of its 30 sparse runs with 0.05-0.14 m errors ambiguous (docs/experiments.md);
+    a covariance of metres (a few vehicles on a small junction) is no resolved pose.
     Raises ValueError when ``smoothed`` holds other tracks than ``tracks``."""
     from fgloc.registration.fine import (
         coarse_tilt_covariance,
@@ -919,7 +920,8 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
             runs.append(jr)
         comparable = [m for m in start.mode_fits if m.track_cost.shape == cost.shape]
         choice = choose_mode(fits, cfg.coarse, comparable, position_prior(scn, cfg.coarse),
-                             tolerance=False)
+                             tolerance=False).with_tolerance(cfg.joint.resolved_max_std,
+                                                             "joint.resolved_max_std")
         # the joint run of the reported mode (of a kept start: the run that left it)
         jr = runs[next(i for i, f in enumerate(fits) if f is choice.best
                        or (f.lanes == choice.best.lanes and np.array_equal(f.start,

@@ -49,8 +49,9 @@ placed by the best mode, moved rigidly by the mode's start) and hands its final 
   may not pin the pose to the accuracy asked. When the reported covariance's std. dev. along
   its least determined horizontal direction exceeds ``coarse.resolved_max_std``, the result
   is ``ambiguous`` too (:class:`WeakDirection`), with that covariance (icp, filter-sicp,
-  smoother-sicp; the joint's conservative covariance reports its weak directions as a
-  warning instead, :func:`fgloc.registration.joint.joint_from_tracks`).
+  smoother-sicp; the joint's conservative covariance is held to its own, wider
+  ``joint.resolved_max_std`` and reports weak directions below it as a warning,
+  :func:`fgloc.registration.joint.joint_from_tracks`).
 * **Ambiguous**: the reported pose is the selected mode's (above), and the covariance covers
   every mode not ruled out: ``mean_k (C_k + e_k e_k^T)``, ``e_k`` the mode's (x, y, yaw) minus the
   reported one and ``C_k`` its own covariance (where the method has one), so the truth at any
@@ -224,11 +225,13 @@ def position_prior(scn: Scenario, cfg: CoarseConfig) -> PositionPrior:
 class WeakDirection:
     """The least determined horizontal direction of a pose the modes resolve, when the data
     do not pin it to the tolerance: direction (2,) unit vector in L, std (m) the sensor
-    position's std. dev. along it, tolerance (m) the ``coarse.resolved_max_std`` it exceeds."""
+    position's std. dev. along it, tolerance (m) the setting it exceeds (named by
+    ``setting``)."""
 
     direction: np.ndarray
     std: float
     tolerance: float
+    setting: str = "coarse.resolved_max_std"
 
     @property
     def heading_deg(self) -> float:
@@ -237,15 +240,16 @@ class WeakDirection:
         return h - 180.0 if h > 90.0 else h + 180.0 if h <= -90.0 else h
 
 
-def weak_direction(cov: np.ndarray | None, tolerance: float) -> WeakDirection | None:
+def weak_direction(cov: np.ndarray | None, tolerance: float,
+                   setting: str = "coarse.resolved_max_std") -> WeakDirection | None:
     """The :class:`WeakDirection` of the 3x3 covariance ``cov`` of (x, y, yaw) (m, m, rad):
     the eigenvector of its largest x-y eigenvalue when that std. dev. exceeds ``tolerance``
-    (m); None when it does not, or without a covariance."""
+    (m; the config field ``setting``); None when it does not, or without a covariance."""
     if cov is None:
         return None
     vals, vecs = np.linalg.eigh(np.asarray(cov, float)[:2, :2])
     std = float(np.sqrt(max(vals[-1], 0.0)))
-    return WeakDirection(vecs[:, -1], std, tolerance) if std > tolerance else None
+    return WeakDirection(vecs[:, -1], std, tolerance, setting) if std > tolerance else None
 
 
 @dataclass
@@ -284,12 +288,19 @@ class ModeChoice:
         return replace(self, agreed=weak_direction(self._covering(cfg),
                                                    cfg.resolved_max_std) is None)
 
-    def with_tolerance(self, cfg: CoarseConfig) -> ModeChoice:
+    def with_tolerance(self, tolerance: float, setting: str = "coarse.resolved_max_std",
+                       require_covariance: bool = False) -> ModeChoice:
         """The same comparison, ambiguous when one mode is left but its covariance's std. dev.
-        along the least determined horizontal direction exceeds ``cfg.resolved_max_std``."""
+        along the least determined horizontal direction exceeds ``tolerance`` (m; the config
+        field ``setting``), or, with ``require_covariance`` (a method whose fit has one), when
+        the data give it none (too few matched points, or a geometry that fixes no pose: one
+        straight track): a :class:`WeakDirection` of infinite std. dev. and no direction."""
         if len(self.tied) != 1:
             return self
-        return replace(self, weak=weak_direction(self.best.covariance, cfg.resolved_max_std))
+        if require_covariance and self.best.covariance is None:
+            return replace(self, weak=WeakDirection(np.full(2, np.nan), np.inf, tolerance,
+                                                    setting))
+        return replace(self, weak=weak_direction(self.best.covariance, tolerance, setting))
 
     @property
     def best(self) -> ModeFit:
@@ -322,8 +333,10 @@ class ModeChoice:
         without a covariance). A mode without a covariance of its own counts with the mode
         set's resolution, half the separation (``cfg.mode_separation`` m,
         ``mode_separation_deg``) as std. dev. With a valley, the variance along it is the
-        posterior's (plus that resolution) instead of the modes' spread along it."""
-        if self.status == RESOLVED and len(self.tied) == 1:
+        posterior's (plus that resolution) instead of the modes' spread along it. None also for
+        one mode left without the covariance its method requires (:meth:`with_tolerance`): the
+        data give none."""
+        if len(self.tied) == 1 and (self.status == RESOLVED or not np.isfinite(self.weak.std)):
             return self.best.covariance
         acc = self._covering(cfg)
         if self.valley is None:
@@ -392,9 +405,9 @@ class ModeChoice:
     def weak_summary(self, frame: LocalFrame) -> dict[str, object] | None:
         """JSON-ready weak direction: heading (deg CCW from grid east), the std. dev. (m) along
         it, the tolerance it exceeds and the ends (world x, y) of the reported position +-2
-        std. devs. along it; None without one."""
+        std. devs. along it; None without one or without a covariance."""
         w = self.weak
-        if w is None:
+        if w is None or not np.isfinite(w.std):
             return None
         ends = frame.to_world(self.reported()[:2] + np.outer([-2.0, 2.0], w.std * w.direction))
         return {"heading_deg": w.heading_deg, "std_m": w.std, "tolerance_m": w.tolerance,
@@ -406,11 +419,16 @@ class ModeChoice:
         modes agree)."""
         if self.status == RESOLVED and len(self.tied) == 1:
             return []
+        if self.weak is not None and not np.isfinite(self.weak.std):
+            return [f"{method}: ambiguous pose: the data give no covariance (fewer than 3 "
+                    "matched points, or a geometry that fixes no pose, such as one straight "
+                    "track): nothing pins the pose to the tolerance "
+                    f"{self.weak.setting} = {self.weak.tolerance:g} m"]
         if self.weak is not None:
             w = self.weak
             return [f"{method}: ambiguous pose: the position along {w.heading_deg:.0f} deg "
                     f"(grid) is determined only to {w.std:.2f} m (std. dev.), more than the "
-                    f"tolerance coarse.resolved_max_std = {w.tolerance:g} m: the data do not pin "
+                    f"tolerance {w.setting} = {w.tolerance:g} m: the data do not pin "
                     "it (few vehicles fix that direction); the covariance says how far it may "
                     "be off"]
         if self.valley is not None:
@@ -448,20 +466,21 @@ def coarse_choice(coarse: CoarseResult, cfg: CoarseConfig,
                     coarse.converged, m.start, m.z_std, m.lanes)
             for k, m in enumerate(coarse.modes)]
     choice = ModeChoice(fits, np.zeros(len(fits)), list(range(len(fits))))
-    return choice.selected_by(prior).agreeing(cfg).with_tolerance(cfg)
+    return choice.selected_by(prior).agreeing(cfg).with_tolerance(cfg.resolved_max_std)
 
 
 def choose_mode(fits: list[ModeFit], cfg: CoarseConfig,
                 starts: list[ModeFit] | None = None,
-                prior: PositionPrior | None = None, tolerance: bool = True) -> ModeChoice:
+                prior: PositionPrior | None = None, tolerance: bool = True,
+                require_covariance: bool = False) -> ModeChoice:
     """Merge the fits, pick the least cost and rule out modes by ``cfg.mode_z`` (module
     docstring). ``starts``: the fits the ``fits`` were refined from (their track costs on the
     same tracks); each one distinct from every merged fit is added after them as a mode of
     its own (``origin = "start"``), so the best final fit must rule it out. ``prior``: selects
     the reported mode of an ambiguous result (:meth:`ModeChoice.selected_by`). ``tolerance``:
     whether one mode left must also be pinned to ``cfg.resolved_max_std``
-    (:meth:`ModeChoice.with_tolerance`; the joint's is False, see
-    :func:`fgloc.registration.joint.joint_from_tracks`)."""
+    (:meth:`ModeChoice.with_tolerance`, with ``require_covariance``; the joint's is False: it
+    applies its own, see :func:`fgloc.registration.joint.joint_from_tracks`)."""
     merged = merge_modes(fits, cfg)
     merged += [replace(s, origin="start") for s in merge_modes(starts or [], cfg)
                if distinct(s, merged, cfg)]
@@ -469,7 +488,8 @@ def choose_mode(fits: list[ModeFit], cfg: CoarseConfig,
     z = np.array([separation_z(f.track_cost, best) for f in merged])
     tied = [k for k in range(len(merged)) if k == 0 or z[k] < cfg.mode_z]
     choice = ModeChoice(merged, z, tied).selected_by(prior).agreeing(cfg)
-    return choice.with_tolerance(cfg) if tolerance else choice
+    return choice.with_tolerance(cfg.resolved_max_std,
+                                 require_covariance=require_covariance) if tolerance else choice
 
 
 def track_valley(choice: ModeChoice, cost_at: Callable[[ModeFit, np.ndarray], np.ndarray],
