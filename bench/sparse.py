@@ -4,7 +4,8 @@ Per case (the 4-arm junction "intersection" and the T-junction "tjunction"), tra
 (vehicles per minute: the simulator's Poisson ``[traffic] arrival_interval = 60 / rate`` s) and
 seed, a scenario of ``--duration`` s is simulated and localized by icp, filter-sicp and joint
 (``localize_many``: the shared stages once). Per run and method: the result's status
-(resolved / ambiguous), the 2D, yaw and height errors, the NEES of (x, y, yaw) against the
+(resolved / ambiguous; "no pose" when the method raised LocalizationError, as with too few
+vehicles for a track), the 2D, yaw and height errors, the NEES of (x, y, yaw) against the
 reported covariance (every method reports one: icp its lane-score tie's, the others their fit's
 per track, docs/method.md 2.1), the reported std. dev. of z, and for ambiguous runs whether the
 truth lies at one of the tied modes, on the valley they are samples of or within 2 std. devs.
@@ -44,6 +45,7 @@ import numpy as np
 from bench.report_section import provenance
 from fgloc.coarse import coarse_localize
 from fgloc.config import Config, load_config
+from fgloc.errors import LocalizationError
 from fgloc.evaluation.pose import pose_error, pose_error_vector
 from fgloc.map import build_target_cloud
 from fgloc.pipeline import localize_many
@@ -52,7 +54,9 @@ from fgloc.sim import SimConfig, simulate
 
 METHODS = ("icp", "filter-sicp", "smoother-sicp", "joint")
 CASES = ("intersection", "tjunction")
-RATES = (5.0, 10.0, 20.0)
+RATES = (2.0, 5.0, 10.0, 20.0)
+#: the status of a run whose method raised LocalizationError (no track to register, ...)
+NO_POSE = "no pose"
 #: the goal of a resolved run's 2D error (m)
 RESOLVED_BAR = 0.3
 
@@ -103,14 +107,33 @@ def truth_distance(res: LocalizationResult, truth: np.ndarray) -> float:
     return min(near) if near else float(np.hypot(*(res.T_local[:2, 3] - xy)))
 
 
+def localize_each(scn, cfg) -> dict[str, LocalizationResult | None]:
+    """Every method's result on ``scn``; None for a method that raised
+    :class:`LocalizationError` (too little traffic for it: no track, too few points)."""
+    try:
+        return localize_many(scn, list(METHODS), cfg)
+    except LocalizationError:
+        out: dict[str, LocalizationResult | None] = {}
+        for m in METHODS:
+            try:
+                out[m] = localize_many(scn, [m], cfg)[m]
+            except LocalizationError:
+                out[m] = None
+        return out
+
+
 def run_one(case: str, seed: int, rate: float, duration: float, cfg, tol: float) -> list[Run]:
     scn = scenario(case, seed, rate, duration)
     truth = scn.truth.sensor_pose
     t0 = time.perf_counter()
-    out = localize_many(scn, list(METHODS), cfg)
+    out = localize_each(scn, cfg)
     seconds = time.perf_counter() - t0
     runs = []
     for m, res in out.items():
+        if res is None:
+            runs.append(Run(case, rate, seed, m, len(scn.truth.tracks), NO_POSE, 0, 0, np.nan,
+                            np.nan, np.nan, None, None, False, seconds))
+            continue
         err = pose_error(res.T_local, truth)
         e = pose_error_vector(res.T_local, truth)
         nees = None if res.covariance is None else float(e @ np.linalg.solve(res.covariance, e))
@@ -257,18 +280,19 @@ def table(runs: list[Run]) -> list[str]:
     (mean / worst), |dz| (mean / worst)."""
     lines = ["| case | veh/min | method | runs | resolved | 2D m resolved (mean / worst) | "
              f"resolved > {RESOLVED_BAR} m | ambiguous: truth in modes | NEES ambiguous "
-             "(mean / worst) | NEES resolved (mean / worst) | abs dz m (mean / worst) |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "(mean / worst) | NEES resolved (mean / worst) | abs dz m (mean / worst) | "
+             "no pose |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     keys = sorted({(r.case, r.rate, r.method) for r in runs},
                   key=lambda k: (CASES.index(k[0]), k[1], METHODS.index(k[2])))
     for case, rate, method in keys:
         rs = [r for r in runs if (r.case, r.rate, r.method) == (case, rate, method)]
         res = [r for r in rs if r.status == "resolved"]
-        amb = [r for r in rs if r.status != "resolved"]
+        amb = [r for r in rs if r.status not in ("resolved", NO_POSE)]
         e2 = [r.err_2d for r in res]
         nees = [r.nees for r in res if r.nees is not None]
         nees_amb = [r.nees for r in amb if r.nees is not None]
-        dz = [abs(r.err_z) for r in rs]
+        dz = [abs(r.err_z) for r in rs if r.status != NO_POSE]
         lines.append(
             f"| {case} | {rate:g} | {method} | {len(rs)} | {len(res)}/{len(rs)} | "
             f"{_fmt(np.mean(e2) if e2 else None)} / {_fmt(max(e2) if e2 else None)} | "
@@ -277,7 +301,8 @@ def table(runs: list[Run]) -> list[str]:
             f"{_fmt(np.mean(nees_amb) if nees_amb else None)} / "
             f"{_fmt(max(nees_amb) if nees_amb else None)} | "
             f"{_fmt(np.mean(nees) if nees else None)} / {_fmt(max(nees) if nees else None)} | "
-            f"{_fmt(np.mean(dz))} / {_fmt(max(dz))} |")
+            f"{_fmt(np.mean(dz) if dz else None)} / {_fmt(max(dz) if dz else None)} | "
+            f"{len(rs) - len(res) - len(amb)} |")
     return lines
 
 
@@ -290,7 +315,7 @@ def totals(runs: list[Run]) -> list[str]:
         if not rs:
             continue
         res = [r for r in rs if r.status == "resolved"]
-        amb = [r for r in rs if r.status != "resolved"]
+        amb = [r for r in rs if r.status not in ("resolved", NO_POSE)]
         nees = [r.nees for r in res if r.nees is not None]
         every = [r.nees for r in rs if r.nees is not None]
         out.append(f"- {m}: resolved {len(res)}/{len(rs)} ({100 * len(res) / len(rs):.0f} %), "
@@ -299,7 +324,8 @@ def totals(runs: list[Run]) -> list[str]:
                    f"with the truth among the tied modes: {sum(r.truth_in_modes for r in amb)}/"
                    f"{len(amb)}, mean NEES over the resolved runs: "
                    f"{_fmt(np.mean(nees) if nees else None)}, over every run: "
-                   f"{_fmt(np.mean(every) if every else None)}")
+                   f"{_fmt(np.mean(every) if every else None)}, no pose (LocalizationError): "
+                   f"{len(rs) - len(res) - len(amb)}")
     return out
 
 
