@@ -80,7 +80,7 @@ def _simulate_on_map(args: argparse.Namespace, sim_cfg) -> int:
     write_scenario(sim.scenario, args.out, radar_format=args.radar_format, map_osm=sim.map_osm,
                    extra_files=sim.notices)
     w = sim.scenario.frame.to_world(sim.junction[None])[0]
-    print(f"wrote a scenario on {args.map} (junction at E {w[0]:.1f} N {w[1]:.1f}, seed "
+    print(f"wrote a scenario on {args.map} ({sim.site} at E {w[0]:.1f} N {w[1]:.1f}, seed "
           f"{args.seed}, {len(sim.scenario.radar)} detections, "
           f"{_road_users(sim.result.vehicle_class)}) to {args.out}")
     return 0

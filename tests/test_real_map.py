@@ -525,21 +525,37 @@ def test_inverted_shared_bound(tmp_path: Path) -> None:
     np.testing.assert_allclose(by_id[21].left, by_id[20].left[::-1])
 
 
-def test_simulate_on_a_map_without_junction_says_what_it_holds(
+def test_simulate_on_a_map_without_junction_watches_a_road(
         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
-    """Two opposite lanes and nothing else: no junction to put a mast at; the error names the
-    drivable lanelets and how drivability was decided (a map of an old tag scheme, all
-    lanelets ignored, shows up the same way)."""
+    """Two opposite lanes and nothing else (36 m): no junction, so the mast stands beside the
+    road; vehicles drive both lanes, each in its own direction. A --site 10 km away is an error
+    that says so, and nothing is written."""
     from fgloc.cli import main
+    from fgloc.sim.real_map import simulate_on_map
 
     path = tmp_path / "map.osm"
     path.write_text(INVERTED)
-    assert main(["simulate", "--map", str(path), "--out", str(tmp_path / "scn")]) == 2
-    err = capsys.readouterr().err
-    assert "the routing graph has no junction" in err
-    assert "drivable lanelets: 2 (lanelet2 traffic rules de/vehicle), ignored: none" in err
-    assert err.count(str(path)) == 1
-    assert not (tmp_path / "scn").exists()
+    sim = simulate_on_map(path, 1, duration=10.0)
+    assert sim.site == "road" and len(sim.scenario.truth.tracks) >= 2
+    lanes = {ll.id: ll for ll in sim.scenario.lanelets.lanelets}
+    heads = []
+    for tr in sim.scenario.truth.tracks:
+        st = np.asarray(tr.states)
+        heads.append(np.cos(st[:, 3]).mean())
+        # on the lanelet of its direction: eastbound on 20 (south lane), westbound on 21
+        lane = lanes[20 if heads[-1] > 0 else 21]
+        inside = points_in_polygon(st[:, 1:3], lane.polygon(), 0.5)
+        lo, hi = np.sort(lane.left[[0, -1], 0])
+        assert inside[(st[:, 1] > lo + 3.0) & (st[:, 1] < hi - 3.0)].mean() > 0.9
+    assert min(heads) < -0.9 and max(heads) > 0.9
+    assert main(["simulate", "--map", str(path), "--seed", "2", "--duration", "5", "--out",
+                 str(tmp_path / "scn")]) == 0
+    assert "(road at E" in capsys.readouterr().out
+    assert main(["simulate", "--map", str(path), "--site", "49.1,8.4", "--out",
+                 str(tmp_path / "far")]) == 2
+    assert "no junction of the routing graph and no drivable lanelet within 500 m" in \
+        capsys.readouterr().err
+    assert not (tmp_path / "far").exists()
 
 
 # --------------------------------------------------------------------------------------------
@@ -685,7 +701,8 @@ def test_cli_simulate_map_and_info(tmp_path: Path, capsys: pytest.CaptureFixture
                  str(tmp_path / "x")]) == 2
     assert main(["simulate", "--map", str(CROP), "--site", "49.1,8.4", "--out",
                  str(tmp_path / "far")]) == 2  # 10 km from every junction
-    assert "no junction of the routing graph within 500 m" in capsys.readouterr().err
+    assert "no junction of the routing graph and no drivable lanelet within 500 m" in \
+        capsys.readouterr().err
     assert main(["simulate", "--case", "straight", "--site", "49.0,8.4", "--out",
                  str(tmp_path / "y")]) == 2
 

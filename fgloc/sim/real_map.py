@@ -1,9 +1,10 @@
 """simulate_on_map(): a scenario with ground truth on any real Lanelet2 map.
 
 The sensor stands on a mast beside a junction of the map's routing graph (the one nearest to
-``site``, else a random one of the largest), vehicles drive the junction's routes (each
-movement with its lead-in and lead-out along the routing graph per driving direction: two-way
-lanelets both ways, on their centre line or keeping right, ``config.real_map``), the ALS is
+``site``, else a random one of the largest; on a map without one, beside a road), vehicles
+drive the junction's routes (each movement with its lead-in and lead-out along the routing
+graph per driving direction: two-way lanelets both ways, on their centre line or keeping
+right, ``config.real_map``), the ALS is
 made from the drivable lanelets' polygons (road surface, class 11), the rest of the ground
 (class 2; walkways raised by a curb height), the map's buildings (class 6) and trees in its
 vegetation areas (class 5) over a gently sloped terrain. The radar model, traffic, ALS
@@ -27,7 +28,7 @@ import numpy as np
 from fgloc.geo import LocalFrame, natural_utm_zone, transformer, utm_zone, wrap_angle
 from fgloc.io.lanelet_map import WGS84, crop_lanelet_osm, read_lanelet_map
 from fgloc.map import points_in_polygon
-from fgloc.scenario import Lanelet, LaneletMap, Scenario, resample_polyline
+from fgloc.scenario import Lanelet, LaneletMap, Scenario
 from fgloc.sim.als import BUILDING, GROUND, synthesize_als
 from fgloc.sim.config import SimConfig
 from fgloc.sim.core import SimResult, drive_and_observe
@@ -40,10 +41,12 @@ from fgloc.sim.real_roads import (
     Roof,
     build_map_network,
     directed_lanelets,
+    every_metre,
     find_junctions,
     junction_routes,
     lanelet2_centre_lines,
     map_scenery,
+    road_site,
 )
 from fgloc.sim.roads import RoadArea, RoadNetwork
 from fgloc.sim.scenery import place_scenery
@@ -68,12 +71,14 @@ TURN_GAIN = 2.0
 @dataclass
 class MapSimulation:
     """A simulated scenario on a real map plus what its directory needs besides: the cropped
-    map's OSM text and the licence notices (file name -> text)."""
+    map's OSM text and the licence notices (file name -> text). junction: the site's centre
+    (2,) m in L; site: "junction", or "road" on a map (or near a ``site``) without one."""
 
     result: SimResult
     map_osm: str
     junction: np.ndarray
     notices: dict[str, str] = field(default_factory=dict)
+    site: str = "junction"
 
     @property
     def scenario(self) -> Scenario:
@@ -115,13 +120,26 @@ def _read_map(map_path: str | Path, crs: str) -> tuple[LaneletMap, LocalFrame, s
     return read_lanelet_map(map_path, crs, frame), frame, crs
 
 
-def _no_junction_message(lmap: LaneletMap) -> str:
-    """Why a map has no junction to simulate at: its drivable and ignored lanelets (by kind)
-    and how drivability was decided."""
-    ignored = ", ".join(f"{k} {n}" for k, n in lmap.ignored_by_kind().items()) or "none"
-    return (f"the routing graph has no junction (no lanelet with several drivable successors "
-            f"or predecessors); drivable lanelets: {len(lmap.lanelets)} ({lmap.rules}), "
-            f"ignored: {ignored}")
+def _road_point(lmap: LaneletMap, frame: LocalFrame, site: tuple[float, float] | None,
+                rng: np.random.Generator) -> tuple[float, float] | None:
+    """(lat, lon) of a road site on a map without junction there: the point of the drivable
+    lanelets' centre lines nearest to ``site`` (None beyond :data:`SITE_RADIUS`), or without a
+    site the middle of a random drivable lanelet (from ``rng``)."""
+    to_ll = transformer(frame.crs, WGS84)
+    if site is None:
+        line = every_metre(lmap.lanelets[int(rng.integers(len(lmap.lanelets)))].centerline(20))
+        xy = line[len(line) // 2]
+    else:
+        e, n = transformer(WGS84, frame.crs).transform(site[1], site[0])
+        at = np.array([e, n]) - np.asarray(frame.origin[:2])
+        pts = np.vstack([every_metre(ll.centerline(20)) for ll in lmap.lanelets])
+        d = np.hypot(*(pts - at).T)
+        if d.min() > SITE_RADIUS:
+            return None
+        xy = pts[int(np.argmin(d))]
+    w = frame.to_world(xy[None])[0]
+    lon, lat = to_ll.transform(w[0], w[1])
+    return float(lat), float(lon)
 
 
 def _first_latlon(text: str) -> tuple[float, float]:
@@ -138,12 +156,6 @@ def _read_text_map(text: str, crs: str, frame: LocalFrame) -> LaneletMap:
         path = Path(tmp) / "map.osm"
         path.write_text(text, encoding="utf-8")
         return read_lanelet_map(path, crs, frame)
-
-
-def _every_metre(xy: np.ndarray) -> np.ndarray:
-    """The polyline (n, 2) resampled about every metre (m, L)."""
-    length = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
-    return resample_polyline(xy, max(2, int(length) + 1))
 
 
 def _aim(xy: np.ndarray, aim: float, road: np.ndarray, cfg: SimConfig) -> tuple[float, int]:
@@ -183,7 +195,7 @@ def _place_mast(rng: np.random.Generator, cfg: SimConfig, net: RoadNetwork, area
     dist = np.linalg.norm(edge - target, axis=1)
     blocked = [ll.polygon() for ll in lmap.lanelets]
     blocked += [a.outline for a in lmap.areas if a.subtype == "building"]
-    road = np.vstack([_every_metre(ll.centerline(50)) for ll in lmap.lanelets])
+    road = np.vstack([every_metre(ll.centerline(50)) for ll in lmap.lanelets])
     places: list[tuple[np.ndarray, float, int]] = []
     for _ in range(400):
         cand = np.flatnonzero(np.abs(dist - rng.uniform(*s.junction_distance)) < 2.0)
@@ -201,7 +213,7 @@ def _place_mast(rng: np.random.Generator, cfg: SimConfig, net: RoadNetwork, area
         if len(places) == MAST_CANDIDATES:
             break
     if not places:
-        raise RuntimeError("no roadside position for the sensor near the junction")
+        raise RuntimeError("no roadside position for the sensor near the site")
     xy, yaw, _ = max(places, key=lambda p: p[2])
     yaw += np.deg2rad(rng.uniform(-1, 1) * s.yaw_jitter_deg)
     return Mounting(xy, float(rng.uniform(*s.mast_height)), float(wrap_angle(yaw)),
@@ -244,8 +256,12 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
     """Simulate a recording at a junction of the Lanelet2 map ``map_path``.
 
     site: (lat, lon) near which the junction is taken (the nearest one, within
-    :data:`SITE_RADIUS` m, else ValueError); None: a random one
-    (from ``seed``) of those with the most movements. The world CRS is ``config.site.crs`` when
+    :data:`SITE_RADIUS` m); None: a random one (from ``seed``) of those with the most
+    movements. Where the map has no junction (a race track, a campus road), or none within
+    :data:`SITE_RADIUS` m of ``site``, the sensor watches a road instead: the point of the
+    drivable lanelets nearest to ``site`` (none within :data:`SITE_RADIUS`: ValueError), or the
+    middle of a random drivable lanelet, whose lanelets there are driven along the routing
+    graph (:func:`fgloc.sim.real_roads.road_site`). The world CRS is ``config.site.crs`` when
     the map lies in its UTM zone, else WGS 84 / UTM of the map's zone. ``crop_radius`` (m): the
     part of the map kept around the junction; ``route_reach`` (m): lead-in and lead-out of every
     route. Deterministic in (map, seed, site, duration, vehicles, config).
@@ -258,21 +274,25 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
     map_path = Path(map_path)
     whole, whole_frame, crs = _read_map(map_path, cfg.site.crs)
     junctions = _junctions_in(whole, whole_frame)
-    if not junctions:
-        raise ValueError(_no_junction_message(whole))
+    kind = "junction"
     if site is not None:
         d = [np.hypot(j.centre[0] - site[0], (j.centre[1] - site[1]) * np.cos(np.radians(
-            site[0]))) for j in junctions]
-        chosen = junctions[int(np.argmin(d))]
-        if min(d) * 111_195.0 > SITE_RADIUS:
-            raise ValueError(f"no junction of the routing graph within {SITE_RADIUS:g} m of the "
-                             f"site ({site[0]:.6f}, {site[1]:.6f}); the nearest is at "
-                             f"({chosen.centre[0]:.6f}, {chosen.centre[1]:.6f}), "
-                             f"{min(d) * 111_195.0:.0f} m away")
-    else:
+            site[0]))) * 111_195.0 for j in junctions]
+        if junctions and min(d) <= SITE_RADIUS:
+            jlat, jlon = (float(v) for v in junctions[int(np.argmin(d))].centre)
+        else:
+            point = _road_point(whole, whole_frame, site, rng["junction"])
+            if point is None:
+                raise ValueError(f"no junction of the routing graph and no drivable lanelet "
+                                 f"within {SITE_RADIUS:g} m of the site ({site[0]:.6f}, "
+                                 f"{site[1]:.6f})" + (f"; the nearest junction is "
+                                                      f"{min(d):.0f} m away" if d else ""))
+            (jlat, jlon), kind = point, "road"
+    elif junctions:
         top = [j for j in junctions if len(j.movements) == len(junctions[0].movements)]
-        chosen = top[int(rng["junction"].integers(len(top)))]
-    jlat, jlon = (float(v) for v in chosen.centre)
+        jlat, jlon = (float(v) for v in top[int(rng["junction"].integers(len(top)))].centre)
+    else:
+        (jlat, jlon), kind = _road_point(whole, whole_frame, None, rng["junction"]), "road"
     notice = ("Crop of " + map_path.name + f" ({crop_radius:g} m around lat {jlat:.6f}, lon "
               f"{jlon:.6f}; ele tags removed) written by the fgloc map simulator; see the LICENSE "
               "files beside this map for its copyright and licence.")
@@ -288,10 +308,11 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
     directed_all = directed_lanelets(lmap0)
     directed = directed_all.map
     centre0 = np.array([je, jn]) - np.asarray(frame0.origin[:2])
-    junction = next((j for j in find_junctions(directed)
-                     if np.linalg.norm(j.centre - centre0) < 30.0), None)
+    junction = road_site(directed, centre0) if kind == "road" else next(
+        (j for j in find_junctions(directed) if np.linalg.norm(j.centre - centre0) < 30.0), None)
     if junction is None:
-        raise RuntimeError(f"the junction at lat {jlat:.6f}, lon {jlon:.6f} fell apart in the crop")
+        raise RuntimeError(f"the {kind} site at lat {jlat:.6f}, lon {jlon:.6f} fell apart in the "
+                           "crop")
     by_id = {ll.id: ll for ll in directed.lanelets}
     routes = [[by_id[i] for i in r] for r in junction_routes(directed, junction, route_reach)]
     rm = cfg.real_map
@@ -332,4 +353,4 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
                                map_users(lmap, centre, route_reach, cfg))
     notices = {p.name: p.read_text(encoding="utf-8")
                for p in sorted(map_path.parent.glob("LICENSE*")) if p.is_file()}
-    return MapSimulation(result, text, centre, notices)
+    return MapSimulation(result, text, centre, notices, kind)

@@ -133,6 +133,24 @@ def _extend(start: int, graph: dict[int, tuple[int, ...]], by_id: dict[int, Lane
     return out
 
 
+def road_site(lmap: LaneletMap, centre: np.ndarray, radius: float = 10.0) -> Junction | None:
+    """A site on a road where the map has no junction: ``centre`` (2,) m in L and, as its
+    movements, every lanelet of ``lmap`` whose centre line passes within ``radius`` m of it,
+    each alone (:func:`junction_routes` extends them along the routing graph). Give it the map
+    of :func:`directed_lanelets` for both directions of two-way lanelets. None when no lanelet
+    passes there."""
+    near = [ll.id for ll in lmap.lanelets
+            if np.hypot(*(every_metre(ll.centerline(20)) - centre).T).min() <= radius]
+    return Junction(np.asarray(centre, dtype=float), [[i] for i in sorted(near)]) if near \
+        else None
+
+
+def every_metre(xy: np.ndarray) -> np.ndarray:
+    """The polyline (n, 2) resampled about every metre (m, L)."""
+    length = float(np.linalg.norm(np.diff(xy, axis=0), axis=1).sum())
+    return resample_polyline(xy, max(2, int(length) + 1))
+
+
 def junction_routes(lmap: LaneletMap, junction: Junction, reach: float) -> list[list[int]]:
     """One route (lanelet ids in driving order) per movement of the junction: the movement
     plus about ``reach`` m of its predecessors and successors (straightest at forks)."""
