@@ -355,12 +355,12 @@ def _load_with_lanelet2(
     origin's UTM zone; fgloc takes the coordinates from the XML).
 
     A lanelet that references a regulatory element lanelet2 cannot build (a type it does not
-    implement, e.g. Autoware's ``detection_area``, or a missing relation) is read without that
-    reference (logged; fgloc uses no regulatory element). A lanelet lanelet2 rejects (or with a
-    bound of fewer than 2 nodes) is skipped with a warning; when its tags make it drivable
-    (:func:`passable_by_tags`) it is listed in ``_Raw.skipped`` (the result's warnings say
-    so); no drivable lanelet left is fatal. Errors about other primitives (areas, regulatory
-    elements) are logged.
+    implement, e.g. Autoware's ``detection_area``; lanelet2 then rejects the lanelet) is read
+    without that reference (logged; fgloc uses no regulatory element). A lanelet lanelet2
+    rejects (or with a bound of fewer than 2 nodes) is skipped with a warning; when its tags
+    make it drivable (:func:`passable_by_tags`) it is listed in ``_Raw.skipped`` (the
+    result's warnings say so); no drivable lanelet left is fatal. Errors about other
+    primitives (areas, regulatory elements) are logged.
     """
     if not len(nodes.ids):
         raise InputError(path, "the map holds no nodes")
@@ -434,7 +434,7 @@ def _regulatory_failures(errors: list[str], lanelet_ids: dict[int, dict[str, str
                          ) -> dict[int, set[int]]:
     """Lanelet id -> the ids of non-lanelet relations it failed to get (lanelet2's "Error
     parsing primitive L: Failed to get id R from map": R is a regulatory element lanelet2
-    could not build or that the map lacks)."""
+    could not build; a reference to a relation the map lacks lanelet2 only logs)."""
     out: dict[int, set[int]] = {}
     for msg in errors:
         m = _PRIMITIVE_ID.search(msg)
