@@ -209,8 +209,11 @@ def cmd_localize(args: argparse.Namespace) -> int:
     print("wrote " + ", ".join(str(p) for p in written))
     if res.status == "ambiguous":
         tied = sum(bool(m["tied"]) for m in res.modes)
-        print(f"fgloc: warning: ambiguous pose: {tied} modes could not be told "
-              "apart (result.json 'modes'; the covariance covers them)", file=sys.stderr)
+        why = next((w for w in res.warnings if "ambiguous pose" in w), None)
+        if tied > 1 or why is None:
+            why = (f"ambiguous pose: {tied} modes could not be told apart (result.json 'modes'; "
+                   "the covariance covers them)")
+        print(f"fgloc: warning: {why}", file=sys.stderr)   # one mode: not pinned (its reason)
         return EXIT_AMBIGUOUS
     return 0
 
