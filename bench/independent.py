@@ -1,0 +1,177 @@
+"""Every method on scenarios of the independent generator (bench/independent_gen.py).
+
+fgloc's own simulator is a test instrument written alongside the method; this benchmark
+localizes scenarios it did not make. Per (junction, seed, setting) the generator writes a
+scenario directory (into a temporary directory) on the Lanelet2 example map (BSD-3-Clause,
+FZI; its licence file is copied with it), fgloc loads it like any user's
+(:func:`fgloc.io.load_scenario`) and localizes it with every method
+(:func:`bench.sparse.localize_each`: :func:`fgloc.pipeline.localize_many` with the defaults; a
+method that raises :class:`fgloc.errors.LocalizationError` is a "no pose" run). Per run and
+method: the status, the 2D and yaw errors against the file's ground truth, the NEES of
+(x, y, yaw) against the reported covariance and the signed height error dz; then per setting
+and method the table :func:`table`.
+
+The settings (:data:`SETTINGS`): "static" the generator's defaults (static clutter: kerbs and
+poles, 12 vehicles per minute), "none" no clutter, "uniform" uniform false alarms instead,
+"3-per-min" the defaults at 3 vehicles per minute.
+
+    OMP_NUM_THREADS=1 python -m bench.independent                    # the report's full set
+    OMP_NUM_THREADS=1 python -m bench.independent --junctions 1 --seeds 1 --settings static
+
+docs/benchmarks.md's table comes from ``python -m bench.report --only independent``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+import numpy as np
+
+from bench.independent_gen import generate
+from bench.real_map import DEFAULT_MAP
+from bench.sparse import METHODS, NO_POSE, localize_each
+from fgloc.config import load_config
+from fgloc.evaluation.pose import pose_error, pose_error_vector
+from fgloc.io import load_scenario
+from fgloc.result import LocalizationResult
+
+#: junction number -> site (lat, lon, deg): the six largest junctions of the example map's
+#: routing graph, in bench/real_map.py's order, to 1e-5 deg
+JUNCTIONS: dict[int, tuple[float, float]] = {
+    1: (49.00976, 8.42350), 2: (49.01089, 8.42329), 3: (49.00519, 8.41563),
+    4: (49.00919, 8.42566), 5: (49.00377, 8.42435), 6: (49.00306, 8.42445)}
+#: setting name -> the generator's keyword arguments (:func:`bench.independent_gen.generate`)
+SETTINGS: dict[str, dict[str, object]] = {
+    "static": {}, "none": {"clutter": "none"}, "uniform": {"clutter": "uniform"},
+    "3-per-min": {"vehicles_per_minute": 3.0}}
+
+#: one run's figures (see :func:`rows_of`)
+Row = dict[str, object]
+
+
+def runs_of(groups: list[dict[str, list]]) -> list[tuple[int, int, str]]:
+    """(junction, seed, setting) of every run of ``groups`` (each {"junctions", "seeds",
+    "settings"}: their product), in order: group, setting, junction, seed."""
+    return [(j, s, setting) for g in groups for setting in g["settings"]
+            for j in g["junctions"] for s in g["seeds"]]
+
+
+def rows_of(res: dict[str, LocalizationResult | None], truth: np.ndarray, key: Row
+            ) -> list[Row]:
+    """One row per method of ``res`` (None: no pose) against the true pose ``truth`` (4x4,
+    S -> L): ``key`` plus status, modes, 2D error (m), |yaw error| (deg), NEES of (x, y,
+    yaw) against the result's covariance (None without one), dz = estimated minus true
+    height (m)."""
+    rows = []
+    for m, r in res.items():
+        row: Row = {**key, "method": m, "status": NO_POSE, "n_modes": 0, "d2d": None,
+                    "dyaw_deg": None, "nees": None, "dz": None}
+        if r is not None:
+            err, e = pose_error(r.T_local, truth), pose_error_vector(r.T_local, truth)
+            nees = None if r.covariance is None else float(e @ np.linalg.solve(r.covariance, e))
+            row.update(status=r.status, n_modes=len(r.modes), d2d=err.d2d,
+                       dyaw_deg=err.dyaw_deg, nees=nees, dz=float(r.T_local[2, 3] - truth[2, 3]))
+        rows.append(row)
+    return rows
+
+
+def run_one(junction: int, seed: int, setting: str, duration: float,
+            config: Path | None = None, map_path: Path = DEFAULT_MAP) -> list[Row]:
+    """Generate the scenario (``duration`` s at junction ``junction``, ``seed``, ``setting``),
+    localize it with every method (fgloc config TOML ``config``, None: the defaults) and
+    score it: :func:`rows_of` with the vehicle count and the wall time of all methods
+    together (s)."""
+    with tempfile.TemporaryDirectory(prefix="fgloc-independent-") as tmp:
+        out = generate(map_path, JUNCTIONS[junction], seed, Path(tmp) / "scenario",
+                       duration=duration, **SETTINGS[setting])
+        scn = load_scenario(out)
+        t0 = time.perf_counter()
+        res = localize_each(scn, load_config(config))
+        seconds = time.perf_counter() - t0
+    key: Row = {"setting": setting, "junction": junction, "seed": seed,
+                "vehicles": len(scn.truth.tracks), "seconds": round(seconds, 1)}
+    rows = rows_of(res, scn.truth.sensor_pose, key)
+    print(f"independent junction {junction} seed {seed} {setting}: " + "; ".join(
+        f"{r['method']} {r['status']}" + ("" if r["d2d"] is None else
+                                         f" {r['d2d']:.3f} m {r['dyaw_deg']:.3f} deg")
+        for r in rows) + f"  [{seconds:.0f} s]", flush=True)
+    return rows
+
+
+def run(groups: list[dict[str, list]], duration: float, config: Path | None = None,
+        pool_map: Callable[..., Iterable[list[Row]]] | None = None) -> list[Row]:
+    """The rows of :func:`run_one` for every run of ``groups`` (:func:`runs_of`).
+    ``pool_map(fn, items)`` runs ``fn(*item)`` per item in order (e.g. in worker processes;
+    default: here, one after the other)."""
+    items = [(j, s, setting, duration, config) for j, s, setting in runs_of(groups)]
+    done = (pool_map or (lambda fn, its: (fn(*it) for it in its)))(run_one, items)
+    return [row for rows in done for row in rows]
+
+
+def _mean_worst(values: list[float], fmt: str = "{:.3f}") -> str:
+    return (f"{fmt.format(np.mean(values))} / {fmt.format(max(values))}" if values
+            else "- / -")
+
+
+def table(rows: list[Row]) -> list[str]:
+    """Markdown: per setting and method the runs, how many resolved, the 2D and |yaw| errors
+    (mean / worst over the runs with a pose), the mean NEES over the resolved runs (3 is
+    consistent), dz (signed mean / worst magnitude) and the runs without a pose."""
+    lines = ["| setting | method | runs | resolved | 2D m (mean / worst) | abs dyaw deg "
+             "(mean / worst) | NEES resolved (mean) | dz m (mean / worst abs) | no pose |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
+    settings = [s for s in SETTINGS if any(r["setting"] == s for r in rows)]
+    for setting in settings:
+        for m in METHODS:
+            rs = [r for r in rows if (r["setting"], r["method"]) == (setting, m)]
+            posed = [r for r in rs if r["status"] != NO_POSE]
+            nees = [r["nees"] for r in rs if r["status"] == "resolved" and r["nees"] is not None]
+            dz = [r["dz"] for r in posed]
+            lines.append(
+                f"| {setting} | {m} | {len(rs)} | {sum(r['status'] == 'resolved' for r in rs)} | "
+                f"{_mean_worst([r['d2d'] for r in posed])} | "
+                f"{_mean_worst([r['dyaw_deg'] for r in posed])} | "
+                f"{f'{np.mean(nees):.2f}' if nees else '-'} | "
+                + (f"{np.mean(dz):+.3f} / {max(abs(d) for d in dz):.3f}" if dz else "- / -")
+                + f" | {len(rs) - len(posed)} |")
+    return lines
+
+
+def setting_sentence(groups: list[dict[str, list]], duration: float) -> str:
+    """What ``groups`` ran: the map, the runs per group, the scenario length."""
+    parts = [f"junctions {g['junctions']} x seeds {g['seeds']} in {', '.join(g['settings'])}"
+             for g in groups]
+    n = len(runs_of(groups))
+    return (f"`{DEFAULT_MAP.name}`, {n} scenario{'s' * (n != 1)}: {'; '.join(parts)}; "
+            f"{duration:g} s each")
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--junctions", type=int, nargs="+", choices=list(JUNCTIONS), default=None,
+                    help="with --seeds and --settings: one group instead of the full set")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[1])
+    ap.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=["static"])
+    ap.add_argument("--duration", type=float, default=60.0, help="scenario length (s)")
+    ap.add_argument("--config", type=Path, default=None,
+                    help="fgloc config TOML (default: all defaults)")
+    ap.add_argument("--json", type=Path, default=None, help="also write every row here")
+    args = ap.parse_args()
+    from bench.report import BY_NAME
+
+    groups = BY_NAME["independent"].full["groups"] if args.junctions is None else [
+        {"junctions": args.junctions, "seeds": args.seeds, "settings": args.settings}]
+    rows = run(groups, args.duration, args.config)
+    if args.json:
+        args.json.write_text(json.dumps(rows, indent=1))
+    print(setting_sentence(groups, args.duration) + "\n\n" + "\n".join(table(rows)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

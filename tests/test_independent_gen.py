@@ -1,0 +1,93 @@
+"""bench/independent_gen.py, the scenario generator written without fgloc's code: it imports
+nothing of the project, and what it writes fgloc reads as a scenario whose ground truth holds
+together (vehicles on drivable lanelets, radar points on the true vehicles).
+
+Uses a crop of the Lanelet2 example map (tests/data/lanelet2_example_crop.osm, BSD-3-Clause,
+copyright 2018 FZI, see tests/data/LICENSE-lanelet2_mapping_example) around its junction 3.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import numpy as np
+import pytest
+from matplotlib.path import Path as Polygon
+
+from bench.independent_gen import generate
+from fgloc.io import load_scenario
+from fgloc.scenario import Scenario
+
+ROOT = Path(__file__).resolve().parent.parent
+GENERATOR = ROOT / "bench" / "independent_gen.py"
+DATA = Path(__file__).parent / "data"
+CROP = DATA / "lanelet2_example_crop.osm"
+#: junction 3 of the example map (lat, lon), inside the crop
+JUNCTION_3 = (49.00519, 8.41563)
+
+
+def imported_modules(path: Path) -> set[str]:
+    """Every module an ``import`` / ``from ... import`` anywhere in ``path`` names."""
+    out: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            out |= {a.name for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            out.add("." * node.level + (node.module or ""))
+    return out
+
+
+def test_generator_imports_nothing_of_the_project():
+    modules = imported_modules(GENERATOR)
+    assert {"numpy", "lanelet2", "laspy", "pyproj"} <= modules  # the parse found its imports
+    tops = {m.split(".")[0] for m in modules}
+    assert not tops & {"fgloc", "factors", "bench"}, sorted(modules)
+    assert not any(m.startswith(".") for m in modules), sorted(modules)
+
+
+@pytest.fixture(scope="module")
+def scenario(tmp_path_factory) -> Scenario:
+    out = generate(CROP, JUNCTION_3, 1, tmp_path_factory.mktemp("independent") / "j3",
+                   vehicles_per_minute=30.0, duration=10.0)
+    assert (out / "LICENSE-lanelet2_mapping_example").read_text() == (
+        DATA / "LICENSE-lanelet2_mapping_example").read_text()
+    return load_scenario(out)
+
+
+def test_truth_vehicles_drive_on_drivable_lanelets(scenario):
+    assert scenario.truth is not None and len(scenario.truth.tracks) >= 5
+    states = np.concatenate([tr.states for tr in scenario.truth.tracks])
+    inside = np.zeros(len(states), bool)
+    for ll in scenario.lanelets.lanelets:
+        inside |= Polygon(ll.polygon()).contains_points(states[:, 1:3])
+    assert inside.mean() >= 0.95
+
+
+def footprint_distance(p: np.ndarray, state: np.ndarray, length: float, width: float
+                       ) -> np.ndarray:
+    """(n,) distance (m) in the plane of the points ``p`` (n, 2) to the footprint of a box
+    ``length`` x ``width`` at the states (n, >= 4: t, x, y, yaw); 0 inside."""
+    c, s = np.cos(state[:, 3]), np.sin(state[:, 3])
+    dx, dy = p[:, 0] - state[:, 1], p[:, 1] - state[:, 2]
+    along, across = c * dx + s * dy, -s * dx + c * dy
+    return np.hypot(np.maximum(np.abs(along) - length / 2, 0.0),
+                    np.maximum(np.abs(across) - width / 2, 0.0))
+
+
+def test_moving_radar_points_lie_on_true_vehicles(scenario):
+    """The detections with |Doppler| >= 0.5 m/s (the static clutter's Doppler noise is
+    0.05 m/s), placed in L with the true pose, lie within 1 m of a true vehicle's footprint at
+    their frame's time (the state stamped with the same t)."""
+    radar, truth = scenario.radar, scenario.truth
+    T = truth.sensor_pose
+    p = radar.xyz @ T[:3, :3].T + T[:3, 3]
+    nearest = np.full(len(radar), np.inf)
+    for tr in truth.tracks:
+        k = np.clip(np.searchsorted(tr.states[:, 0], radar.t - 1e-6), 0, len(tr.states) - 1)
+        same_time = np.abs(tr.states[k, 0] - radar.t) < 1e-3
+        d = footprint_distance(p[:, :2], tr.states[k], tr.length, tr.width)
+        nearest = np.minimum(nearest, np.where(same_time, d, np.inf))
+    moving = np.abs(radar.doppler) >= 0.5
+    assert moving.mean() >= 0.5
+    assert np.mean(nearest[moving] <= 1.0) >= 0.95
