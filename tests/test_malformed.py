@@ -175,8 +175,6 @@ CASES: list[Case] = [
          ("not valid XML",)),
     Case("map without lanelets", lambda d: (d / "map.osm").write_text(
         '<?xml version="1.0"?>\n<osm version="0.6"></osm>\n'), "map.osm", ("no lanelet",)),
-    Case("map single-point bound", lambda d: _edit(d / "map.osm", _single_point_bound),
-         "map.osm", ("relation", "2 nodes")),
     Case("map truncated XML", lambda d: _truncate(d / "map.osm", 0.6), "map.osm",
          ("not valid XML", "row")),
     Case("map node without lat", lambda d: _edit(
@@ -237,6 +235,25 @@ CASES: list[Case] = [
          ("not found",)),
     Case("no radar file", lambda d: (d / "radar.csv").unlink(), "radar.csv", ("not found",)),
 ]
+
+
+def test_a_road_with_a_single_point_bound_is_skipped_and_named(base: Path, tmp_path: Path,
+                                                                capsys) -> None:
+    """A road lanelet lanelet2 rejects (a bound cut to one node) no longer stops the run: a
+    real map with a few broken lanelets stays usable. `fgloc info` counts it as skipped and
+    names it; localize runs and names it in result.json's warnings. (A map with no drivable
+    lanelet left is still exit 2: tests/test_io.py.)"""
+    d = tmp_path / "scn"
+    shutil.copytree(base, d)
+    _edit(d / "map.osm", _single_point_bound)
+    assert main(["-q", "info", str(d)]) == 0
+    m = re.search(r"skipped\s+1 roads lanelet2 rejected \(relation (-?\d+)\)",
+                  capsys.readouterr().out)
+    assert m
+    out = tmp_path / "out"
+    assert main(["-q", "localize", str(d), "--out", str(out), "--method", "icp"]) in (0, 3)
+    doc = json.loads((out / "result.json").read_text())
+    assert any(f"relation {m[1]}" in w and "2 nodes" in w for w in doc["warnings"])
 
 
 @pytest.mark.parametrize("case", CASES, ids=[c.name for c in CASES])
