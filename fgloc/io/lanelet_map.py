@@ -440,7 +440,7 @@ def _regulatory_failures(errors: list[str], lanelet_ids: dict[int, dict[str, str
         m = _PRIMITIVE_ID.search(msg)
         if m is None or int(m.group(1)) not in lanelet_ids:
             continue
-        refs = {int(r) for r in _FAILED_ID.findall(msg)} - set(lanelet_ids)
+        refs = {int(r) for r in _FAILED_ID.findall(msg)} - lanelet_ids.keys()
         if refs:
             out.setdefault(int(m.group(1)), set()).update(refs)
     return out
