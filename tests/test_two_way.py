@@ -91,7 +91,7 @@ def _scene(lanelets: list[Lanelet], labels: dict[int, int]) -> tuple[object, Tar
 def test_lane_against_a_turning_lanelet_takes_the_mirrored_label() -> None:
     turn = _arc(7, 12.0, 7.0, "no")
     scn, target = _scene([turn], {7: LEFT})
-    xy, label, _, _ = lane_centre_points(scn, target, 0.5)
+    xy, label, _, _, _ = lane_centre_points(scn, target, 0.5)
     r = np.hypot(xy[:, 0], xy[:, 1])
     # keeping right, the lanelet's own direction (a left turn) takes the outer half (radius
     # 12 + 1.75), the other direction the inner half, turning right

@@ -66,6 +66,18 @@ class SicpConfig:
     """Lower bound (m) of the standard deviation of a track's common offset from its lane in
     the track covariance (:func:`fgloc.registration.sicp.track_covariance`; the joint's
     ``min_sigma`` likewise): with a handful of tracks the offsets' spread is no estimate."""
+    consider_side_bias_sigma: float = 0.1
+    """Standard deviation (m) of a constant shift of every matched point towards the sensor
+    (the visible-side offset's or the tracker's error, shared by all vehicles) that the track
+    covariance *considers* (adds the pose's sensitivity to it, Schmidt; not estimated): where
+    every lane passes on one side of the sensor it moves the pose across the road. The
+    joint's ``consider_side_bias_sigma`` likewise. 0 = off."""
+    consider_lane_bias_sigma: float = 0.1
+    """Standard deviation (m) of a lateral shift shared by the matched points of one lane
+    (a centre line drawn off in the map, the drivers of one lane keeping to one side of it),
+    one per lane, independent, considered in the track covariance like
+    ``consider_side_bias_sigma``: the vehicles of one lane share it, so their number does not
+    shrink it. The joint's ``consider_lane_bias_sigma`` likewise. 0 = off."""
     direction_gate_deg: float = 90.0
     """When the source points and the target carry driving directions (filter-sicp: the tracks'
     headings and the lanes' directions), a source point is matched only to target points whose
@@ -76,6 +88,11 @@ class SicpConfig:
     """Half-width (m) of the square target neighbourhood whose spread shapes each
     correspondence's weight matrix in the information (so sliding along a road shows as weak);
     0 = isotropic (plain point-to-point information)."""
+
+    def __post_init__(self) -> None:
+        for name in ("consider_side_bias_sigma", "consider_lane_bias_sigma"):
+            if getattr(self, name) < 0.0:
+                raise ValueError(f"{name} must be >= 0 (m), got {getattr(self, name)}")
 
 
 #: What the source cloud of filter-sicp is made of (see :mod:`fgloc.registration.source`).

@@ -64,12 +64,13 @@ def lane_centre_points(
     scn: Scenario, target: TargetCloud, step: float, towards: np.ndarray | None = None,
     offset: float | VisibleSide = 0.0, two_way_min_width: float = TWO_WAY_MIN_WIDTH,
     centre: str = "resampled",
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(K, 2) samples (m, in L) of the lane centre lines of the lanelets in ``target``
     (:meth:`LaneCentres.build`: one per direction on a wide two-way lanelet), every about
     ``step`` m, the (K,) label code of each (its lanelet's label, mirrored on a lane driven
     against the lanelet's direction), the (K, 2) unit driving direction of each and the (K,)
-    ambiguity (m) of its lanelet's centre line there (:func:`fgloc.scenario.centre_ambiguity`).
+    ambiguity (m) of its lanelet's centre line there (:func:`fgloc.scenario.centre_ambiguity`)
+    and the (K,) lane id of each (:attr:`LaneCentres.lane`).
     With ``towards`` (2,) m, every sample is shifted ``offset`` m sideways towards that point
     (the sensor); a :class:`VisibleSide` offset shifts each sample by its value at the
     sample's aspect seen from there. ``two_way_min_width`` (m) sets the lane model of two-way
@@ -84,7 +85,7 @@ def lane_centre_points(
     xy = lanes.xy if towards is None else lanes.towards(towards, offset).xy
     direction = np.column_stack([lanes.normal[:, 1], -lanes.normal[:, 0]])
     return xy, lane_labels(target, lanelets, lanes), direction, centre_ambiguity(
-        lanes.centre_offset)
+        lanes.centre_offset), lanes.lane
 
 
 def lane_labels(target: TargetCloud, lanelets: list[Lanelet], lanes: LaneCentres) -> np.ndarray:
@@ -114,10 +115,10 @@ def fine_targets(
     if kind == "visible-sides":
         towards = sensor_xy
         offset = cfg.coarse.visible_side_offset if side is None else side
-    xy, label, direction, ambiguity = lane_centre_points(
+    xy, label, direction, ambiguity, lane = lane_centre_points(
         scn, target, step, towards, offset, width, cfg.map.centre_line)
     return SemanticTargets.build(xy, label, direction,
-                                 centre_weights(ambiguity, cfg.fine.centre_weight_sigma))
+                                 centre_weights(ambiguity, cfg.fine.centre_weight_sigma), lane)
 
 
 def centre_weights(ambiguity: np.ndarray, sigma: float) -> np.ndarray | None:
@@ -299,8 +300,8 @@ def register_tracks(
             res = sicp(src.xy, src.label, targets, None, start, scfg,
                        weights=src.weight, source_direction=src.direction)
             T_local, z_std = placed_where_ended(coarse, se2_to_se3(res.T) @ coarse.T_coarse)
-            cov = sensor_covariance(track_covariance(res, src.xy, src.track_id, targets, scfg),
-                                    res.T, sensor_c, tilt)
+            cov = sensor_covariance(track_covariance(res, src.xy, src.track_id, targets, scfg,
+                                                     sensor_c), res.T, sensor_c, tilt)
             if src_constant is not None:
                 spread, d = model_spread(scn, cfg, target, coarse, start, lanes, src_constant,
                                          res, scfg)

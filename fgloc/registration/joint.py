@@ -61,7 +61,8 @@ marginal covariance of ``T`` at the solution (the inverse of its Schur complemen
 "track-robust"``) is the cluster-robust sandwich over tracks, never below the model one
 (:func:`fgloc.registration.sicp.track_robust_covariance`); both add the effect of a
 constant side bias and of one lateral bias per lanelet that are considered, not estimated
-(``consider_side_bias_sigma``, ``consider_lane_bias_sigma``, :func:`consider_covariance`),
+(``consider_side_bias_sigma``, ``consider_lane_bias_sigma``,
+:func:`fgloc.registration.considered.consider_covariance`),
 and are mapped to the sensor's (x, y, yaw) in L. Their
 calibration (NEES) is measured in docs/experiments.md.
 
@@ -91,6 +92,7 @@ from fgloc.geo import se2, se2_params, se2_to_se3, transform_points, wrap_angle
 from fgloc.labels import NAMES
 from fgloc.map.lane_models import min_width
 from fgloc.progress import Timer
+from fgloc.registration.considered import consider_covariance, lane_columns, side_sign
 from fgloc.registration.joint_config import JointConfig, check_joint_config
 from fgloc.registration.joint_solver import (
     PointSet,
@@ -420,7 +422,7 @@ def centre_shift(lines: LaneLines, index: np.ndarray, normal: np.ndarray) -> np.
 def _side_columns(target: np.ndarray, normal: np.ndarray, sensor_l: np.ndarray) -> np.ndarray:
     """(P, 2) coefficients of a constant (m) and a range-proportional (m per 100 m) side bias
     of each point (:func:`side_basis`)."""
-    sign = np.where(np.einsum("pi,pi->p", sensor_l - target, normal) >= 0.0, 1.0, -1.0)
+    sign = side_sign(target, normal, sensor_l)
     hm = np.linalg.norm(target - sensor_l, axis=1) / 100.0
     return np.column_stack([sign, sign * hm])
 
@@ -446,12 +448,9 @@ def considered_columns(target: np.ndarray, normal: np.ndarray, index: np.ndarray
         cols.append(_side_columns(target, normal, sensor_l)[:, :1])
         sd.append(jc.consider_side_bias_sigma)
     if jc.consider_lane_bias_sigma > 0.0 and lines.lane is not None:
-        ok = np.flatnonzero(index >= 0)
-        lanes, which = np.unique(lines.lane[index[ok]], return_inverse=True)
-        one_hot = np.zeros((len(index), len(lanes)))
-        one_hot[ok, which] = 1.0
+        one_hot = lane_columns(np.where(index >= 0, lines.lane[index], -1))
         cols.append(one_hot)
-        sd += [jc.consider_lane_bias_sigma] * len(lanes)
+        sd += [jc.consider_lane_bias_sigma] * one_hot.shape[1]
     return np.concatenate(cols, axis=1), np.array(sd)
 
 
@@ -467,21 +466,6 @@ def with_considered_biases(pts: PointSet, pri: Priors, glob: np.ndarray, columns
             Priors(np.append(pri.pose_mean, np.zeros(C)),
                    np.append(pri.pose_w, np.full(C, CONSIDERED_PRIOR_W)), pri.offset_w),
             np.append(glob, np.zeros(C)))
-
-
-def consider_covariance(info: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    """(G, G) covariance added to the global parameters' by C biases that are *considered*,
-    not estimated (Schmidt): info (G + C, G + C) their reduced information augmented by the
-    biases last (:func:`with_considered_biases`), the biases independent, ``c_j ~ N(0,
-    sigma_j^2)`` m. The estimate moves by ``K c``, ``K = -S_ee^-1 S_ec`` (G, C), so ``K
-    diag(sigma^2) K^T`` is added. Where the geometry tells a bias from the pose (lanes on
-    both sides of the sensor, for the constant one) its column of ``K`` is small; where it
-    cannot (every lane on one side, a T-junction) the pose's uncertainty across the road grows
-    by about its sigma."""
-    sigma = np.atleast_1d(np.asarray(sigma, dtype=float))
-    G = len(info) - len(sigma)
-    K = -np.linalg.solve(info[:G, :G], info[:G, G:])
-    return (K * sigma**2) @ K.T
 
 
 def _point_set(fp: FramePoints, pad: tuple[np.ndarray, np.ndarray], index: np.ndarray,

@@ -73,6 +73,7 @@ from scipy.spatial import cKDTree
 from fgloc.geo import se2, transform_points
 from fgloc.labels import NAMES
 from fgloc.registration.config import KERNELS, MODES, SicpConfig
+from fgloc.registration.considered import lane_columns, least_squares_consider, side_sign
 
 #: Key of the KD-tree over all target points (mode "none").
 ALL: int = -1
@@ -92,14 +93,17 @@ class SemanticTargets:
     (M, 2) unit driving directions in the target frame (lanes: a source point with a direction
     is then matched to a lane driven its way, :func:`sicp`). weight: None, or (M,) weights in
     [0, 1] that multiply the alignment weight of every source point matched to each target
-    point (lanes: how sure the map is of where the lane lies there). Reuse one object across
-    :func:`sicp` calls against the same target to build its trees only once.
+    point (lanes: how sure the map is of where the lane lies there). lane: None, or (M,) int
+    id of the lane each target point lies on (lanes: :attr:`LaneCentres.lane`), for the
+    per-lane bias :func:`track_covariance` considers. Reuse one object across :func:`sicp`
+    calls against the same target to build its trees only once.
     """
 
     xy: np.ndarray
     label: np.ndarray
     direction: np.ndarray | None = None
     weight: np.ndarray | None = None
+    lane: np.ndarray | None = None
     _trees: dict[int, tuple[np.ndarray, cKDTree]] = field(
         default_factory=dict, init=False, repr=False
     )
@@ -109,9 +113,11 @@ class SemanticTargets:
 
     @classmethod
     def build(cls, xy: np.ndarray, label: np.ndarray, direction: np.ndarray | None = None,
-              weight: np.ndarray | None = None) -> SemanticTargets:
+              weight: np.ndarray | None = None, lane: np.ndarray | None = None
+              ) -> SemanticTargets:
         """Validate and wrap target points (M, 2), labels (M,), optional unit driving
-        directions (M, 2) and optional weights (M,) in [0, 1]; trees come lazily."""
+        directions (M, 2), optional weights (M,) in [0, 1] and optional lane ids (M,); trees
+        come lazily."""
         xy = np.asarray(xy, dtype=np.float64)
         label = np.asarray(label, dtype=np.int64).reshape(-1)
         if xy.ndim != 2 or xy.shape[1] != 2 or xy.shape[0] != label.shape[0]:
@@ -129,7 +135,11 @@ class SemanticTargets:
                         if weight.size and not np.isnan(weight).any() else "NaN values")
                 raise ValueError(f"target weight must be {label.shape} values in [0, 1], got "
                                  f"shape {weight.shape}, {span}")
-        return cls(xy, label, direction, weight)
+        if lane is not None:
+            lane = np.asarray(lane, dtype=np.int64)
+            if lane.shape != label.shape:
+                raise ValueError(f"target lane must be (M,) like target_label, got {lane.shape}")
+        return cls(xy, label, direction, weight, lane)
 
     def count(self, code: int) -> int:
         """Number of target points of label ``code`` (ALL: every point)."""
@@ -620,7 +630,8 @@ def track_robust_covariance(info: np.ndarray, scores: np.ndarray,
 
 
 def track_covariance(res: SicpResult, source_xy: np.ndarray, track: np.ndarray,
-                     targets: SemanticTargets, cfg: SicpConfig) -> np.ndarray | None:
+                     targets: SemanticTargets, cfg: SicpConfig,
+                     sensor_xy: np.ndarray | None = None) -> np.ndarray | None:
     """3x3 covariance of (tx, ty, yaw) of ``res.T`` that counts the evidence per track.
 
     source_xy (N, 2) m and track (N,) the id of the track each source point came from (the
@@ -639,8 +650,12 @@ def track_covariance(res: SicpResult, source_xy: np.ndarray, track: np.ndarray,
     ``H^-1 (c/(c-3) sum_j s_j s_j^T) H^-1`` over the c tracks (``s_j = sum_{i in j} w_i a_i
     r_i``, centred: SICP minimises the point-to-point cost, so they need not sum to zero),
     which counts how far the tracks actually disagree, clipped from below at the model
-    (:func:`clipped_below`). None without target directions, with fewer than 3 matched
-    points or a singular ``H``."""
+    (:func:`clipped_below`). Both ignore errors the tracks share; the biases of
+    :mod:`fgloc.registration.considered` are added to it: a constant shift of every point
+    towards the sensor (``cfg.consider_side_bias_sigma``; needs the sensor's position
+    ``sensor_xy`` (2,) m in the source frame) and one per lane (``cfg.consider_lane_bias_sigma``;
+    needs ``targets.lane``). None without target directions, with fewer than 3 matched points
+    or a singular ``H``."""
     ok = (res.target_index >= 0) & (res.weights > 0.0)
     if targets.direction is None or np.count_nonzero(ok) < 3:
         return None
@@ -670,4 +685,16 @@ def track_covariance(res: SicpResult, source_xy: np.ndarray, track: np.ndarray,
     Hi = np.linalg.inv(H)
     model = sigma2 * Hi + tau2 * Hi @ (u.T @ u) @ Hi
     sandwich = Hi @ (scores.T @ scores) @ Hi * (k / max(k - 3, 1))
-    return clipped_below(sandwich, model)
+    cov = clipped_below(sandwich, model)
+    columns, sd = [np.zeros((len(r), 0))], []
+    if cfg.consider_side_bias_sigma > 0.0 and sensor_xy is not None:
+        sensor = transform_points(T, np.asarray(sensor_xy, float).reshape(1, 2))[0]
+        columns.append(side_sign(targets.xy[idx], n, sensor)[:, None])
+        sd.append(cfg.consider_side_bias_sigma)
+    if cfg.consider_lane_bias_sigma > 0.0 and targets.lane is not None:
+        columns.append(lane_columns(targets.lane[idx]))
+        sd += [cfg.consider_lane_bias_sigma] * columns[-1].shape[1]
+    if not sd:
+        return cov
+    return cov + least_squares_consider(H, w[:, None] * a, np.concatenate(columns, axis=1),
+                                        np.array(sd))

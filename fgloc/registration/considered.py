@@ -1,0 +1,61 @@
+"""Biases a covariance *considers* without estimating them (Schmidt's consider parameters),
+shared by the joint's graph covariance and the SICP track covariance.
+
+A bias ``c_j ~ N(0, sigma_j^2)`` (m) that shifts every point of a group along its line's
+normal moves a least-squares pose estimate by ``K c``; the estimate's covariance grows by
+``K diag(sigma^2) K^T``. Two such biases are considered for lane-line targets:
+
+* a constant side bias of every point towards the sensor (the tracker's or the visible-side
+  offset's error shared by all vehicles): where lanes pass on both sides of the sensor the
+  geometry tells it from the pose, where all lie on one side (a T-junction) it moves the pose
+  across the road by about its sigma;
+* one lateral bias per lane (a centre line drawn off in the map, the drivers of one lane
+  keeping to one side of it, the tracker's bias at that lane's range and aspect): the
+  vehicles of one lane share it, so their number does not shrink it.
+
+Frames: whatever frame the points, normals and sensor position share (L in both callers).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def side_sign(target: np.ndarray, normal: np.ndarray, sensor: np.ndarray) -> np.ndarray:
+    """(P,) +1 where the sensor (2,) lies on the side of each point's line that its unit
+    ``normal`` (P, 2) points to, else -1: a shift of ``sign * c`` along the normal moves the
+    point ``c`` m towards the sensor. target (P, 2): the points on their lines."""
+    return np.where(np.einsum("pi,pi->p", sensor - target, normal) >= 0.0, 1.0, -1.0)
+
+
+def lane_columns(lane: np.ndarray) -> np.ndarray:
+    """(P, L) coefficients of one lateral bias per lane: row p is 1 in the column of point p's
+    lane (``lane`` (P,) lane ids, -1 = unmatched: a zero row), columns in order of the ids."""
+    lane = np.asarray(lane).reshape(-1)
+    ok = np.flatnonzero(lane >= 0)
+    ids, which = np.unique(lane[ok], return_inverse=True)
+    cols = np.zeros((len(lane), len(ids)))
+    cols[ok, which.reshape(-1)] = 1.0
+    return cols
+
+
+def consider_covariance(info: np.ndarray, sigma: np.ndarray) -> np.ndarray:
+    """(G, G) covariance added to the estimated parameters' by C biases that are considered,
+    not estimated: info (G + C, G + C) the information (or any positive multiple of it)
+    augmented by the biases last, the biases independent, ``c_j ~ N(0, sigma_j^2)`` m. The
+    estimate moves by ``K c``, ``K = -S_ee^-1 S_ec`` (G, C), so ``K diag(sigma^2) K^T`` is
+    added; the biases' own block ``S_cc`` is not used."""
+    sigma = np.atleast_1d(np.asarray(sigma, dtype=float))
+    G = len(info) - len(sigma)
+    K = -np.linalg.solve(info[:G, :G], info[:G, G:])
+    return (K * sigma**2) @ K.T
+
+
+def least_squares_consider(H: np.ndarray, wa: np.ndarray, columns: np.ndarray,
+                           sigma: np.ndarray) -> np.ndarray:
+    """:func:`consider_covariance` of a weighted least-squares estimate ``dT = H^-1 sum_i w_i
+    a_i r_i`` (``H = sum_i w_i a_i a_i^T``, G x G) whose residuals ``r_i`` the biases shift by
+    ``columns`` (P, C) times them: ``wa`` (P, G) the rows ``w_i a_i``, sigma (C,) m."""
+    cross = wa.T @ columns
+    info = np.block([[H, cross], [cross.T, np.eye(columns.shape[1])]])
+    return consider_covariance(info, sigma)
