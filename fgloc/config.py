@@ -252,12 +252,24 @@ class CoarseConfig:
     of the two lane models) count as one resolved pose when the covariance covering them
     passes it (the joint's too). Set it to the tolerance you need; ``inf`` =
     never."""
+    consider_side_bias_sigma: float = 0.1
+    """Standard deviation (m) of a constant shift of every lane towards the sensor (the
+    ``visible_side_offset``'s error) that icp's covariance considers on top of the lane-score
+    tie (Schmidt: the lane fit's sensitivity to it; :func:`fgloc.coarse.localize.
+    lane_fit_considered`): where every lane passes on one side of the sensor it moves the pose
+    across the road. ``[sicp]`` and ``[joint] consider_side_bias_sigma`` likewise. 0 = off."""
+    consider_lane_bias_sigma: float = 0.1
+    """Standard deviation (m) of a lateral shift shared by the points matched to one lane, one
+    per lane, considered in icp's covariance like ``consider_side_bias_sigma``. 0 = off."""
     min_fitness: float = 0.5
     """A final fitness below this marks the result as not converged."""
     default_height: float = 6.0
     """Sensor height above the road (m) used when sensor.toml has no approx_height."""
 
     def __post_init__(self) -> None:
+        for name in ("consider_side_bias_sigma", "consider_lane_bias_sigma"):
+            if getattr(self, name) < 0.0:
+                raise ValueError(f"{name} must be >= 0 (m), got {getattr(self, name)}")
         if not 0.0 <= self.lane_doppler_gate_deg <= 90.0:
             raise ValueError("lane_doppler_gate_deg must be in [0, 90], got "
                              f"{self.lane_doppler_gate_deg}")

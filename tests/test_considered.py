@@ -122,3 +122,46 @@ def test_side_bias_widens_only_where_the_lanes_cannot_tell_it(ys, grows):
         assert abs(e[1]) < 1.5 * np.sqrt(cov_on[1, 1])
     else:
         assert added[1] < 0.02
+
+
+def _lane_centres(ys: list[float]):
+    """LaneCentres of east-west lanes at heights ``ys`` (driven east) and a north-south one at
+    x = 15 (driven north), samples 0.25 m apart."""
+    from fgloc.coarse.icp import LaneCentres
+
+    lines = [_line((-60, y), (40, y), 0.25) for y in ys] + [_line((15, -30), (15, 60), 0.25)]
+    normals = [np.array([0.0, 1.0])] * len(ys) + [np.array([-1.0, 0.0])]
+    return LaneCentres(np.vstack(lines),
+                       np.vstack([np.tile(n, (len(ln), 1)) for n, ln in zip(normals, lines)]),
+                       np.zeros(sum(map(len, lines)), bool),
+                       np.concatenate([np.full(len(ln), k) for k, ln in enumerate(lines)]),
+                       np.concatenate([np.full(len(ln), k) for k, ln in enumerate(lines)]))
+
+
+@pytest.mark.parametrize("ys, grows", [([-8.0], True), ([-8.0, 8.0], False)])
+def test_lane_fit_considered_is_the_lane_icps_shift_under_a_side_bias(ys, grows):
+    """icp's considered side bias (sigma 0.1 m) against the lane-centre ICP itself: points on
+    lanes seen from the sensor at the origin, every one moved 0.15 m away from the sensor (the
+    visible-side offset 0.15 m too small; spread along their lanes between the samples), are
+    fitted from the truth; the fit moves by the
+    linearized shift per unit bias times 0.15 (the square root of the considered variance
+    over sigma^2) to within a centimetre: with every lane on one side of the sensor by about
+    the bias in x and y, with lanes on both sides not across them (y)."""
+    from fgloc.coarse.icp import icp_planar
+    from fgloc.coarse.localize import _seen_from, lane_fit_considered
+    from fgloc.config import CoarseConfig
+
+    cfg = CoarseConfig(lane_doppler_gate_deg=90.0, consider_lane_bias_sigma=0.0)
+    lanes = _lane_centres(ys)
+    pose = np.zeros(3)
+    seen = lanes.towards(pose[:2], cfg.visible_side_offset).xy
+    along = np.column_stack([lanes.normal[:, 1], -lanes.normal[:, 0]])
+    jitter = np.random.default_rng(2).uniform(-0.125, 0.125, len(seen))[:, None] * along
+    lev = seen + jitter - 0.15 * side_sign(seen, lanes.normal, pose[:2])[:, None] * lanes.normal
+    receding = np.ones(len(lev), bool)
+    extra = lane_fit_considered(pose, seen, receding, lanes, cfg)
+    end = icp_planar(lev, _seen_from(lanes, pose[:2], cfg), pose, cfg.lane_icp_ranges,
+                     cfg.icp_iterations, receding=receding).pose
+    predicted = np.sqrt(np.diag(extra)) / cfg.consider_side_bias_sigma * 0.15
+    np.testing.assert_allclose(np.abs(end[:2]), predicted[:2], atol=0.01)
+    assert (predicted[1] > 0.1) == grows

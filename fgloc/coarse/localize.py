@@ -70,6 +70,7 @@ from fgloc.geo import pose_from_se3, rot_from_ypr, rot_z, se2, se3, wrap_angle, 
 from fgloc.map import TargetCloud, approx_position_local, build_target_cloud, check_inside_als
 from fgloc.map.lane_models import KEEP_RIGHT, lane_models, min_width, other_model_note
 from fgloc.progress import Timer
+from fgloc.registration.considered import lane_columns, least_squares_consider, side_sign
 from fgloc.scenario import Scenario
 
 
@@ -86,7 +87,8 @@ class CoarseResult:
     modes are samples of, where the lane score ties every pose along it
     (:mod:`fgloc.coarse.valley`; ``mode_margin`` of the best mode's score), or None.
     tie_covariance: 3x3 of the best mode's sensor (x, y, yaw) in L (m^2, rad^2) over the poses
-    around it whose lane score ties with it (:func:`lane_tie_covariance`), or None. z_std: the
+    around it whose lane score ties with it (:func:`lane_tie_covariance`) plus the biases its
+    lane fit considers (:func:`lane_fit_considered`), or None. z_std: the
     vertical fit's std. dev. of z (m). n_static_ground: the static ground returns that fit used
     (0: the moving returns alone; :class:`~fgloc.coarse.vertical.VerticalFit`).
     """
@@ -351,6 +353,38 @@ def lane_tie_covariance(kept: list[tuple[float, np.ndarray, str]], ref: _Refined
     return B.T @ np.diag(var) @ B
 
 
+def lane_fit_considered(pose: np.ndarray, lev: np.ndarray, receding: np.ndarray,
+                        lanes: LaneCentres, cfg: CoarseConfig) -> np.ndarray:
+    """3x3 covariance of the sensor's (x, y, yaw) in L (m^2, rad^2) that the biases of
+    :mod:`fgloc.registration.considered` add to a lane fit ending at ``pose`` (x, y, yaw):
+    a constant shift of every lane towards the sensor (``cfg.consider_side_bias_sigma``) and
+    one per lane (``cfg.consider_lane_bias_sigma``). The lane-centre ICP is, linearized at
+    its end, the least-squares fit of the levelled points ``lev`` (N, 2) (Doppler signs
+    ``receding`` (N,)) matched within the last ``lane_icp_ranges`` to the lanes seen from
+    ``pose``, each residual taken across its lane (point to line, unit weights); zeros with
+    fewer than 3 matched points or a singular fit."""
+    none = np.zeros((3, 3))
+    if cfg.consider_side_bias_sigma == 0.0 and cfg.consider_lane_bias_sigma == 0.0:
+        return none
+    seen = lanes.towards(pose[:2], cfg.visible_side_offset)
+    moved = apply_planar(lev, pose)
+    d, near = _seen_from(lanes, pose[:2], cfg).query(moved, receding, cfg.lane_icp_ranges[-1])
+    ok = np.isfinite(d)
+    if ok.sum() < 3:
+        return none
+    i = seen.tree.query(near[ok])[1]                # the matched samples (distance 0)
+    n, arm = lanes.normal[i], moved[ok] - pose[:2]
+    a = np.column_stack([n[:, 0], n[:, 1], n[:, 1] * arm[:, 0] - n[:, 0] * arm[:, 1]])
+    H = a.T @ a
+    if np.linalg.cond(H) > 1e12:
+        return none
+    columns, sd = [side_sign(seen.xy[i], n, pose[:2])[:, None]], [cfg.consider_side_bias_sigma]
+    if cfg.consider_lane_bias_sigma > 0.0:
+        columns.append(lane_columns(lanes.lane[i]))
+        sd += [cfg.consider_lane_bias_sigma] * columns[-1].shape[1]
+    return least_squares_consider(H, a, np.concatenate(columns, axis=1), np.array(sd))
+
+
 def mode_warning(modes: list[CoarseMode]) -> list[str]:
     """A warning naming the other modes' distance from the best one (none for one mode)."""
     if len(modes) < 2:
@@ -528,7 +562,8 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
         for _, pose, _ in kept[1:]]
     modes = coarse_modes(kept, ref, heights)
     valley = lane_valley(kept, ref, fit, fit_rec, models, centre, cfg)
-    tie = lane_tie_covariance(kept, ref, fit, fit_rec, models, cfg)
+    tie = lane_tie_covariance(kept, ref, fit, fit_rec, models, cfg) + lane_fit_considered(
+        kept[0][1], (fit @ ref.r_tilt.T)[:, :2], fit_rec, models[kept[0][2]], cfg)
     warnings = mode_warning(modes)
     timings["refinement"] = time.perf_counter() - t
 
