@@ -1,5 +1,6 @@
 """Biases a covariance *considers* without estimating them (Schmidt's consider parameters),
-shared by the joint's graph covariance and the SICP track covariance.
+shared by the joint's graph covariance, the SICP track covariance (filter-sicp,
+smoother-sicp) and icp's lane-fit covariance (:func:`fgloc.coarse.localize.lane_fit_considered`).
 
 A bias ``c_j ~ N(0, sigma_j^2)`` (m) that shifts every point of a group along its line's
 normal moves a least-squares pose estimate by ``K c``; the estimate's covariance grows by
@@ -13,7 +14,7 @@ normal moves a least-squares pose estimate by ``K c``; the estimate's covariance
   keeping to one side of it, the tracker's bias at that lane's range and aspect): the
   vehicles of one lane share it, so their number does not shrink it.
 
-Frames: whatever frame the points, normals and sensor position share (L in both callers).
+Frames: whatever frame the points, normals and sensor position share (L in every caller).
 """
 
 from __future__ import annotations
