@@ -70,7 +70,7 @@ from fgloc.geo import pose_from_se3, rot_from_ypr, rot_z, se2, se3, wrap_angle, 
 from fgloc.map import TargetCloud, approx_position_local, build_target_cloud, check_inside_als
 from fgloc.map.lane_models import KEEP_RIGHT, lane_models, min_width, other_model_note
 from fgloc.progress import Timer
-from fgloc.registration.considered import lane_columns, least_squares_consider, side_sign
+from fgloc.registration.considered import bias_columns, least_squares_consider, side_sign
 from fgloc.scenario import Scenario
 
 
@@ -378,11 +378,9 @@ def lane_fit_considered(pose: np.ndarray, lev: np.ndarray, receding: np.ndarray,
     H = a.T @ a
     if np.linalg.cond(H) > 1e12:
         return none
-    columns, sd = [side_sign(seen.xy[i], n, pose[:2])[:, None]], [cfg.consider_side_bias_sigma]
-    if cfg.consider_lane_bias_sigma > 0.0:
-        columns.append(lane_columns(lanes.lane[i]))
-        sd += [cfg.consider_lane_bias_sigma] * columns[-1].shape[1]
-    return least_squares_consider(H, a, np.concatenate(columns, axis=1), np.array(sd))
+    columns, sd = bias_columns(side_sign(seen.xy[i], n, pose[:2]), cfg.consider_side_bias_sigma,
+                               lanes.lane[i], cfg.consider_lane_bias_sigma)
+    return least_squares_consider(H, a, columns, sd)
 
 
 def mode_warning(modes: list[CoarseMode]) -> list[str]:

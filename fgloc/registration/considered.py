@@ -40,6 +40,22 @@ def lane_columns(lane: np.ndarray) -> np.ndarray:
     return cols
 
 
+def bias_columns(sign: np.ndarray, side_sigma: float, lane: np.ndarray | None,
+                 lane_sigma: float) -> tuple[np.ndarray, np.ndarray]:
+    """The considered biases of P points: their coefficients (P, C) and std. devs. (C,) m.
+    The side bias first (column ``sign`` (P,), :func:`side_sign`; when ``side_sigma`` > 0),
+    then one per lane (:func:`lane_columns` of ``lane`` (P,); when given and ``lane_sigma``
+    > 0). C = 0 when neither is."""
+    cols, sd = [np.zeros((len(sign), 0))], []
+    if side_sigma > 0.0:
+        cols.append(np.asarray(sign, dtype=float)[:, None])
+        sd.append(side_sigma)
+    if lane_sigma > 0.0 and lane is not None:
+        cols.append(lane_columns(lane))
+        sd += [lane_sigma] * cols[-1].shape[1]
+    return np.concatenate(cols, axis=1), np.array(sd)
+
+
 def consider_covariance(info: np.ndarray, sigma: np.ndarray) -> np.ndarray:
     """(G, G) covariance added to the estimated parameters' by C biases that are considered,
     not estimated: info (G + C, G + C) the information (or any positive multiple of it)

@@ -92,7 +92,7 @@ from fgloc.geo import se2, se2_params, se2_to_se3, transform_points, wrap_angle
 from fgloc.labels import NAMES
 from fgloc.map.lane_models import min_width
 from fgloc.progress import Timer
-from fgloc.registration.considered import consider_covariance, lane_columns, side_sign
+from fgloc.registration.considered import bias_columns, consider_covariance, side_sign
 from fgloc.registration.joint_config import JointConfig, check_joint_config
 from fgloc.registration.joint_solver import (
     PointSet,
@@ -443,15 +443,10 @@ def considered_columns(target: np.ndarray, normal: np.ndarray, index: np.ndarray
     lateral bias per lanelet that holds matched points (``consider_lane_bias_sigma``; the
     shift of its points along their normal; needs ``lines.lane``). target, normal (P, 2) in
     L, index (P,) the matched line sample (-1 none), sensor_l (2,)."""
-    cols, sd = [np.zeros((len(index), 0))], []
-    if jc.consider_side_bias_sigma > 0.0 and jc.side_bias_sigma == 0.0:
-        cols.append(_side_columns(target, normal, sensor_l)[:, :1])
-        sd.append(jc.consider_side_bias_sigma)
-    if jc.consider_lane_bias_sigma > 0.0 and lines.lane is not None:
-        one_hot = lane_columns(np.where(index >= 0, lines.lane[index], -1))
-        cols.append(one_hot)
-        sd += [jc.consider_lane_bias_sigma] * one_hot.shape[1]
-    return np.concatenate(cols, axis=1), np.array(sd)
+    lane = None if lines.lane is None else np.where(index >= 0, lines.lane[index], -1)
+    return bias_columns(side_sign(target, normal, sensor_l),
+                        jc.consider_side_bias_sigma if jc.side_bias_sigma == 0.0 else 0.0,
+                        lane, jc.consider_lane_bias_sigma)
 
 
 def with_considered_biases(pts: PointSet, pri: Priors, glob: np.ndarray, columns: np.ndarray

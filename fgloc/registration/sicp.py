@@ -73,7 +73,7 @@ from scipy.spatial import cKDTree
 from fgloc.geo import se2, transform_points
 from fgloc.labels import NAMES
 from fgloc.registration.config import KERNELS, MODES, SicpConfig
-from fgloc.registration.considered import lane_columns, least_squares_consider, side_sign
+from fgloc.registration.considered import bias_columns, least_squares_consider, side_sign
 
 #: Key of the KD-tree over all target points (mode "none").
 ALL: int = -1
@@ -686,15 +686,11 @@ def track_covariance(res: SicpResult, source_xy: np.ndarray, track: np.ndarray,
     model = sigma2 * Hi + tau2 * Hi @ (u.T @ u) @ Hi
     sandwich = Hi @ (scores.T @ scores) @ Hi * (k / max(k - 3, 1))
     cov = clipped_below(sandwich, model)
-    columns, sd = [np.zeros((len(r), 0))], []
-    if cfg.consider_side_bias_sigma > 0.0 and sensor_xy is not None:
-        sensor = transform_points(T, np.asarray(sensor_xy, float).reshape(1, 2))[0]
-        columns.append(side_sign(targets.xy[idx], n, sensor)[:, None])
-        sd.append(cfg.consider_side_bias_sigma)
-    if cfg.consider_lane_bias_sigma > 0.0 and targets.lane is not None:
-        columns.append(lane_columns(targets.lane[idx]))
-        sd += [cfg.consider_lane_bias_sigma] * columns[-1].shape[1]
-    if not sd:
-        return cov
-    return cov + least_squares_consider(H, w[:, None] * a, np.concatenate(columns, axis=1),
-                                        np.array(sd))
+    sign = np.zeros(len(r))                     # without the sensor: no side bias
+    if sensor_xy is not None:
+        sign = side_sign(targets.xy[idx], n,
+                         transform_points(T, np.asarray(sensor_xy, float).reshape(1, 2))[0])
+    columns, sd = bias_columns(sign, 0.0 if sensor_xy is None else cfg.consider_side_bias_sigma,
+                               None if targets.lane is None else targets.lane[idx],
+                               cfg.consider_lane_bias_sigma)
+    return cov + least_squares_consider(H, w[:, None] * a, columns, sd) if len(sd) else cov
