@@ -142,19 +142,19 @@ def _lane_centres(ys: list[float]):
 def test_lane_fit_considered_is_the_lane_icps_shift_under_a_side_bias(ys, grows):
     """icp's considered side bias (sigma 0.1 m) against the lane-centre ICP itself: points on
     lanes seen from the sensor at the origin, every one moved 0.15 m away from the sensor (the
-    visible-side offset 0.15 m too small; spread along their lanes between the samples), are
-    fitted from the truth; the fit moves by the
-    linearized shift per unit bias times 0.15 (the square root of the considered variance
+    visible-side offsets, :func:`fgloc.coarse.localize.side_offsets`, 0.15 m too small;
+    spread along their lanes between the samples), are fitted from the truth; the fit moves
+    by the linearized shift per unit bias times 0.15 (the square root of the considered variance
     over sigma^2) to within a centimetre: with every lane on one side of the sensor by about
     the bias in x and y, with lanes on both sides not across them (y)."""
     from fgloc.coarse.icp import icp_planar
-    from fgloc.coarse.localize import _seen_from, lane_fit_considered
+    from fgloc.coarse.localize import _seen_from, lane_fit_considered, side_offsets
     from fgloc.config import CoarseConfig
 
     cfg = CoarseConfig(lane_doppler_gate_deg=90.0, consider_lane_bias_sigma=0.0)
     lanes = _lane_centres(ys)
     pose = np.zeros(3)
-    seen = lanes.towards(pose[:2], cfg.visible_side_offset).xy
+    seen = lanes.towards(pose[:2], side_offsets(lanes, pose[:2], cfg)).xy
     along = np.column_stack([lanes.normal[:, 1], -lanes.normal[:, 0]])
     jitter = np.random.default_rng(2).uniform(-0.125, 0.125, len(seen))[:, None] * along
     lev = seen + jitter - 0.15 * side_sign(seen, lanes.normal, pose[:2])[:, None] * lanes.normal

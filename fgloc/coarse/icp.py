@@ -171,11 +171,13 @@ class LaneCentres:
         towards ``sensor_xy`` (2,)."""
         return PlanarTarget.of(self._shifted(sensor_xy, offset))
 
-    def seen_from(self, sensor_xy: np.ndarray, offset: float, gate_deg: float) -> SignedLanes:
-        """:meth:`towards`, split by Doppler sign (:class:`SignedLanes`): a sample whose
-        driving direction ``d`` has ``d . u > -sin(gate_deg)`` (``u`` the unit line of sight
-        from ``sensor_xy`` to it) may be driven away from the sensor, one with ``d . u <
-        sin(gate_deg)`` towards it; 90 deg admits every sample for both signs."""
+    def seen_from(self, sensor_xy: np.ndarray, offset: float | np.ndarray, gate_deg: float
+                  ) -> SignedLanes:
+        """:meth:`towards` (``offset`` m, one for all or (K,) per sample), split by Doppler
+        sign (:class:`SignedLanes`): a sample whose driving direction ``d`` has ``d . u >
+        -sin(gate_deg)`` (``u`` the unit line of sight from ``sensor_xy`` to it) may be driven
+        away from the sensor, one with ``d . u < sin(gate_deg)`` towards it; 90 deg admits
+        every sample for both signs."""
         xy = self._shifted(sensor_xy, offset)
         los = xy - np.asarray(sensor_xy, dtype=float)
         los /= np.maximum(np.linalg.norm(los, axis=1, keepdims=True), 1e-9)

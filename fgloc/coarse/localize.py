@@ -29,10 +29,12 @@ Method
    cloud on the asphalt fits equally well), which leaves about a metre of slack. Vehicles drive
    along the lane centres, and the radar sees their sensor-facing side, so the last stage
    registers the cloud to the lanelet centre lines (of the lanelets in the target cloud),
-   sampled every ``lane_sample_step`` m and shifted by ``visible_side_offset`` m towards the
-   current sensor position, alternating with the vertical fit. A point moving away from the
-   sensor is matched only to lanes driven away from it and vice versa (``SignedLanes``; lanes
-   within ``lane_doppler_gate_deg`` of square to the line of sight admit both).
+   sampled every ``lane_sample_step`` m and shifted towards the current sensor position by
+   ``visible_side_offset`` m where the sensor sees the lane head-on to
+   ``visible_side_offset_broadside`` m where it sees it broadside (:func:`side_offsets`),
+   alternating with the vertical fit. A point moving away from the sensor is matched only to
+   lanes driven away from it and vice versa (``SignedLanes``; lanes within
+   ``lane_doppler_gate_deg`` of square to the line of sight admit both).
 
 Fitness and inlier RMSE are planar (2D) quantities: the share of source points with a road point
 within the last correspondence range, and the RMS 2D distance of those points.
@@ -162,10 +164,20 @@ def _yaw_candidates(yaw_guess_deg: float | None, cfg: CoarseConfig) -> np.ndarra
     return np.deg2rad(yaw_guess_deg) + np.arange(-w, w + 1e-9, step)
 
 
+def side_offsets(lanes: LaneCentres, sensor_xy: np.ndarray, cfg: CoarseConfig) -> np.ndarray:
+    """(K,) m, how far each lane sample is shifted towards the sensor at ``sensor_xy`` (2,):
+    ``visible_side_offset`` head-on to ``visible_side_offset_broadside`` broadside, linear in
+    the |sin| of the aspect (:meth:`LaneCentres.aspect`)."""
+    head_on, broadside = cfg.visible_side_offset, cfg.visible_side_offset_broadside
+    return head_on + (broadside - head_on) * lanes.aspect(sensor_xy)
+
+
 def _seen_from(lanes: LaneCentres, sensor_xy: np.ndarray, cfg: CoarseConfig) -> SignedLanes:
     """The lane-centre target of the lane fits: the centre lines shifted towards the sensor
-    position ``sensor_xy`` (2,), split by Doppler sign (``lane_doppler_gate_deg``)."""
-    return lanes.seen_from(sensor_xy, cfg.visible_side_offset, cfg.lane_doppler_gate_deg)
+    position ``sensor_xy`` (2,) by :func:`side_offsets`, split by Doppler sign
+    (``lane_doppler_gate_deg``)."""
+    return lanes.seen_from(sensor_xy, side_offsets(lanes, sensor_xy, cfg),
+                           cfg.lane_doppler_gate_deg)
 
 
 def _lane_fit(lev: np.ndarray, receding: np.ndarray, target: SignedLanes | LaneCentres,
@@ -366,7 +378,7 @@ def lane_fit_considered(pose: np.ndarray, lev: np.ndarray, receding: np.ndarray,
     none = np.zeros((3, 3))
     if cfg.consider_side_bias_sigma == 0.0 and cfg.consider_lane_bias_sigma == 0.0:
         return none
-    seen = lanes.towards(pose[:2], cfg.visible_side_offset)
+    seen = lanes.towards(pose[:2], side_offsets(lanes, pose[:2], cfg))
     moved = apply_planar(lev, pose)
     d, near = _seen_from(lanes, pose[:2], cfg).query(moved, receding, cfg.lane_icp_ranges[-1])
     ok = np.isfinite(d)
