@@ -86,8 +86,8 @@ def test_dynamic_points_keep_one_point_per_voxel_and_doppler_sign() -> None:
     xyz = np.column_stack([x, y, rng.normal(0.5, 0.1, n)])
     doppler = np.repeat([4.0, -4.0, 0.0], n // 3)
     radar = RadarData(np.arange(n) * 0.01, xyz, doppler)
-    pts, receding, n_dyn = dynamic_points(radar, CoarseConfig())
-    assert n_dyn == 200
+    pts, receding, n_dyn, n_off = dynamic_points(radar, CoarseConfig())
+    assert n_dyn == 200 and n_off == 0          # two dense trails: nothing is off them
     assert receding.any() and (~receding).any()
     for sign in (True, False):
         on = pts[receding == sign]

@@ -83,11 +83,13 @@ class CoarseResult:
     T_coarse: 4x4 transform S -> L. pose: (x, y, z, yaw, pitch, roll) of T_coarse, m and rad.
     fitness: share of source points with a road point within the last ICP range (2D).
     inlier_rmse: RMS 2D distance (m) of those points. n_points_dynamic: detections with
-    ``|doppler| >= lambda``. n_points_used: after voxel + DBSCAN. yaw_search: (yaw_deg, best
-    score over the start positions) per searched yaw, None when not searched. timings: stage ->
-    seconds. source_xyz: (n_points_used, 3) filtered dynamic points in S. valley: the line the
-    modes are samples of, where the lane score ties every pose along it
-    (:mod:`fgloc.coarse.valley`; ``mode_margin`` of the best mode's score), or None.
+    ``|doppler| >= lambda``. n_points_used: after voxel + DBSCAN. n_points_off_trail: the
+    dynamic detections dropped as no vehicle's (:func:`fgloc.coarse.points.on_trail`).
+    yaw_search: (yaw_deg, best score over the start positions) per searched yaw, None when
+    not searched. timings: stage -> seconds. source_xyz: (n_points_used, 3) filtered dynamic
+    points in S. valley: the line the modes are samples of, where the lane score ties every
+    pose along it (:mod:`fgloc.coarse.valley`; ``mode_margin`` of the best mode's score), or
+    None.
     tie_covariance: 3x3 of the best mode's sensor (x, y, yaw) in L (m^2, rad^2) over the poses
     around it whose lane score ties with it (:func:`lane_tie_covariance`) plus the biases its
     lane fit considers (:func:`lane_fit_considered`), or None. z_std: the
@@ -113,6 +115,7 @@ class CoarseResult:
     n_static_ground: int = 0
     valley: Valley | None = None
     tie_covariance: np.ndarray | None = None
+    n_points_off_trail: int = 0
 
     def mode_starts(self) -> list[np.ndarray]:
         """Per mode, the 3x3 SE(2) start of T_fine (C -> L) that moves the coarse frame C of
@@ -512,12 +515,13 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
     if len(target) == 0:
         raise LocalizationError("the target cloud is empty: no road points to register to")
     check_inside_als(scn)
-    src, receding, n_dyn = dynamic_points(scn.radar, cfg)
+    src, receding, n_dyn, n_off_trail = dynamic_points(scn.radar, cfg)
     timings["source filter"] = time.perf_counter() - t0
     if len(src) < cfg.min_points:
         raise LocalizationError(
             f"only {len(src)} dynamic points after voxel + DBSCAN filtering ({n_dyn} detections "
-            f"with |doppler| >= lambda = {cfg.doppler_min} m/s); at least {cfg.min_points} are "
+            f"with |doppler| >= lambda = {cfg.doppler_min} m/s, {n_off_trail} of them off any "
+            f"trail); at least {cfg.min_points} are "
             "needed: record longer or with more traffic, or lower coarse.doppler_min"
         )
 
@@ -599,6 +603,7 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
         inlier_rmse=rmse,
         n_points_dynamic=n_dyn,
         n_points_used=int(len(src)),
+        n_points_off_trail=n_off_trail,
         converged=not problems,
         message="; ".join(problems) if problems else "converged",
         yaw_search=yaw_search,

@@ -1,0 +1,102 @@
+"""The coarse source keeps only moving detections on a trail (:func:`fgloc.coarse.points.on_trail`):
+a vehicle's detections follow each other frame after frame, a false alarm stands alone.
+
+Checked against the Poisson count a uniform clutter gives in closed form, a sparse far vehicle's
+trail, and the independent generator's "uniform" clutter (bench/independent_gen.py on the crop
+of the Lanelet2 example map, BSD-3-Clause, copyright 2018 FZI, see
+tests/data/LICENSE-lanelet2_mapping_example), whose detections are told apart by the true
+vehicles' footprints.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_independent_gen import CROP, JUNCTION_3, footprint_distance
+
+from bench.independent_gen import generate
+from fgloc.coarse import coarse_localize
+from fgloc.coarse.points import dynamic_points, on_trail
+from fgloc.config import CoarseConfig, Config
+from fgloc.evaluation.pose import pose_error
+from fgloc.io import load_scenario
+from fgloc.map import build_target_cloud
+from fgloc.scenario import Scenario
+
+
+def test_uniform_clutter_keeps_its_poisson_share() -> None:
+    """15 false alarms a frame over a 150 m square at 20 Hz: a point's neighbours in the box
+    of +-3 m and +-0.3 s (13 frames) are Poisson with mean 15 * 36 / 150^2 * 13 = 0.312, so
+    P(at least 2) = 1 - e^-0.312 (1 + 0.312) = 0.040 of them stay (fewer at the square's
+    edges, where part of the box is empty)."""
+    rng = np.random.default_rng(5)
+    frames = 2000
+    t = np.repeat(np.arange(frames) / 20.0, 15)
+    xy = rng.uniform(0.0, 150.0, (len(t), 2))
+    kept = on_trail(xy, t, 3.0, 0.3, 2)
+    lam = 15 * 36 / 150.0**2 * 13
+    expected = 1.0 - np.exp(-lam) * (1.0 + lam)
+    inner = np.all((xy > 3.0) & (xy < 147.0), axis=1) & (t >= 0.3) & (t <= t[-1] - 0.3)
+    assert kept[inner].mean() == pytest.approx(expected, rel=0.15)
+    assert kept.mean() < kept[inner].mean()
+    assert on_trail(xy, t, 3.0, 0.3, 0).all()
+
+
+def test_a_sparse_vehicle_stays_on_its_trail() -> None:
+    """One return a frame, anywhere on a 4.5 m car's length, with 0.3 m noise: at 20 Hz and
+    15 m/s the neighbouring frames' returns lie within the box (all kept); at 10 Hz and
+    20 m/s (2 m a frame) only the next frame's often do and 18 % go (the voxel + DBSCAN
+    filter after it drops so thin a trail of one vehicle anyway)."""
+    rng = np.random.default_rng(7)
+    for rate, speed, share in ((20.0, 15.0, 0.99), (10.0, 20.0, 0.75)):
+        t = np.arange(200) / rate
+        along = speed * t + rng.uniform(-2.25, 2.25, t.size)
+        xy = np.column_stack([along, np.full(t.size, 30.0)]) + rng.normal(0.0, 0.3, (t.size, 2))
+        assert on_trail(xy, t, 3.0, 0.3, 2).mean() >= share, rate
+
+
+def test_trail_config_is_validated() -> None:
+    for bad in ({"trail_radius": 0.0}, {"trail_window": -1.0}, {"trail_min_neighbours": -1}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            CoarseConfig(**bad)
+
+
+@pytest.fixture(scope="module")
+def uniform(tmp_path_factory) -> Scenario:
+    out = generate(CROP, JUNCTION_3, 1, tmp_path_factory.mktemp("trail") / "j3",
+                   vehicles_per_minute=12.0, duration=30.0, clutter="uniform")
+    return load_scenario(out)
+
+
+def test_independent_false_alarms_leave_and_vehicles_stay(uniform: Scenario) -> None:
+    """The independent generator's moving detections that lie within 1 m of a true vehicle's
+    footprint stay (at least 98 %), the others (its 15 false alarms a frame) go (at most
+    10 % stay); the count dropped is what ``dynamic_points`` reports."""
+    radar, truth = uniform.radar, uniform.truth
+    moving = np.abs(radar.doppler) >= CoarseConfig().doppler_min
+    p = radar.xyz[moving] @ truth.sensor_pose[:3, :3].T + truth.sensor_pose[:3, 3]
+    t = radar.t[moving]
+    nearest = np.full(len(t), np.inf)
+    for tr in truth.tracks:
+        k = np.clip(np.searchsorted(tr.states[:, 0], t - 1e-6), 0, len(tr.states) - 1)
+        d = footprint_distance(p[:, :2], tr.states[k], tr.length, tr.width)
+        nearest = np.minimum(nearest, np.where(np.abs(tr.states[k, 0] - t) < 1e-3, d, np.inf))
+    vehicle = nearest <= 1.0
+    assert (~vehicle).sum() > vehicle.sum() // 4          # false alarms are many here
+    cfg = CoarseConfig()
+    trail = on_trail(radar.xyz[moving, :2], t, cfg.trail_radius, cfg.trail_window,
+                     cfg.trail_min_neighbours)
+    assert trail[vehicle].mean() >= 0.98
+    assert trail[~vehicle].mean() <= 0.10
+    assert dynamic_points(radar, cfg)[3] == int((~trail).sum())
+
+
+def test_coarse_fit_under_uniform_false_alarms(uniform: Scenario) -> None:
+    """The fit's source is the vehicles': nearly all of it lies on the road (fitness 0.80
+    with the false alarms kept, ``trail_min_neighbours = 0``)."""
+    cfg = Config()
+    target = build_target_cloud(uniform, cfg.map)
+    res = coarse_localize(uniform, target, cfg.coarse, map_cfg=cfg.map)
+    err = pose_error(res.T_coarse, uniform.truth.sensor_pose)
+    assert res.n_points_off_trail > 0 and res.fitness >= 0.95
+    assert err.d2d < 0.6 and err.dyaw_deg < 0.5
