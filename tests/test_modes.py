@@ -245,28 +245,30 @@ def test_one_mode_without_a_covariance_is_not_resolved_where_the_method_gives_on
 
 def test_one_vehicle_in_view_on_a_straight_road_is_no_resolved_pose(tmp_path, capsys):
     """Intersection seed 3, 3 vehicles in a minute, one of them in view (on a straight road):
-    nothing fixes the position along that road; the coarse stage ends 20 m along it. No method
-    may call that resolved (filter-sicp did: SICP's fit had no covariance; the joint's std.
-    dev. along the road is over 10 m). The CLI's warning gives the reason (one mode: not
-    "1 modes could not be told apart")."""
+    nothing fixes the position along that road; the coarse stage ends metres along it (3 m;
+    20 m while the simulator's false alarms were part of its source). No method may call that
+    resolved (filter-sicp did once: SICP's fit had no covariance). The later methods find the
+    valley along the road (every pose over the prior's reach fits alike) and their covariance
+    spans it; the CLI exits "ambiguous" with a warning that gives the reason (never "1 modes
+    could not be told apart")."""
     from fgloc.cli import EXIT_AMBIGUOUS, main
     from fgloc.io import write_scenario
 
     scn = simulate("intersection", 3, duration=60.0, vehicles=3)
     truth = scn.truth.sensor_pose
     out = localize_many(scn, ["icp", "filter-sicp", "smoother-sicp", "joint"])
-    assert min(_error_2d(r.T_local, truth) for r in out.values()) > 5.0
+    assert min(_error_2d(r.T_local, truth) for r in out.values()) > 2.0
     for method, res in out.items():
         assert res.status == AMBIGUOUS, method
-    assert out["filter-sicp"].covariance is None
-    assert any("no covariance" in w for w in out["filter-sicp"].warnings)
-    cov = out["joint"].covariance
-    assert np.sqrt(np.linalg.eigvalsh(np.asarray(cov)[:2, :2])[-1]) > 10.0
+        std = np.sqrt(np.linalg.eigvalsh(np.asarray(res.covariance)[:2, :2])[-1])
+        assert std > 2.0, method
+        if method != "icp":
+            assert res.valley is not None and res.valley["length_m"] > 20.0, method
     write_scenario(scn, tmp_path / "scn")
     assert main(["-q", "localize", str(tmp_path / "scn"), "--out", str(tmp_path / "out"),
                  "--method", "filter-sicp"]) == EXIT_AMBIGUOUS
     err = capsys.readouterr().err
-    assert "fgloc: warning: filter-sicp: ambiguous pose: the data give no covariance" in err
+    assert "fgloc: warning: " in err and "ambiguous pose" in err and "1 modes" not in err
 
 
 def sparse(case: str, seed: int, per_minute: float, duration: float = 60.0):
