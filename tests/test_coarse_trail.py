@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_independent_gen import CROP, JUNCTION_3, footprint_distance
+from test_independent_gen import CROP, JUNCTION_3, nearest_vehicle
 
 from bench.independent_gen import generate
 from fgloc.coarse import coarse_localize
@@ -72,19 +72,12 @@ def test_independent_false_alarms_leave_and_vehicles_stay(uniform: Scenario) -> 
     """The independent generator's moving detections that lie within 1 m of a true vehicle's
     footprint stay (at least 98 %), the others (its 15 false alarms a frame) go (at most
     10 % stay); the count dropped is what ``dynamic_points`` reports."""
-    radar, truth = uniform.radar, uniform.truth
+    radar = uniform.radar
     moving = np.abs(radar.doppler) >= CoarseConfig().doppler_min
-    p = radar.xyz[moving] @ truth.sensor_pose[:3, :3].T + truth.sensor_pose[:3, 3]
-    t = radar.t[moving]
-    nearest = np.full(len(t), np.inf)
-    for tr in truth.tracks:
-        k = np.clip(np.searchsorted(tr.states[:, 0], t - 1e-6), 0, len(tr.states) - 1)
-        d = footprint_distance(p[:, :2], tr.states[k], tr.length, tr.width)
-        nearest = np.minimum(nearest, np.where(np.abs(tr.states[k, 0] - t) < 1e-3, d, np.inf))
-    vehicle = nearest <= 1.0
+    vehicle = nearest_vehicle(uniform, moving) <= 1.0
     assert (~vehicle).sum() > vehicle.sum() // 4          # false alarms are many here
     cfg = CoarseConfig()
-    trail = on_trail(radar.xyz[moving, :2], t, cfg.trail_radius, cfg.trail_window,
+    trail = on_trail(radar.xyz[moving, :2], radar.t[moving], cfg.trail_radius, cfg.trail_window,
                      cfg.trail_min_neighbours)
     assert trail[vehicle].mean() >= 0.98
     assert trail[~vehicle].mean() <= 0.10

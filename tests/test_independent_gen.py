@@ -75,19 +75,29 @@ def footprint_distance(p: np.ndarray, state: np.ndarray, length: float, width: f
                     np.maximum(np.abs(across) - width / 2, 0.0))
 
 
+def nearest_vehicle(scn: Scenario, rows: np.ndarray) -> np.ndarray:
+    """(n,) distance (m) in the plane of the radar detections ``rows`` (index or mask into
+    ``scn.radar``), placed in L with the true pose, to the nearest true vehicle's footprint at
+    their frame's time (the state stamped with the same t); inf where no vehicle is."""
+    radar, truth = scn.radar, scn.truth
+    T = truth.sensor_pose
+    p = radar.xyz[rows] @ T[:3, :3].T + T[:3, 3]
+    t = radar.t[rows]
+    nearest = np.full(len(t), np.inf)
+    for tr in truth.tracks:
+        k = np.clip(np.searchsorted(tr.states[:, 0], t - 1e-6), 0, len(tr.states) - 1)
+        same_time = np.abs(tr.states[k, 0] - t) < 1e-3
+        d = footprint_distance(p[:, :2], tr.states[k], tr.length, tr.width)
+        nearest = np.minimum(nearest, np.where(same_time, d, np.inf))
+    return nearest
+
+
 def test_moving_radar_points_lie_on_true_vehicles(scenario):
     """The detections with |Doppler| >= 0.5 m/s (the static clutter's Doppler noise is
     0.05 m/s), placed in L with the true pose, lie within 1 m of a true vehicle's footprint at
     their frame's time (the state stamped with the same t)."""
-    radar, truth = scenario.radar, scenario.truth
-    T = truth.sensor_pose
-    p = radar.xyz @ T[:3, :3].T + T[:3, 3]
-    nearest = np.full(len(radar), np.inf)
-    for tr in truth.tracks:
-        k = np.clip(np.searchsorted(tr.states[:, 0], radar.t - 1e-6), 0, len(tr.states) - 1)
-        same_time = np.abs(tr.states[k, 0] - radar.t) < 1e-3
-        d = footprint_distance(p[:, :2], tr.states[k], tr.length, tr.width)
-        nearest = np.minimum(nearest, np.where(same_time, d, np.inf))
+    radar = scenario.radar
+    nearest = nearest_vehicle(scenario, np.arange(len(radar)))
     moving = np.abs(radar.doppler) >= 0.5
     assert moving.mean() >= 0.5
     assert np.mean(nearest[moving] <= 1.0) >= 0.95
