@@ -285,6 +285,17 @@ def centre_ambiguity(offset: np.ndarray) -> np.ndarray:
     return 0.5 * np.linalg.norm(np.asarray(offset, dtype=float), axis=1)
 
 
+def lane_ambiguity(n: int, centre_offset: np.ndarray | None, bend: np.ndarray | None
+                   ) -> np.ndarray:
+    """(n,) how uncertain (m) it is where vehicles drive at each of n lane samples: the
+    centre line's ambiguity (:func:`centre_ambiguity` of ``centre_offset`` (n, 2)) and, in
+    quadrature, the ``bend`` (n,) m of a lane line that bends from its lanelet's own centre
+    line into a lane before or after it (:attr:`fgloc.coarse.icp.LaneCentres.bend`: drivers
+    may follow either; the whole distance, as the bent line is one of the two); None: 0."""
+    a = np.zeros(n) if centre_offset is None else centre_ambiguity(centre_offset)
+    return a if bend is None else np.hypot(a, np.asarray(bend, dtype=float))
+
+
 def nearest_on_segments(xy: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(n, 2) the nearest point to each of ``xy`` (n, 2) on the segments ``a`` -> ``b``
     (m, 2 each; a segment of zero length is its point)."""

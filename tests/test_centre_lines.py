@@ -149,6 +149,15 @@ def test_joint_point_noise_counts_the_ambiguity() -> None:
     with pytest.raises(ValueError, match="centre_offset"):
         LaneLines.of(np.zeros((3, 2)), np.tile([0.0, 1.0], (3, 1)), np.zeros(3),
                      centre_offset=np.zeros((2, 2)))
+    # a bend (a lane bent into its neighbour's) adds in quadrature, also without offsets
+    bent = LaneLines.of(lines.xy, lines.normal, lines.label,
+                        centre_offset=lines.centre_offset, bend=np.array([0.0, 0.15, 0.4]))
+    np.testing.assert_allclose(bent.ambiguity, [0.1, 0.25, 0.5])
+    alone = LaneLines.of(lines.xy, lines.normal, lines.label, bend=np.array([0.0, 0.15, 0.4]))
+    np.testing.assert_allclose(_ambiguity(alone, index, 1.0), [0.4, 0.0, 0.0, 0.15])
+    with pytest.raises(ValueError, match="bend"):
+        LaneLines.of(np.zeros((3, 2)), np.tile([0.0, 1.0], (3, 1)), np.zeros(3),
+                     bend=np.zeros(2))
     # the share's coefficient: the offset along each point's oriented normal
     normal = np.array([[0.0, 1.0], [1.0, 0.0], [0.0, -1.0], [0.0, 1.0]])
     np.testing.assert_allclose(centre_shift(lines, index, normal), [0.48, 0.0, 0.0, -0.4])

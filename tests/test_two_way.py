@@ -16,9 +16,9 @@ from fgloc.config import Config
 from fgloc.geo import se2, transform_points
 from fgloc.labels import LEFT, RIGHT, STRAIGHT
 from fgloc.map import TargetCloud
-from fgloc.registration.fine import fine_sicp_config, lane_centre_points
+from fgloc.registration.fine import centre_weights, fine_sicp_config, lane_centre_points
 from fgloc.registration.sicp import SemanticTargets, sicp
-from fgloc.scenario import Lanelet, LaneletMap, lane_lines
+from fgloc.scenario import Lanelet, LaneletMap, centre_ambiguity, lane_lines
 from fgloc.sim.real_roads import _polyline
 
 
@@ -271,3 +271,39 @@ def test_narrow_two_way_lanelet_bends_each_direction_into_its_own_lane() -> None
     # the centre model: no halves, no bends, the centre line both ways
     centre = {(ll.id, b): c for ll, c, b in lane_lines([link, street], 1.0, np.inf)}
     np.testing.assert_allclose(centre[(1, True)][:, 1], 0.0, atol=1e-9)
+
+
+
+def test_a_bent_lane_is_as_ambiguous_as_it_is_far_from_its_lanelets_centre() -> None:
+    """Where a lane bends from its lanelet's centre line into a neighbour's lane, drivers may
+    follow either line: the bend (the distance to the lanelet's own centre line) is the
+    lane's ambiguity there (in quadrature with the centre line's), which weighs its samples
+    down in SICP and grows the joint's point noise; the halves of a two-way street and
+    the "centre" model have none."""
+    street = _street(2, (20.0, 0.0), 0.0, 40.0, 7.0, "no")
+    z = np.zeros((3, 1))
+    x = np.array([[0.0], [10.0], [20.0]])
+    link = Lanelet(1, np.hstack([x, [[1.5], [1.5], [3.5]], z]),
+                   np.hstack([x, [[-1.5], [-1.5], [-3.5]], z]), {"one_way": "no"})
+    lanes = LaneCentres.build([link, street], 1.0, centre="resampled")
+    on_link = lanes.lanelet == 0
+    # the link's own centre line is y = 0: the bend is the lane's |y|, measured across the
+    # lane (which turns by up to 10 deg here: cos 10 deg = 0.985)
+    np.testing.assert_allclose(lanes.bend[on_link], np.abs(lanes.xy[on_link, 1]), rtol=0.02)
+    assert lanes.bend[on_link].max() == pytest.approx(1.75, rel=0.02)
+    assert lanes.bend[on_link].min() == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_allclose(lanes.bend[~on_link], 0.0)        # the street's halves
+    np.testing.assert_allclose(lanes.ambiguity(), np.hypot(
+        centre_ambiguity(lanes.centre_offset), lanes.bend), atol=1e-12)
+    centre = LaneCentres.build([link, street], 1.0, np.inf, centre="resampled")
+    np.testing.assert_allclose(centre.bend, 0.0, atol=1e-9)
+    # SICP's lane samples: weight sigma^2 / (sigma^2 + bend^2)
+    labels = {1: STRAIGHT, 2: STRAIGHT}
+    scn, target = _scene([link, street], labels)
+    cfg = Config()
+    _, _, _, ambiguity, _ = lane_centre_points(scn, target, 1.0, centre="resampled")
+    np.testing.assert_allclose(np.sort(ambiguity), np.sort(lanes.ambiguity()), atol=1e-9)
+    w = centre_weights(ambiguity, cfg.fine.centre_weight_sigma)
+    sigma2 = cfg.fine.centre_weight_sigma**2
+    np.testing.assert_allclose(np.sort(w), np.sort(sigma2 / (sigma2 + lanes.ambiguity()**2)))
+    assert w.min() <= sigma2 / (sigma2 + 1.7**2)

@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from fgloc.geo import wrap_angle
 from fgloc.map import TargetCloud
-from fgloc.scenario import TWO_WAY_MIN_WIDTH, Lanelet, lane_lines
+from fgloc.scenario import TWO_WAY_MIN_WIDTH, Lanelet, lane_ambiguity, lane_lines
 
 
 @dataclass
@@ -122,9 +122,12 @@ class LaneCentres:
     direction, whether each sample's lane runs against its lanelet's direction (K,) (the left
     half of a two-way street, or its centre line driven backwards), the index (K,) of its
     lanelet in the list it was built from, the index (K,) of its lane
-    (:func:`fgloc.scenario.lane_lines`) and the offset (K, 2) (m) between the two
+    (:func:`fgloc.scenario.lane_lines`), the offset (K, 2) (m) between the two
     constructions of its lanelet's centre line there (:meth:`fgloc.scenario.Lanelet.centre`;
-    None: not computed, 0)."""
+    None: not computed, 0) and the bend (K,) (m): how far the lane lies from its lanelet's
+    own centre line where it bends into a lane of the lanelet before or after it (a lanelet
+    that leads into or out of a two-way street's right half, :func:`fgloc.scenario.lane_lines`;
+    0 elsewhere, also on the halves of a two-way street; None: not computed, 0)."""
 
     xy: np.ndarray
     normal: np.ndarray
@@ -132,6 +135,7 @@ class LaneCentres:
     lanelet: np.ndarray
     lane: np.ndarray
     centre_offset: np.ndarray | None = None
+    bend: np.ndarray | None = None
 
     @classmethod
     def build(cls, lanelets: list[Lanelet], step: float,
@@ -143,21 +147,33 @@ class LaneCentres:
         (:data:`fgloc.scenario.CENTRE_LINES`; ``[map] centre_line``) lies from the arc-length
         one (the lanes of :func:`~fgloc.scenario.lane_lines` are built on that)."""
         index = {id(ll): k for k, ll in enumerate(lanelets)}
-        xy, normal, against, which, lane, offsets = [], [], [], [], [], []
+        xy, normal, against, which, lane, offsets, bends = [], [], [], [], [], [], []
         for k, (ll, c, back) in enumerate(lane_lines(lanelets, step, two_way_min_width)):
+            own = ll.centerline(len(c))
+            # the halves of a two-way street keep right by the model: no bend
+            bend = np.zeros_like(c) if ll.keeps_right(two_way_min_width) else (
+                c - (own[::-1] if back else own))
             line, off = ll.centre(len(c), centre)
-            shift = line - ll.centerline(len(c))
+            shift = line - own
             c = c + (shift[::-1] if back else shift)
             offsets.append(off[::-1] if back else off)
             d = np.gradient(c, axis=0)
             d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+            n = np.column_stack([-d[:, 1], d[:, 0]])
+            bends.append(np.abs(np.einsum("ij,ij->i", bend, n)))     # sideways part
             xy.append(c)
-            normal.append(np.column_stack([-d[:, 1], d[:, 0]]))
+            normal.append(n)
             against.append(np.full(len(c), back))
             which.append(np.full(len(c), index[id(ll)], dtype=np.int64))
             lane.append(np.full(len(c), k, dtype=np.int64))
         return cls(np.vstack(xy), np.vstack(normal), np.concatenate(against),
-                   np.concatenate(which), np.concatenate(lane), np.vstack(offsets))
+                   np.concatenate(which), np.concatenate(lane), np.vstack(offsets),
+                   np.concatenate(bends))
+
+    def ambiguity(self) -> np.ndarray:
+        """(K,) where vehicles drive is this uncertain (m) at each sample
+        (:func:`fgloc.scenario.lane_ambiguity` of the centre offset and the bend)."""
+        return lane_ambiguity(len(self.xy), self.centre_offset, self.bend)
 
     def aspect(self, sensor_xy: np.ndarray) -> np.ndarray:
         """(K,) |sin| of the angle between each sample's driving direction and the line of

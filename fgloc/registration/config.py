@@ -154,11 +154,13 @@ class FineConfig:
     centre_weight_sigma: float = 0.25
     """Targets "lane-centres" and "visible-sides": a lane sample where the lanelet's centre
     line is ambiguous by ``a`` m (half the distance between its two constructions, ``[map]
-    centre_line``; up to 1 m on hand-mapped turns) weighs ``s^2 / (s^2 + a^2)`` in the
-    alignment, ``s`` this value (m); 0 = every sample weighs 1. Where the map does not say
-    where vehicles drive, their tracks pull less (as the joint's ``centre_ambiguity``). It
-    counts whichever ``centre_line`` is matched; when the vehicles are known to drive one
-    construction (a generator on lanelet2's lines), set 0 with that ``centre_line``."""
+    centre_line``; up to 1 m on hand-mapped turns; with the bend of a lane bent into a two-way
+    street's half in quadrature, :func:`fgloc.scenario.lane_ambiguity`) weighs
+    ``s^2 / (s^2 + a^2)`` in the alignment, ``s`` this value (m); 0 = every sample weighs 1.
+    Where the map does not say where vehicles drive, their tracks pull less (as the joint's
+    ``centre_ambiguity``). It counts whichever ``centre_line`` is matched; when the vehicles
+    are known to drive one construction (a generator on lanelet2's lines), set 0 with that
+    ``centre_line``."""
     n_trajectories: int | None = None
     """Use at most this many trajectories (tracks), chosen at random with ``Config.seed`` (the
     paper uses 20 of 80 and 50 of 146); None = all."""

@@ -52,7 +52,7 @@ from fgloc.registration.source import (
 )
 from fgloc.registration.visible_side import VisibleSide
 from fgloc.result import LocalizationResult, json_ready
-from fgloc.scenario import TWO_WAY_MIN_WIDTH, Lanelet, Scenario, centre_ambiguity
+from fgloc.scenario import TWO_WAY_MIN_WIDTH, Lanelet, Scenario
 
 if TYPE_CHECKING:
     from fgloc.coarse import CoarseResult, LaneCentres
@@ -68,9 +68,10 @@ def lane_centre_points(
     """(K, 2) samples (m, in L) of the lane centre lines of the lanelets in ``target``
     (:meth:`LaneCentres.build`: one per direction on a wide two-way lanelet), every about
     ``step`` m, the (K,) label code of each (its lanelet's label, mirrored on a lane driven
-    against the lanelet's direction), the (K, 2) unit driving direction of each and the (K,)
-    ambiguity (m) of its lanelet's centre line there (:func:`fgloc.scenario.centre_ambiguity`)
-    and the (K,) lane id of each (:attr:`LaneCentres.lane`).
+    against the lanelet's direction), the (K, 2) unit driving direction of each, the (K,)
+    ambiguity (m) of where vehicles drive there (:meth:`LaneCentres.ambiguity`: its lanelet's
+    centre line, a lane bent into its neighbour) and the (K,) lane id of each
+    (:attr:`LaneCentres.lane`).
     With ``towards`` (2,) m, every sample is shifted ``offset`` m sideways towards that point
     (the sensor); a :class:`VisibleSide` offset shifts each sample by its value at the
     sample's aspect seen from there. ``two_way_min_width`` (m) sets the lane model of two-way
@@ -84,8 +85,7 @@ def lane_centre_points(
         offset = offset.at(lanes.aspect(towards))
     xy = lanes.xy if towards is None else lanes.towards(towards, offset).xy
     direction = np.column_stack([lanes.normal[:, 1], -lanes.normal[:, 0]])
-    return xy, lane_labels(target, lanelets, lanes), direction, centre_ambiguity(
-        lanes.centre_offset), lanes.lane
+    return xy, lane_labels(target, lanelets, lanes), direction, lanes.ambiguity(), lanes.lane
 
 
 def lane_labels(target: TargetCloud, lanelets: list[Lanelet], lanes: LaneCentres) -> np.ndarray:

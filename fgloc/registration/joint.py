@@ -104,7 +104,7 @@ from fgloc.registration.joint_solver import (
 )
 from fgloc.registration.sicp import _degeneracy, track_robust_covariance
 from fgloc.result import LocalizationResult, json_ready
-from fgloc.scenario import TWO_WAY_MIN_WIDTH, Scenario, centre_ambiguity
+from fgloc.scenario import TWO_WAY_MIN_WIDTH, Scenario, lane_ambiguity
 from fgloc.smoothing.banded_lm import BandedLayout
 from fgloc.tracks import N_KIN, N_STATE, YAW, Track, TrackSet, X, Y
 
@@ -120,18 +120,20 @@ class LaneLines:
     (optionally shifted sideways towards the sensor), their unit left normals (M, 2) -- the
     driving direction is ``(n_y, -n_x)`` --, label codes (M,), the index (M,) of the
     lanelet each sample belongs to (None: unknown; it groups the points whose lateral bias
-    is considered per lanelet, ``consider_lane_bias_sigma``) and the offset (M, 2) (m)
+    is considered per lanelet, ``consider_lane_bias_sigma``), the offset (M, 2) (m)
     between the two constructions of the centre line at each sample
-    (:meth:`fgloc.scenario.Lanelet.centre`; None: 0). One KD-tree per label over ``(x, y,
-    w cos psi, w sin psi)`` (psi the driving direction, ``w`` the heading weight in m) is
-    built on first use and kept, so a vehicle is matched to a lane it drives along, not to a
-    crossing one."""
+    (:meth:`fgloc.scenario.Lanelet.centre`; None: 0) and the bend (M,) (m) of a lane bent
+    into its neighbour's (:attr:`fgloc.coarse.icp.LaneCentres.bend`; None: 0). One KD-tree
+    per label over ``(x, y, w cos psi, w sin psi)`` (psi the driving direction, ``w`` the
+    heading weight in m) is built on first use and kept, so a vehicle is matched to a lane it
+    drives along, not to a crossing one."""
 
     xy: np.ndarray
     normal: np.ndarray
     label: np.ndarray
     lane: np.ndarray | None = None
     centre_offset: np.ndarray | None = None
+    bend: np.ndarray | None = None
     _trees: dict[tuple[int, float], tuple[np.ndarray, cKDTree]] = field(
         default_factory=dict, init=False, repr=False)
 
@@ -160,32 +162,39 @@ class LaneLines:
             lanes = dataclasses.replace(lanes, xy=xy, normal=normal)
         side = np.sign(np.einsum("ij,ij->i", np.asarray(sensor_xy) - lanes.xy, lanes.normal))
         return cls.of(lanes.xy + (offset * side)[:, None] * lanes.normal, lanes.normal,
-                      lane_labels(target, lanelets, lanes), lanes.lane, lanes.centre_offset)
+                      lane_labels(target, lanelets, lanes), lanes.lane, lanes.centre_offset,
+                      lanes.bend)
 
     @classmethod
     def of(cls, xy: np.ndarray, normal: np.ndarray, label: np.ndarray,
-           lane: np.ndarray | None = None, centre_offset: np.ndarray | None = None
-           ) -> LaneLines:
+           lane: np.ndarray | None = None, centre_offset: np.ndarray | None = None,
+           bend: np.ndarray | None = None) -> LaneLines:
         """Lines from samples (M, 2), unit left normals (M, 2), label codes (M,) and,
-        optionally, the lanelet index (M,) and the offset (M, 2) (m) between the centre
-        line's two constructions of each sample."""
+        optionally, the lanelet index (M,), the offset (M, 2) (m) between the centre
+        line's two constructions of each sample and the bend (M,) (m) of each."""
         xy, normal = np.asarray(xy, dtype=float), np.asarray(normal, dtype=float)
         label = np.asarray(label, dtype=np.int64)
         lane = None if lane is None else np.asarray(lane, dtype=np.int64)
         off = None if centre_offset is None else np.asarray(centre_offset, dtype=float)
+        bend = None if bend is None else np.asarray(bend, dtype=float)
         if (normal.shape != xy.shape or label.shape != (xy.shape[0],) or xy.ndim != 2
                 or (lane is not None and lane.shape != label.shape)
-                or (off is not None and off.shape != xy.shape)):
+                or (off is not None and off.shape != xy.shape)
+                or (bend is not None and bend.shape != label.shape)):
             raise ValueError(f"LaneLines: xy {xy.shape}, normal {normal.shape}, label "
-                             f"{label.shape}, lane {None if lane is None else lane.shape} and "
-                             f"centre_offset {None if off is None else off.shape} do not match")
-        return cls(xy, normal, label, lane, off)
+                             f"{label.shape}, lane {None if lane is None else lane.shape}, "
+                             f"centre_offset {None if off is None else off.shape} and bend "
+                             f"{None if bend is None else bend.shape} do not match")
+        return cls(xy, normal, label, lane, off, bend)
 
     @property
     def ambiguity(self) -> np.ndarray | None:
-        """(M,) half the distance (m) between the centre line's two constructions at each
-        sample (None without ``centre_offset``)."""
-        return None if self.centre_offset is None else centre_ambiguity(self.centre_offset)
+        """(M,) how uncertain (m) it is where vehicles drive at each sample
+        (:func:`fgloc.scenario.lane_ambiguity`: half the distance between the centre line's
+        two constructions, a bend into a neighbouring lane); None without either."""
+        if self.centre_offset is None and self.bend is None:
+            return None
+        return lane_ambiguity(len(self.xy), self.centre_offset, self.bend)
 
     def tree(self, code: int, weight: float) -> tuple[np.ndarray, cKDTree]:
         """(indices, KD-tree over (x, y, weight * direction)) of label ``code``."""

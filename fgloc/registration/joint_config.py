@@ -94,8 +94,9 @@ class JointConfig:
     lanelet's two centre-line constructions lie ``2 a`` m apart (``[map] centre_line``,
     :meth:`fgloc.scenario.Lanelet.centre`) has its frame noise ``frame`` grown to
     ``sqrt(frame^2 + (centre_ambiguity a)^2)``, so hand-mapped turns whose centre is not
-    known weigh less; 0 = off. Changes nothing where the constructions agree (the simulated
-    layouts)."""
+    known weigh less (a lane bent into a two-way street's half adds its bend to ``a`` in
+    quadrature, :func:`fgloc.scenario.lane_ambiguity`); 0 = off. Changes nothing where the
+    constructions agree and no lane bends (the simulated layouts)."""
     centre_line_sigma: float = 0.5
     """Prior standard deviation of the centre-line share: one parameter, shared by every
     point, that moves each target by that share of the offset from the arc-length centre
