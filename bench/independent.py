@@ -3,7 +3,8 @@
 fgloc's own simulator is a test instrument written alongside the method; this benchmark
 localizes scenarios it did not make. Per (junction, seed, setting) the generator writes a
 scenario directory (into a temporary directory) on the Lanelet2 example map (BSD-3-Clause,
-FZI; its licence file is copied with it), fgloc loads it like any user's
+FZI; its licence file is copied with it; ``--map`` another), at one of the map's six largest
+junctions of its routing graph (:func:`junctions`), fgloc loads it like any user's
 (:func:`fgloc.io.load_scenario`) and localizes it with every method
 (:func:`bench.sparse.localize_each`: :func:`fgloc.pipeline.localize_many` with the defaults; a
 method that raises :class:`fgloc.errors.LocalizationError` is a "no pose" run). Per run and
@@ -17,6 +18,7 @@ poles, 12 vehicles per minute), "none" no clutter, "uniform" uniform false alarm
 
     OMP_NUM_THREADS=1 python -m bench.independent                    # the report's full set
     OMP_NUM_THREADS=1 python -m bench.independent --junctions 1 --seeds 1 --settings static
+    OMP_NUM_THREADS=1 python -m bench.independent --map MY_MAP.osm --junctions 1 2 --seeds 1 2
 
 docs/benchmarks.md's table comes from ``python -m bench.report --only independent``.
 """
@@ -24,6 +26,7 @@ docs/benchmarks.md's table comes from ``python -m bench.report --only independen
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import tempfile
 import time
@@ -33,18 +36,15 @@ from pathlib import Path
 import numpy as np
 
 from bench.independent_gen import generate
-from bench.real_map import DEFAULT_MAP
+from bench.real_map import DEFAULT_MAP, junction_sites
 from bench.sparse import METHODS, NO_POSE, localize_each
 from fgloc.config import load_config
 from fgloc.evaluation.pose import pose_error, pose_error_vector
 from fgloc.io import load_scenario
 from fgloc.result import LocalizationResult
 
-#: junction number -> site (lat, lon, deg): the six largest junctions of the example map's
-#: routing graph, in bench/real_map.py's order, to 1e-5 deg
-JUNCTIONS: dict[int, tuple[float, float]] = {
-    1: (49.00976, 8.42350), 2: (49.01089, 8.42329), 3: (49.00519, 8.41563),
-    4: (49.00919, 8.42566), 5: (49.00377, 8.42435), 6: (49.00306, 8.42445)}
+#: how many of a map's largest junctions the benchmark may run
+N_JUNCTIONS = 6
 #: setting name -> the generator's keyword arguments (:func:`bench.independent_gen.generate`)
 SETTINGS: dict[str, dict[str, object]] = {
     "static": {}, "none": {"clutter": "none"}, "uniform": {"clutter": "uniform"},
@@ -52,6 +52,16 @@ SETTINGS: dict[str, dict[str, object]] = {
 
 #: one run's figures (see :func:`rows_of`)
 Row = dict[str, object]
+
+
+@functools.lru_cache(maxsize=4)
+def junctions(map_path: Path = DEFAULT_MAP, n: int = N_JUNCTIONS
+              ) -> dict[int, tuple[float, float]]:
+    """Junction number (1 = the largest) -> site (lat, lon, deg) of the ``n`` largest junctions
+    of ``map_path``'s routing graph (:func:`bench.real_map.junction_sites`, its order), to 1e-5
+    deg (the generator draws its seed from the site at that resolution)."""
+    return {k: (round(lat, 5), round(lon, 5))
+            for k, (lat, lon) in enumerate(junction_sites(map_path, n), start=1)}
 
 
 def runs_of(groups: list[dict[str, list]]) -> list[tuple[int, int, str]]:
@@ -87,7 +97,11 @@ def run_one(junction: int, seed: int, setting: str, duration: float,
     score it: :func:`rows_of` with the vehicle count and the wall time of all methods
     together (s)."""
     with tempfile.TemporaryDirectory(prefix="fgloc-independent-") as tmp:
-        out = generate(map_path, JUNCTIONS[junction], seed, Path(tmp) / "scenario",
+        sites = junctions(map_path)
+        if junction not in sites:
+            raise ValueError(f"{map_path}: {len(sites)} junctions in its routing graph, "
+                             f"no junction {junction}")
+        out = generate(map_path, sites[junction], seed, Path(tmp) / "scenario",
                        duration=duration, **SETTINGS[setting])
         scn = load_scenario(out)
         t0 = time.perf_counter()
@@ -104,11 +118,12 @@ def run_one(junction: int, seed: int, setting: str, duration: float,
 
 
 def run(groups: list[dict[str, list]], duration: float, config: Path | None = None,
-        pool_map: Callable[..., Iterable[list[Row]]] | None = None) -> list[Row]:
-    """The rows of :func:`run_one` for every run of ``groups`` (:func:`runs_of`).
-    ``pool_map(fn, items)`` runs ``fn(*item)`` per item in order (e.g. in worker processes;
-    default: here, one after the other)."""
-    items = [(j, s, setting, duration, config) for j, s, setting in runs_of(groups)]
+        pool_map: Callable[..., Iterable[list[Row]]] | None = None,
+        map_path: Path = DEFAULT_MAP) -> list[Row]:
+    """The rows of :func:`run_one` for every run of ``groups`` (:func:`runs_of`) on the
+    Lanelet2 map ``map_path``. ``pool_map(fn, items)`` runs ``fn(*item)`` per item in order
+    (e.g. in worker processes; default: here, one after the other)."""
+    items = [(j, s, setting, duration, config, map_path) for j, s, setting in runs_of(groups)]
     done = (pool_map or (lambda fn, its: (fn(*it) for it in its)))(run_one, items)
     return [row for rows in done for row in rows]
 
@@ -142,19 +157,24 @@ def table(rows: list[Row]) -> list[str]:
     return lines
 
 
-def setting_sentence(groups: list[dict[str, list]], duration: float) -> str:
+def setting_sentence(groups: list[dict[str, list]], duration: float,
+                     map_path: Path = DEFAULT_MAP) -> str:
     """What ``groups`` ran: the map, the runs per group, the scenario length."""
     parts = [f"junctions {g['junctions']} x seeds {g['seeds']} in {', '.join(g['settings'])}"
              for g in groups]
     n = len(runs_of(groups))
-    return (f"`{DEFAULT_MAP.name}`, {n} scenario{'s' * (n != 1)}: {'; '.join(parts)}; "
+    return (f"`{map_path.name}`, {n} scenario{'s' * (n != 1)}: {'; '.join(parts)}; "
             f"{duration:g} s each")
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--junctions", type=int, nargs="+", choices=list(JUNCTIONS), default=None,
-                    help="with --seeds and --settings: one group instead of the full set")
+    ap.add_argument("--map", type=Path, default=DEFAULT_MAP,
+                    help="Lanelet2 map (default: the Lanelet2 example map)")
+    ap.add_argument("--junctions", type=int, nargs="+",
+                    choices=range(1, N_JUNCTIONS + 1), default=None,
+                    help="with --seeds and --settings: one group instead of the full set "
+                         "(1 = the map's largest junction)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[1])
     ap.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=["static"])
     ap.add_argument("--duration", type=float, default=60.0, help="scenario length (s)")
@@ -166,10 +186,10 @@ def main() -> int:
 
     groups = BY_NAME["independent"].full["groups"] if args.junctions is None else [
         {"junctions": args.junctions, "seeds": args.seeds, "settings": args.settings}]
-    rows = run(groups, args.duration, args.config)
+    rows = run(groups, args.duration, args.config, map_path=args.map)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))
-    print(setting_sentence(groups, args.duration) + "\n\n" + "\n".join(table(rows)))
+    print(setting_sentence(groups, args.duration, args.map) + "\n\n" + "\n".join(table(rows)))
     return 0
 
 

@@ -101,3 +101,18 @@ def test_moving_radar_points_lie_on_true_vehicles(scenario):
     moving = np.abs(radar.doppler) >= 0.5
     assert moving.mean() >= 0.5
     assert np.mean(nearest[moving] <= 1.0) >= 0.95
+
+
+def test_the_benchmark_finds_its_sites_in_the_maps_routing_graph():
+    """bench/independent.py takes a map's largest junctions from its routing graph (any map:
+    ``--map``): on the crop, junction 3 of the whole map is among them, to 1e-5 deg (the
+    generator seeds from the site at that resolution); asking for more than the map has is
+    an error that names the map."""
+    from bench.independent import junctions, run_one
+
+    sites = junctions(CROP, 3)
+    assert list(sites) == [1, 2, 3][: len(sites)] and sites
+    assert JUNCTION_3 in sites.values()
+    assert all(round(lat, 5) == lat and round(lon, 5) == lon for lat, lon in sites.values())
+    with pytest.raises(ValueError, match="lanelet2_example_crop.osm: .* no junction 7"):
+        run_one(7, 1, "static", 1.0, map_path=CROP)
