@@ -3,8 +3,9 @@
 fgloc's own simulator is a test instrument written alongside the method; this benchmark
 localizes scenarios it did not make. Per (junction, seed, setting) the generator writes a
 scenario directory (into a temporary directory) on the Lanelet2 example map (BSD-3-Clause,
-FZI; its licence file is copied with it; ``--map`` another), at one of the map's six largest
-junctions of its routing graph (:func:`junctions`), fgloc loads it like any user's
+FZI; its licence file is copied with it; ``--map`` another), at one of the map's twelve largest
+junctions of its routing graph (:func:`junctions`; 7-12 held out, :data:`LOOKED_AT`), fgloc
+loads it like any user's
 (:func:`fgloc.io.load_scenario`) and localizes it with every method
 (:func:`bench.sparse.localize_each`: :func:`fgloc.pipeline.localize_many` with the defaults; a
 method that raises :class:`fgloc.errors.LocalizationError` is a "no pose" run). Per run and
@@ -44,7 +45,10 @@ from fgloc.io import load_scenario
 from fgloc.result import LocalizationResult
 
 #: how many of a map's largest junctions the benchmark may run
-N_JUNCTIONS = 6
+N_JUNCTIONS = 12
+#: junctions 1 to this one are the sites fgloc's development looked at (the real-map table's);
+#: the rest are held out: measured, never tuned on (:func:`site_group`)
+LOOKED_AT = 6
 #: setting name -> the generator's keyword arguments (:func:`bench.independent_gen.generate`)
 SETTINGS: dict[str, dict[str, object]] = {
     "static": {}, "none": {"clutter": "none"}, "uniform": {"clutter": "uniform"},
@@ -133,22 +137,32 @@ def _mean_worst(values: list[float], fmt: str = "{:.3f}") -> str:
             else "- / -")
 
 
+def site_group(junction: int) -> str:
+    """The row label of a junction's runs besides their setting: "" for the sites development
+    looked at (1 to :data:`LOOKED_AT`), "held-out junctions" for the others."""
+    return "" if junction <= LOOKED_AT else "held-out junctions"
+
+
 def table(rows: list[Row]) -> list[str]:
-    """Markdown: per setting and method the runs, how many resolved, the 2D and |yaw| errors
-    (mean / worst over the runs with a pose), the mean NEES over the resolved runs (3 is
-    consistent), dz (signed mean / worst magnitude) and the runs without a pose."""
+    """Markdown: per setting (and :func:`site_group`) and method the runs, how many resolved,
+    the 2D and |yaw| errors (mean / worst over the runs with a pose), the mean NEES over the
+    resolved runs (3 is consistent), dz (signed mean / worst magnitude) and the runs without
+    a pose."""
     lines = ["| setting | method | runs | resolved | 2D m (mean / worst) | abs dyaw deg "
              "(mean / worst) | NEES resolved (mean) | dz m (mean / worst abs) | no pose |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|"]
-    settings = [s for s in SETTINGS if any(r["setting"] == s for r in rows)]
-    for setting in settings:
+    groups = [(s, g) for s in SETTINGS for g in ("", site_group(LOOKED_AT + 1))
+              if any((r["setting"], site_group(r["junction"])) == (s, g) for r in rows)]
+    for setting, group in groups:
+        label = f"{setting}, {group}" if group else setting
         for m in METHODS:
-            rs = [r for r in rows if (r["setting"], r["method"]) == (setting, m)]
+            rs = [r for r in rows if (r["setting"], site_group(r["junction"]), r["method"])
+                  == (setting, group, m)]
             posed = [r for r in rs if r["status"] != NO_POSE]
             nees = [r["nees"] for r in rs if r["status"] == "resolved" and r["nees"] is not None]
             dz = [r["dz"] for r in posed]
             lines.append(
-                f"| {setting} | {m} | {len(rs)} | {sum(r['status'] == 'resolved' for r in rs)} | "
+                f"| {label} | {m} | {len(rs)} | {sum(r['status'] == 'resolved' for r in rs)} | "
                 f"{_mean_worst([r['d2d'] for r in posed])} | "
                 f"{_mean_worst([r['dyaw_deg'] for r in posed])} | "
                 f"{f'{np.mean(nees):.2f}' if nees else '-'} | "

@@ -116,3 +116,17 @@ def test_the_benchmark_finds_its_sites_in_the_maps_routing_graph():
     assert all(round(lat, 5) == lat and round(lon, 5) == lon for lat, lon in sites.values())
     with pytest.raises(ValueError, match="lanelet2_example_crop.osm: .* no junction 7"):
         run_one(7, 1, "static", 1.0, map_path=CROP)
+
+
+def test_the_benchmark_reports_held_out_junctions_on_rows_of_their_own():
+    from bench.independent import LOOKED_AT, table
+
+    def row(junction: int, d2d: float) -> dict:
+        return {"setting": "static", "junction": junction, "seed": 1, "method": "joint",
+                "status": "resolved", "n_modes": 1, "d2d": d2d, "dyaw_deg": 0.1,
+                "nees": 2.0, "dz": -0.1}
+
+    lines = table([row(1, 0.1), row(LOOKED_AT, 0.3), row(LOOKED_AT + 1, 4.0)])
+    joint = [ln for ln in lines if "| joint |" in ln]
+    assert joint[0].startswith("| static | joint | 2 | 2 | 0.200 / 0.300 |")
+    assert joint[1].startswith("| static, held-out junctions | joint | 1 | 1 | 4.000 / 4.000 |")
