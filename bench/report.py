@@ -294,9 +294,9 @@ TABLES: list[Table] = [
           "frames; none: no clutter; uniform: 15 false alarms a frame anywhere in view, 0-2 m "
           "high, random Doppler; the ALS a ground plane (slope up to 2 %), sensor.toml 3 m and 3 "
           "deg off (1 sigma). Every method through the library (load_scenario, localize_many, the "
-          "defaults); per setting and method the runs, how many resolved, the 2D and yaw errors "
-          "(runs with a pose), the mean NEES of (x, y, yaw) over the resolved runs (3 is "
-          "consistent), the height error dz (signed mean, worst magnitude) and the runs without a "
+          "defaults); per setting and method the runs, how many resolved, the 2D error (runs "
+          "with a pose, then the resolved ones alone), the yaw error, the mean NEES of (x, y, "
+          "yaw) over the resolved runs (3 is consistent), the height error dz (signed mean, worst magnitude) and the runs without a "
           "pose (LocalizationError).",
           produce_independent,
           {"groups": [{"junctions": [1, 2, 3, 4, 5, 6], "seeds": [1, 2],

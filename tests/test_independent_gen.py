@@ -126,7 +126,9 @@ def test_the_benchmark_reports_held_out_junctions_on_rows_of_their_own():
                 "status": "resolved", "n_modes": 1, "d2d": d2d, "dyaw_deg": 0.1,
                 "nees": 2.0, "dz": -0.1}
 
-    lines = table([row(1, 0.1), row(LOOKED_AT, 0.3), row(LOOKED_AT + 1, 4.0)])
+    ambiguous = {**row(LOOKED_AT + 2, 6.0), "status": "ambiguous"}
+    lines = table([row(1, 0.1), row(LOOKED_AT, 0.3), row(LOOKED_AT + 1, 4.0), ambiguous])
     joint = [ln for ln in lines if "| joint |" in ln]
-    assert joint[0].startswith("| static | joint | 2 | 2 | 0.200 / 0.300 |")
-    assert joint[1].startswith("| static, held-out junctions | joint | 1 | 1 | 4.000 / 4.000 |")
+    assert joint[0].startswith("| static | joint | 2 | 2 | 0.200 / 0.300 | 0.200 / 0.300 |")
+    assert joint[1].startswith("| static, held-out junctions | joint | 2 | 1 | 5.000 / 6.000 | "
+                               "4.000 / 4.000 |")
