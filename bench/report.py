@@ -296,8 +296,8 @@ TABLES: list[Table] = [
           "deg off (1 sigma). Every method through the library (load_scenario, localize_many, the "
           "defaults); per setting and method the runs, how many resolved, the 2D error (runs "
           "with a pose, then the resolved ones alone), the yaw error, the mean NEES of (x, y, "
-          "yaw) over the resolved runs (3 is consistent), the height error dz (signed mean, worst magnitude) and the runs without a "
-          "pose (LocalizationError).",
+          "yaw) over the resolved runs (3 is consistent), the height error dz (signed mean, "
+          "worst magnitude) and the runs without a pose (LocalizationError).",
           produce_independent,
           {"groups": [{"junctions": [1, 2, 3, 4, 5, 6], "seeds": [1, 2],
                        "settings": ["static"]},
