@@ -103,7 +103,7 @@ def scenario_summary(path: str | Path) -> str:
     from fgloc.io import load_scenario
     from fgloc.labels import NAMES
     from fgloc.map import map_labels
-    from fgloc.scenario import ASPRS_CLASSES, lanelet_kind
+    from fgloc.scenario import ASPRS_CLASSES, RAGGED_END_GAP, lanelet_kind, ragged
 
     scn = load_scenario(path)
     r, s = scn.radar, scn.sensor
@@ -121,6 +121,7 @@ def scenario_summary(path: str | Path) -> str:
     by_label = ", ".join(f"{NAMES[k]} {codes.count(k)}" for k in sorted(NAMES))
     n_routed = list(labels.source.values()).count("routing")
     lmap = scn.lanelets
+    rag = ragged(lmap.lanelets)
     drivable_kinds = [lanelet_kind(ll) for ll in lmap.lanelets]
     by_kind = ", ".join(f"{k} {drivable_kinds.count(k)}" for k in sorted(set(drivable_kinds)))
 
@@ -155,6 +156,8 @@ def scenario_summary(path: str | Path) -> str:
         f"({counts(lmap.ignored_by_kind())})",
         f"  skipped     {len(lmap.skipped)} roads lanelet2 rejected"
         + (f" (relation {', '.join(str(i) for i in lmap.skipped)})" if lmap.skipped else ""),
+        f"  ragged      {len(rag)} drivable with bounds ending more than {RAGGED_END_GAP:g} m "
+        "apart" + (f" (relation {', '.join(map(str, rag))})" if rag else ""),
         f"map areas     {len(lmap.areas)} ({counts(lmap.areas_by_kind())})",
         f"regulatory    {sum(lmap.regulatory.values())} ({counts(lmap.regulatory)})",
         f"ground truth  {'yes' if scn.truth is not None else 'no'}"

@@ -196,6 +196,24 @@ class Lanelet:
         """A two-way lanelet wide enough for one lane per direction."""
         return self.two_way and self.width() >= two_way_min_width
 
+    def end_gap(self) -> float:
+        """The larger distance (m) between the bounds' first points and between their last
+        points: a lanelet's ends are lines across the road, a few lanes long; far more means a
+        bound runs on past the other (:data:`RAGGED_END_GAP`)."""
+        return float(max(np.linalg.norm(self.left[0, :2] - self.right[0, :2]),
+                         np.linalg.norm(self.left[-1, :2] - self.right[-1, :2])))
+
+
+#: a lanelet whose bounds' ends lie more than this far apart (m, :meth:`Lanelet.end_gap`) has
+#: a bound that runs on past the other: its centre line cuts across the road (the Lanelet2
+#: example map has one, 102 m; its flared turns reach 17 m)
+RAGGED_END_GAP = 30.0
+
+
+def ragged(lanelets: list[Lanelet], limit: float = RAGGED_END_GAP) -> list[int]:
+    """Ids of the lanelets whose :meth:`Lanelet.end_gap` exceeds ``limit`` m."""
+    return [ll.id for ll in lanelets if ll.end_gap() > limit]
+
 
 def is_two_way(tags: Mapping[str, str]) -> bool:
     """Whether a lanelet's tags let both directions drive it (``one_way`` = no / false)."""

@@ -673,6 +673,27 @@ def test_radar_turns_from_the_junction_only_towards_much_more_road() -> None:
     assert yaw == 0.0 and seen == 61
 
 
+def test_a_bound_that_runs_on_past_the_other_is_named(crop_map: LaneletMap) -> None:
+    """A lanelet's ends are lines across the road: the crop's flared junction turns end at
+    most a few lanes apart, while a lanelet whose right bound runs 100 m past its left one
+    (as one of the example map's does) is named by ``fgloc info`` and, near the sensor, in
+    the localization's warnings."""
+    from fgloc.map.target_cloud import ragged_warning
+    from fgloc.scenario import RAGGED_END_GAP, ragged
+
+    gaps = [ll.end_gap() for ll in crop_map.lanelets]
+    assert max(gaps) < RAGGED_END_GAP and not ragged(crop_map.lanelets)
+    z = np.zeros((3, 1))
+    left = np.hstack([[[0.0, 3.5], [12.0, 3.5], [25.0, 3.5]], z])
+    right = np.hstack([[[0.0, 0.0], [25.0, 0.0], [125.0, -2.0]], z])
+    bad = Lanelet(7, left, right, {"subtype": "road"})
+    assert bad.end_gap() == pytest.approx(np.hypot(100.0, 5.5))
+    assert ragged([*crop_map.lanelets, bad]) == [7]
+    (warning,) = ragged_warning([bad])
+    assert "relation 7" in warning and "30 m" in warning
+    assert ragged_warning(crop_map.lanelets) == []
+
+
 def test_cli_simulate_map_and_info(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     from fgloc.cli import main
 
@@ -689,6 +710,7 @@ def test_cli_simulate_map_and_info(tmp_path: Path, capsys: pytest.CaptureFixture
                   r"(\d+) lanelets", text)
     assert m and float(m[1]) < 0.2 and 0.3 < float(m[2]) < 2.5 and int(m[3]) >= 1, text
     assert re.search(r"skipped\s+0 roads lanelet2 rejected\n", text)
+    assert re.search(r"ragged\s+0 drivable with bounds ending more than 30 m apart\n", text)
     # a road lanelet lanelet2 rejects (its right bound's role misspelt) is named
     osm = (out / "map.osm").read_text()
     road = next(r for r in re.finditer(r'<relation id="(-?\d+)".*?</relation>', osm, re.S)

@@ -30,12 +30,14 @@ from fgloc.errors import InputError, LocalizationError
 from fgloc.labels import NAMES
 from fgloc.map.lanelet_labels import map_labels
 from fgloc.scenario import (
+    RAGGED_END_GAP,
     AlsCloud,
     Lanelet,
     LaneletMap,
     Scenario,
     lanelets_near,
     nearest_on_segments,
+    ragged,
 )
 
 #: ASPRS codes that mean "not classified"; an ALS holding only these has no class information.
@@ -238,6 +240,18 @@ def _near_sensor(scn: Scenario, xy: np.ndarray, radius: float) -> np.ndarray:
     return np.einsum("ij,ij->i", xy - c, xy - c) <= radius * radius
 
 
+def ragged_warning(lanelets: list[Lanelet]) -> list[str]:
+    """A warning naming the ``lanelets`` (those near the sensor) whose bounds end more than
+    :data:`~fgloc.scenario.RAGGED_END_GAP` m apart (:func:`~fgloc.scenario.ragged`), or none."""
+    ids = ragged(lanelets)
+    if not ids:
+        return []
+    return [f"map: {len(ids)} drivable lanelet(s) near the sensor with bounds whose ends lie "
+            f"more than {RAGGED_END_GAP:g} m apart (relation {', '.join(map(str, ids))}): one "
+            "bound runs on past the other, so the lane centre there cuts across the road; "
+            "vehicles are registered to a line they do not drive (check the map)"]
+
+
 def build_target_cloud(scn: Scenario, cfg: MapConfig) -> TargetCloud:
     """Target cloud in L from the scenario's ALS and lanelet map (see the module docstring).
 
@@ -274,7 +288,7 @@ def build_target_cloud(scn: Scenario, cfg: MapConfig) -> TargetCloud:
         lanelet_id=lid,
         lanelet_labels=lanelet_labels,
         lanelet_curvature=labels.curvature,
-        warnings=[*warnings, *scn.lanelets.warnings()],
+        warnings=[*warnings, *scn.lanelets.warnings(), *ragged_warning(near)],
         label_source=labels.source,
         ignored_lanelets=scn.lanelets.ignored_by_kind(),
     )
