@@ -100,11 +100,11 @@ def run_one(junction: int, seed: int, setting: str, duration: float,
     localize it with every method (fgloc config TOML ``config``, None: the defaults) and
     score it: :func:`rows_of` with the vehicle count and the wall time of all methods
     together (s)."""
+    sites = junctions(map_path)
+    if junction not in sites:
+        raise ValueError(f"{map_path}: {len(sites)} junctions in its routing graph, "
+                         f"no junction {junction}")
     with tempfile.TemporaryDirectory(prefix="fgloc-independent-") as tmp:
-        sites = junctions(map_path)
-        if junction not in sites:
-            raise ValueError(f"{map_path}: {len(sites)} junctions in its routing graph, "
-                             f"no junction {junction}")
         out = generate(map_path, sites[junction], seed, Path(tmp) / "scenario",
                        duration=duration, **SETTINGS[setting])
         scn = load_scenario(out)
@@ -152,13 +152,13 @@ def table(rows: list[Row]) -> list[str]:
              "worst) | abs dyaw deg (mean / worst) | NEES resolved (mean) | dz m (mean / worst "
              "abs) | no pose |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    group_of = [(r["setting"], site_group(r["junction"])) for r in rows]
     groups = [(s, g) for s in SETTINGS for g in ("", site_group(LOOKED_AT + 1))
-              if any((r["setting"], site_group(r["junction"])) == (s, g) for r in rows)]
+              if (s, g) in group_of]
     for setting, group in groups:
         label = f"{setting}, {group}" if group else setting
         for m in METHODS:
-            rs = [r for r in rows if (r["setting"], site_group(r["junction"]), r["method"])
-                  == (setting, group, m)]
+            rs = [r for r, g in zip(rows, group_of) if g == (setting, group) and r["method"] == m]
             posed = [r for r in rs if r["status"] != NO_POSE]
             nees = [r["nees"] for r in rs if r["status"] == "resolved" and r["nees"] is not None]
             dz = [r["dz"] for r in posed]

@@ -273,7 +273,6 @@ def test_narrow_two_way_lanelet_bends_each_direction_into_its_own_lane() -> None
     np.testing.assert_allclose(centre[(1, True)][:, 1], 0.0, atol=1e-9)
 
 
-
 def test_a_bent_lane_is_as_ambiguous_as_it_is_far_from_its_lanelets_centre() -> None:
     """Where a lane bends from its lanelet's centre line into a neighbour's lane, drivers may
     follow either line: the bend (the distance to the lanelet's own centre line) is the
