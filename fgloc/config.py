@@ -129,6 +129,9 @@ class CoarseConfig:
     """About this many source points (a regular subsample) score the hypotheses."""
     refine_points: int = 10000
     """About this many source points (a regular subsample) are used by the refinement."""
+    vertical_points: int = 10000
+    """At most this many moving on-trail detections (a regular subsample) give the vertical
+    fit its moving rows (the detections themselves, not the voxel-averaged source)."""
     search_candidates: int = 6
     """Best distinct hypotheses refined by ICP before choosing."""
     score_tau: float = 3.0
@@ -302,6 +305,9 @@ class CoarseConfig:
         if self.trail_min_neighbours < 0:
             raise ValueError("trail_min_neighbours must be >= 0, got "
                              f"{self.trail_min_neighbours}")
+        for name in ("search_points", "refine_points", "vertical_points"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
         if not self.approx_position_sigma > 0.0:
             raise ValueError("approx_position_sigma must be > 0 (m), got "
                              f"{self.approx_position_sigma}")

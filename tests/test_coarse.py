@@ -288,3 +288,20 @@ def test_height_without_static_scatterers_is_not_confidently_wrong() -> None:
     dz = res.T_coarse[2, 3] - scn.truth.sensor_pose[2, 3]
     assert res.n_static_ground == 0
     assert res.z_std is not None and abs(dz) < 2.0 * res.z_std
+
+
+@pytest.mark.parametrize("case", ["tjunction", "curve"])
+def test_height_from_moving_returns_alone_is_not_biased_low(case: str) -> None:
+    """Without kerbs or other static ground returns (``clutter_per_frame = 0``) the height
+    rests on the moving returns. Fitted on the voxel-averaged source (whose centroids lie
+    higher than the detections they average, more so near the sensor) the sensor came out
+    0.54 m (T-junction) and 0.39 m (curve) low, seed 1; on the detections themselves 0.21 and
+    0.15 m."""
+    from fgloc.sim.config import SimConfig
+
+    sc = SimConfig()
+    sc = dataclasses.replace(sc, radar=dataclasses.replace(sc.radar, clutter_per_frame=0.0))
+    scn = simulate(case, 1, config=sc)
+    res = coarse_localize(scn, build_target_cloud(scn, MapConfig()), CoarseConfig())
+    assert res.n_static_ground == 0
+    assert abs(res.T_coarse[2, 3] - scn.truth.sensor_pose[2, 3]) < 0.3

@@ -81,7 +81,7 @@ def test_independent_false_alarms_leave_and_vehicles_stay(uniform: Scenario) -> 
                      cfg.trail_min_neighbours)
     assert trail[vehicle].mean() >= 0.98
     assert trail[~vehicle].mean() <= 0.10
-    assert dynamic_points(radar, cfg)[3] == int((~trail).sum())
+    assert dynamic_points(radar, cfg).n_off_trail == int((~trail).sum())
 
 
 def test_coarse_fit_under_uniform_false_alarms(uniform: Scenario) -> None:

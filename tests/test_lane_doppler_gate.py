@@ -86,8 +86,11 @@ def test_dynamic_points_keep_one_point_per_voxel_and_doppler_sign() -> None:
     xyz = np.column_stack([x, y, rng.normal(0.5, 0.1, n)])
     doppler = np.repeat([4.0, -4.0, 0.0], n // 3)
     radar = RadarData(np.arange(n) * 0.01, xyz, doppler)
-    pts, receding, n_dyn, n_off = dynamic_points(radar, CoarseConfig())
-    assert n_dyn == 200 and n_off == 0          # two dense trails: nothing is off them
+    source = dynamic_points(radar, CoarseConfig())
+    pts, receding = source.xyz, source.receding
+    assert source.n_dynamic == 200 and source.n_off_trail == 0   # two dense trails: all on
+    # the vertical fit's detections are the moving ones themselves, not the voxels
+    np.testing.assert_array_equal(source.detections, xyz[:200])
     assert receding.any() and (~receding).any()
     for sign in (True, False):
         on = pts[receding == sign]

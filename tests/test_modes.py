@@ -261,7 +261,9 @@ def test_one_vehicle_in_view_on_a_straight_road_is_no_resolved_pose(tmp_path, ca
     for method, res in out.items():
         assert res.status == AMBIGUOUS, method
         std = np.sqrt(np.linalg.eigvalsh(np.asarray(res.covariance)[:2, :2])[-1])
-        assert std > 2.0, method
+        # icp finds no valley: its covariance is its modes' spread along the road (2.2 m; 1.8
+        # m since the vertical fit takes the detections, which adds a mode 0.8 m from one)
+        assert std > (1.5 if method == "icp" else 2.0), method
         if method != "icp":
             assert res.valley is not None and res.valley["length_m"] > 20.0, method
     write_scenario(scn, tmp_path / "scn")

@@ -11,8 +11,10 @@ Method
 
    * horizontal (x, y, yaw): a planar problem. The levelled source ``R_tilt p`` projected to the
      ground must lie on the road, i.e. inside the lanelets, near target points in 2D;
-   * vertical (z, pitch, roll): the levelled source heights must equal the road height under
-     each point plus a mean reflection height (``CoarseConfig.reflection_height``), a linear
+   * vertical (z, pitch, roll): the levelled heights of the moving detections themselves (not
+     the voxel centroids: a centroid is no unbiased sample of the heights it averages) must
+     equal the road height under each plus a mean reflection height
+     (``CoarseConfig.reflection_height``), a linear
      least-squares fit against the ALS road heights (ridge-regularized so a single straight road
      cannot make the roll about it diverge).
 
@@ -279,15 +281,16 @@ def coarse_modes(kept: list[tuple[float, np.ndarray, str]], final: _Refined,
             for k, ((score, pose, model), height) in enumerate(zip(kept, heights))]
 
 
-def _height_at(src: np.ndarray, road: RoadModel, statics: StaticGround, final: _Refined,
-               pose2d: np.ndarray, z_prior: float, vfov_deg: float, cfg: CoarseConfig
-               ) -> tuple[float, float | None]:
-    """The sensor height (m in L) and its std. dev. of the vertical fit at another planar pose
-    with ``final``'s tilt (a mode a lane away stands on other road heights); ``final``'s own
-    when the fit finds too few points."""
-    lev = src @ final.r_tilt.T
+def _height_at(detections: np.ndarray, road: RoadModel, statics: StaticGround,
+               final: _Refined, pose2d: np.ndarray, z_prior: float, vfov_deg: float,
+               cfg: CoarseConfig) -> tuple[float, float | None]:
+    """The sensor height (m in L) and its std. dev. of the vertical fit of the moving
+    ``detections`` (N, 3) in S at another planar pose with ``final``'s tilt (a mode a lane
+    away stands on other road heights); ``final``'s own when the fit finds too few points."""
+    lev = detections @ final.r_tilt.T
     xy_l = apply_planar(lev[:, :2], pose2d)
-    seen = below_fov_floor(src, final.r_tilt, final.z, road.road_height(xy_l)[0], vfov_deg)
+    seen = below_fov_floor(detections, final.r_tilt, final.z, road.road_height(xy_l)[0],
+                           vfov_deg)
     pitch, roll = ypr_from_rot(final.r_tilt)[1:]
     out = fit_vertical(lev, xy_l, road, seen, (pitch, roll), z_prior, cfg,
                        statics.rows(final.r_tilt, pose2d, road, cfg))
@@ -460,12 +463,13 @@ class _Refined:
 
 
 def _refine(
-    src: np.ndarray, receding: np.ndarray, road: RoadModel, lanes: LaneCentres,
-    pose2d: np.ndarray, z: float, vfov_deg: float, cfg: CoarseConfig,
+    src: np.ndarray, receding: np.ndarray, detections: np.ndarray, road: RoadModel,
+    lanes: LaneCentres, pose2d: np.ndarray, z: float, vfov_deg: float, cfg: CoarseConfig,
     statics: StaticGround | None = None,
 ) -> _Refined:
-    """Alternate the lane-centre planar ICP and the vertical fit (see the module docstring);
-    src (N, 3) in S, receding (N,) their Doppler signs."""
+    """Alternate the lane-centre planar ICP of ``src`` (N, 3) in S (receding (N,): their
+    Doppler signs) and the vertical fit of the moving ``detections`` (K, 3) in S (see the
+    module docstring)."""
     r_tilt = np.eye(3)
     pitch = roll = 0.0
     z_prior = z
@@ -477,8 +481,9 @@ def _refine(
         out = icp_planar(lev[:, :2], _seen_from(lanes, pose2d[:2], cfg), pose2d,
                          cfg.lane_icp_ranges, cfg.icp_iterations, receding=receding)
         pose2d = out.pose
+        lev = detections @ r_tilt.T
         xy_l = apply_planar(lev[:, :2], pose2d)
-        seen = below_fov_floor(src, r_tilt, z, road.road_height(xy_l)[0], vfov_deg)
+        seen = below_fov_floor(detections, r_tilt, z, road.road_height(xy_l)[0], vfov_deg)
         rows = None if statics is None else statics.rows(r_tilt, pose2d, road, cfg)
         vertical = fit_vertical(lev, xy_l, road, seen, (pitch, roll), z_prior, cfg, rows)
         if vertical is None:
@@ -515,12 +520,14 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
     if len(target) == 0:
         raise LocalizationError("the target cloud is empty: no road points to register to")
     check_inside_als(scn)
-    src, receding, n_dyn, n_off_trail = dynamic_points(scn.radar, cfg)
+    source = dynamic_points(scn.radar, cfg)
+    src, receding, det = source.xyz, source.receding, source.detections
     timings["source filter"] = time.perf_counter() - t0
     if len(src) < cfg.min_points:
         raise LocalizationError(
-            f"only {len(src)} dynamic points after voxel + DBSCAN filtering ({n_dyn} detections "
-            f"with |doppler| >= lambda = {cfg.doppler_min} m/s, {n_off_trail} of them off any "
+            f"only {len(src)} dynamic points after voxel + DBSCAN filtering ({source.n_dynamic} "
+            f"detections with |doppler| >= lambda = {cfg.doppler_min} m/s, "
+            f"{source.n_off_trail} of them off any "
             f"trail); at least {cfg.min_points} are "
             "needed: record longer or with more traffic, or lower coarse.doppler_min"
         )
@@ -551,7 +558,7 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
                                  np.asarray(scn.als.classification), centre,
                                  scn.sensor.max_range + pad,
                                  np.vstack([lc.xy for lc in models.values()]), cfg)
-    refs = {model: _refine(fit, fit_rec, road, lanes, refined[0][1], z0, scn.sensor.vfov_deg,
+    refs = {model: _refine(fit, fit_rec, det, road, lanes, refined[0][1], z0, scn.sensor.vfov_deg,
                            cfg, statics) for model, lanes in models.items()}
     kept: list[tuple[float, np.ndarray, str]] = []
     for model, lanes in models.items():
@@ -568,11 +575,11 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
     kept = [k for k in kept if k[0] >= cfg.mode_margin * kept[0][0]]
     ref = refs[kept[0][2]]
     if _distinct(ref.pose2d, kept[:1], cfg):      # another pose fits the lanes best
-        ref = _refine(fit, fit_rec, road, models[kept[0][2]], kept[0][1], z0,
+        ref = _refine(fit, fit_rec, det, road, models[kept[0][2]], kept[0][1], z0,
                       scn.sensor.vfov_deg, cfg, statics)
         kept[0] = (kept[0][0], ref.pose2d, kept[0][2])
     heights = [(ref.z, ref.z_std)] + [
-        _height_at(fit, road, statics, ref, pose, z0, scn.sensor.vfov_deg, cfg)
+        _height_at(det, road, statics, ref, pose, z0, scn.sensor.vfov_deg, cfg)
         for _, pose, _ in kept[1:]]
     modes = coarse_modes(kept, ref, heights)
     valley = lane_valley(kept, ref, fit, fit_rec, models, centre, cfg)
@@ -601,9 +608,9 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
         pose=pose_from_se3(T),
         fitness=fitness,
         inlier_rmse=rmse,
-        n_points_dynamic=n_dyn,
+        n_points_dynamic=source.n_dynamic,
         n_points_used=int(len(src)),
-        n_points_off_trail=n_off_trail,
+        n_points_off_trail=source.n_off_trail,
         converged=not problems,
         message="; ".join(problems) if problems else "converged",
         yaw_search=yaw_search,

@@ -13,6 +13,8 @@ deg off with a confident covariance at one junction (docs/experiments.md, issue 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -40,11 +42,27 @@ def on_trail(xy: np.ndarray, t: np.ndarray, radius: float, window: float,
     return dist[:, 0] <= bound
 
 
-def dynamic_points(radar: RadarData, cfg: CoarseConfig
-                   ) -> tuple[np.ndarray, np.ndarray, int, int]:
-    """Filtered dynamic cloud (M, 3) in S, whether each point moves away from the sensor (M,)
-    bool (Doppler > 0), the number of dynamic detections before filtering and how many of
-    them were dropped as off any trail.
+@dataclass
+class DynamicSource:
+    """The coarse stage's source, in the sensor frame S.
+
+    xyz: (M, 3) m, the moving on-trail detections voxel-averaged per Doppler sign and kept by
+    DBSCAN; receding: (M,) True where that point moves away from the sensor (Doppler > 0).
+    detections: (K, 3) m, the moving on-trail detections themselves (a regular subsample of at
+    most ``vertical_points``), whose heights the vertical fit uses (a voxel's centroid is no
+    unbiased sample of the heights it averages). n_dynamic: detections with
+    ``|doppler| >= doppler_min``; n_off_trail: how many of them lie on no trail.
+    """
+
+    xyz: np.ndarray
+    receding: np.ndarray
+    detections: np.ndarray
+    n_dynamic: int
+    n_off_trail: int
+
+
+def dynamic_points(radar: RadarData, cfg: CoarseConfig) -> DynamicSource:
+    """The filtered dynamic cloud and the detections it averages (:class:`DynamicSource`).
 
     Keeps ``|doppler| >= cfg.doppler_min`` on a trail (:func:`on_trail` with ``trail_radius``,
     ``trail_window``, ``trail_min_neighbours``, horizontal in S), averages per
@@ -55,7 +73,7 @@ def dynamic_points(radar: RadarData, cfg: CoarseConfig
     moving = np.abs(radar.doppler) >= cfg.doppler_min
     dyn = np.asarray(radar.xyz, dtype=float)[moving]
     if dyn.shape[0] == 0:
-        return np.zeros((0, 3)), np.zeros(0, dtype=bool), 0, 0
+        return DynamicSource(np.zeros((0, 3)), np.zeros(0, dtype=bool), np.zeros((0, 3)), 0, 0)
     trail = on_trail(dyn[:, :2], np.asarray(radar.t)[moving], cfg.trail_radius,
                      cfg.trail_window, cfg.trail_min_neighbours)
     sign = (np.asarray(radar.doppler)[moving][trail] > 0).astype(np.int64)
@@ -65,4 +83,7 @@ def dynamic_points(radar: RadarData, cfg: CoarseConfig
         o3d = open3d()
         pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
         keep = np.asarray(pcd.cluster_dbscan(cfg.dbscan_eps, cfg.dbscan_min_points, False)) >= 0
-    return pts[keep], sign[keep] == 1, int(dyn.shape[0]), int((~trail).sum())
+    on = dyn[trail]
+    return DynamicSource(pts[keep], sign[keep] == 1,
+                         on[:: max(1, len(on) // cfg.vertical_points)],
+                         int(dyn.shape[0]), int((~trail).sum()))
