@@ -56,7 +56,8 @@ def test_a_sparse_vehicle_stays_on_its_trail() -> None:
 
 
 def test_trail_config_is_validated() -> None:
-    for bad in ({"trail_radius": 0.0}, {"trail_window": -1.0}, {"trail_min_neighbours": -1}):
+    for bad in ({"trail_radius": 0.0}, {"trail_window": -1.0}, {"trail_min_neighbours": -1},
+                {"search_points": 0}, {"refine_points": 0}, {"vertical_points": 0}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             CoarseConfig(**bad)
 

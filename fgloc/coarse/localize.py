@@ -527,8 +527,7 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
         raise LocalizationError(
             f"only {len(src)} dynamic points after voxel + DBSCAN filtering ({source.n_dynamic} "
             f"detections with |doppler| >= lambda = {cfg.doppler_min} m/s, "
-            f"{source.n_off_trail} of them off any "
-            f"trail); at least {cfg.min_points} are "
+            f"{source.n_off_trail} of them off any trail); at least {cfg.min_points} are "
             "needed: record longer or with more traffic, or lower coarse.doppler_min"
         )
 
