@@ -49,6 +49,8 @@ N_JUNCTIONS = 12
 #: junctions 1 to this one are the sites fgloc's development looked at (the real-map table's);
 #: the rest are held out: measured, never tuned on (:func:`site_group`)
 LOOKED_AT = 6
+#: the row label of the held-out junctions' runs besides their setting (:func:`site_group`)
+HELD_OUT = "held-out junctions"
 #: setting name -> the generator's keyword arguments (:func:`bench.independent_gen.generate`)
 SETTINGS: dict[str, dict[str, object]] = {
     "static": {}, "none": {"clutter": "none"}, "uniform": {"clutter": "uniform"},
@@ -139,8 +141,8 @@ def _mean_worst(values: list[float], fmt: str = "{:.3f}") -> str:
 
 def site_group(junction: int) -> str:
     """The row label of a junction's runs besides their setting: "" for the sites development
-    looked at (1 to :data:`LOOKED_AT`), "held-out junctions" for the others."""
-    return "" if junction <= LOOKED_AT else "held-out junctions"
+    looked at (1 to :data:`LOOKED_AT`), :data:`HELD_OUT` for the others."""
+    return "" if junction <= LOOKED_AT else HELD_OUT
 
 
 def table(rows: list[Row]) -> list[str]:
@@ -153,7 +155,7 @@ def table(rows: list[Row]) -> list[str]:
              "abs) | no pose |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     group_of = [(r["setting"], site_group(r["junction"])) for r in rows]
-    groups = [(s, g) for s in SETTINGS for g in ("", site_group(LOOKED_AT + 1))
+    groups = [(s, g) for s in SETTINGS for g in ("", HELD_OUT)
               if (s, g) in group_of]
     for setting, group in groups:
         label = f"{setting}, {group}" if group else setting

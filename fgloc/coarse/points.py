@@ -76,14 +76,14 @@ def dynamic_points(radar: RadarData, cfg: CoarseConfig) -> DynamicSource:
         return DynamicSource(np.zeros((0, 3)), np.zeros(0, dtype=bool), np.zeros((0, 3)), 0, 0)
     trail = on_trail(dyn[:, :2], np.asarray(radar.t)[moving], cfg.trail_radius,
                      cfg.trail_window, cfg.trail_min_neighbours)
+    on = dyn[trail]
     sign = (np.asarray(radar.doppler)[moving][trail] > 0).astype(np.int64)
-    pts, sign = voxel_centroids(dyn[trail], sign, cfg.voxel_size)
+    pts, sign = voxel_centroids(on, sign, cfg.voxel_size)
     keep = np.zeros(0, dtype=bool)
     if len(pts):
         o3d = open3d()
         pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
         keep = np.asarray(pcd.cluster_dbscan(cfg.dbscan_eps, cfg.dbscan_min_points, False)) >= 0
-    on = dyn[trail]
     return DynamicSource(pts[keep], sign[keep] == 1,
                          on[:: max(1, len(on) // cfg.vertical_points)],
                          int(dyn.shape[0]), int((~trail).sum()))
