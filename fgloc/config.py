@@ -228,6 +228,10 @@ class CoarseConfig:
     mode_margin: float = 0.97
     """A distinct pose whose lane-centre score is at least this share of the best one's is
     kept as a mode; every later method registers and compares every mode."""
+    mode_rough_margin: float = 0.90
+    """The mode search's ends on its ``mode_points`` subsample within this share of the best
+    one's are polished with every point (where ``mode_margin`` then applies); below
+    ``mode_margin`` because the subsample's score is noisier than the full data's."""
     mode_separation: float = 1.0
     """Modes are at least this far apart (m) or ``mode_separation_deg`` apart in yaw; final
     poses closer than both merge into the better one."""
@@ -308,6 +312,9 @@ class CoarseConfig:
         for name in ("search_points", "refine_points", "vertical_points"):
             if getattr(self, name) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        if not 0.0 < self.mode_rough_margin <= self.mode_margin <= 1.0:
+            raise ValueError("need 0 < mode_rough_margin <= mode_margin <= 1, got "
+                             f"{self.mode_rough_margin} and {self.mode_margin}")
         if not self.approx_position_sigma > 0.0:
             raise ValueError("approx_position_sigma must be > 0 (m), got "
                              f"{self.approx_position_sigma}")

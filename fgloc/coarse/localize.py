@@ -231,9 +231,10 @@ def lane_modes(
     towards ``final``'s sensor (``tau`` = the last lane ICP range; one raster per Doppler sign
     of ``src``'s points, ``receding`` (N,)). Each start is carried
     through the lane-centre ICP on a subsample of ``mode_points`` levelled points
-    (``mode_search_iterations`` per stage) against those lines; the distinct ends within the
-    margin are polished and re-scored with every point of ``src`` (levelled with ``final``'s
-    tilt) against the lines shifted towards their own.
+    (``mode_search_iterations`` per stage) against those lines; the distinct ends within
+    ``mode_rough_margin`` of the best (the subsample's scores are noisier) are polished and
+    re-scored with every point of ``src`` (levelled with ``final``'s tilt) against the lines
+    shifted towards their own, and ``mode_margin`` applies to those scores.
     """
     lev_all = (src @ final.r_tilt.T)[:, :2]
     stride = max(1, len(lev_all) // cfg.mode_points)
@@ -258,7 +259,7 @@ def lane_modes(
     top = max(score for score, _ in ends)
     rough: list[tuple[float, np.ndarray]] = []
     for score, pose in sorted(ends, key=lambda item: -item[0]):
-        if score >= cfg.mode_margin * top and _distinct(pose, rough, cfg):
+        if score >= cfg.mode_rough_margin * top and _distinct(pose, rough, cfg):
             rough.append((score, pose))
     polished = sorted((_lane_fit(lev_all, receding, lanes, pose, cfg) for _, pose in rough),
                       key=lambda item: -item[0])
