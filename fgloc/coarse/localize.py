@@ -256,18 +256,20 @@ def lane_modes(
             for _, yaw, dx, dy in peaks]
     ends = [_lane_fit(lev, rec, target, p, cfg, cfg.mode_search_iterations)
             for p in [final.pose2d, *(p for _, p in refined[1:]), *grid]]
-    top = max(score for score, _ in ends)
-    rough: list[tuple[float, np.ndarray]] = []
-    for score, pose in sorted(ends, key=lambda item: -item[0]):
-        if score >= cfg.mode_rough_margin * top and _distinct(pose, rough, cfg):
-            rough.append((score, pose))
-    polished = sorted((_lane_fit(lev_all, receding, lanes, pose, cfg) for _, pose in rough),
-                      key=lambda item: -item[0])
-    top = polished[0][0]
+    rough = _distinct_within(ends, cfg.mode_rough_margin, len(ends), cfg)
+    polished = [_lane_fit(lev_all, receding, lanes, pose, cfg) for _, pose in rough]
+    return _distinct_within(polished, cfg.mode_margin, cfg.max_modes, cfg)
+
+
+def _distinct_within(scored: list[tuple[float, np.ndarray]], share: float, limit: int,
+                     cfg: CoarseConfig) -> list[tuple[float, np.ndarray]]:
+    """The (score, pose) of ``scored`` whose score is at least ``share`` of the best and whose
+    pose is distinct (:func:`_distinct`) from every better one kept, best first, at most
+    ``limit``."""
+    ranked = sorted(scored, key=lambda item: -item[0])
     kept: list[tuple[float, np.ndarray]] = []
-    for score, pose in polished:
-        if len(kept) < cfg.max_modes and score >= cfg.mode_margin * top and _distinct(
-                pose, kept, cfg):
+    for score, pose in ranked:
+        if len(kept) < limit and score >= share * ranked[0][0] and _distinct(pose, kept, cfg):
             kept.append((score, pose))
     return kept
 
