@@ -8,9 +8,11 @@ above the road); far and sparse returns (25 per vehicle and frame at 20 m fallin
 30 % of the returns at the wheels with their micro-Doppler (0 to twice the body's speed along
 the heading: "wheel-doppler"); 4 cyclists per minute riding 1.4 m right of the lane centres
 besides the motor vehicles ("cyclists": the tracking figures count the motor vehicles only, a
-cyclist's track that fgloc keeps is a false track); and all of these but the micro-Doppler
-and the cyclists at once ("combined", with returns at every visible corner and at the wheels
-and more clutter). Seeds: odd ones simulate an intersection, even ones a T-junction.
+cyclist's track that fgloc keeps is a false track); a tenth of the returns on the roofs,
+inside the footprints ("roof-returns"; the independent generator's share); and all of these
+but the micro-Doppler, the cyclists and the roof returns at once ("combined", with returns at
+every visible corner and at the wheels and more clutter). Seeds: odd ones simulate an
+intersection, even ones a T-junction.
 
 Per run: tracks per eligible true vehicle (all tracks, false ones included), tracks covering
 two vehicles (a track whose contour covers at least half of the footprints of two true
@@ -75,6 +77,7 @@ SETTINGS: dict[str, dict] = {
     "10-per-min": {"traffic": {"arrival_interval": 6.0}},
     "wheel-doppler": {"radar": {"wheel_fraction": 0.3, "wheel_radius": 0.35}},
     "cyclists": {"traffic": {"cyclists_per_minute": 4.0}},
+    "roof-returns": {"radar": {"roof_fraction": 0.1}},
     "combined": {
         "traffic": {**_PLATOONS, **_TRUCKS, "class_mix": [0.75, 0.15, 0.1]},
         "radar": {**_SPARSE, "return_height": [0.2, 1.5], "corners": "visible",

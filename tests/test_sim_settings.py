@@ -8,6 +8,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from fgloc.config import from_dict
 from fgloc.geo import transform_points
@@ -205,6 +206,42 @@ def test_defaults_are_todays_simulator() -> None:
     a = simulate_detailed("tjunction", 2, 4.0).scenario
     b = simulate_detailed("tjunction", 2, 4.0, config=explicit).scenario
     np.testing.assert_array_equal(a.radar.xyz, b.radar.xyz)
+
+
+def test_roof_returns_inside_the_footprint() -> None:
+    """``roof_fraction`` of a car's returns lie inside its footprint (not on its outline),
+    spread over its length, at its roof height; none without it (the default)."""
+    exact = dict(sigma_range=0.01, sigma_azimuth_deg=0.01, sigma_elevation_deg=0.01,
+                 clutter_per_frame=0.0, false_alarms_per_frame=0.0, return_height=(0.3, 0.3))
+    shares = []
+    for frac in (0.0, 0.3):
+        cfg = SimConfig(radar=RadarSimConfig(roof_fraction=frac, **exact))
+        res = simulate_detailed("straight", 1, 20.0, vehicles=1, config=cfg)
+        scn, tr = res.scenario, res.scenario.truth.tracks[0]
+        det = np.flatnonzero(res.source >= 0)
+        p = transform_points(scn.truth.sensor_pose, scn.radar.xyz[det])
+        st = tr.states[np.searchsorted(tr.states[:, 0], scn.radar.t[det] - 1e-9)]
+        h = np.column_stack([np.cos(st[:, 3]), np.sin(st[:, 3])])
+        d = p[:, :2] - st[:, 1:3]
+        along = np.sum(d * h, axis=1)
+        across = d[:, 0] * h[:, 1] - d[:, 1] * h[:, 0]
+        # depth inside the outline (m): 0 on it
+        depth = np.minimum(0.5 * tr.length - np.abs(along), 0.5 * tr.width - np.abs(across))
+        inside = depth > 0.05
+        shares.append(inside.mean())
+        if frac:
+            assert np.ptp(along[inside]) > 0.9 * tr.length
+            # the road under a roof return: the nearest face return (all 0.3 m up) less 0.3 m
+            face = cKDTree(p[~inside, :2]).query(p[inside, :2])[1]
+            above = p[inside, 2] - (p[~inside, 2][face] - 0.3)
+            car = next(vc.height for vc in VEHICLE_CLASSES if vc.name == "car")
+            assert np.median(np.abs(above - car)) < 0.05
+    assert shares[0] < 0.002                                 # noise, timing
+    # 0.3 of the drawn returns; a 0.05 m rim of the footprint counts as outline, and low face
+    # returns are occluded (by the scenery) more often than roof ones
+    assert 0.25 < shares[1] < 0.4
+    with pytest.raises(ValueError, match="roof_fraction"):
+        RadarSimConfig(roof_fraction=1.5)
 
 
 def _wheel_doppler_ratios(wheel_radius: float) -> tuple[np.ndarray, np.ndarray]:

@@ -127,6 +127,13 @@ class RadarSimConfig:
     the return's height above the road; the wheel's vertical velocity, which reaches the
     Doppler only through the elevation angle, is left out). 0 (default): wheel detections
     move with the body."""
+    roof_fraction: float = 0.0
+    """Fraction of vehicle detections that come from the roof instead of the faces: uniform over
+    the footprint (seen from above, inside the outline, not on it) at the roof height, with
+    the body's rigid-body velocity. Real radars see roof racks, windscreens and roof edges;
+    an outline-only model (the default 0) never puts a return inside a vehicle's footprint,
+    which is what a contour tracker must tell from its outline. Drawn after the corner and
+    wheel shares (it takes a share of every kind of face return)."""
     range_half_detection: float = 0.75
     """Range (fraction of max_range) where the detection probability is 0.5."""
     range_falloff: float = 12.0
@@ -156,6 +163,8 @@ class RadarSimConfig:
         if not 0.0 <= self.corner_fraction + self.wheel_fraction <= 1.0:
             raise ValueError("corner_fraction + wheel_fraction must lie in [0, 1], got "
                              f"{self.corner_fraction} + {self.wheel_fraction}")
+        if not 0.0 <= self.roof_fraction <= 1.0:
+            raise ValueError(f"roof_fraction must lie in [0, 1], got {self.roof_fraction}")
         if self.wheel_radius < 0.0:
             raise ValueError(f"wheel_radius must be >= 0 (m), got {self.wheel_radius}")
         if not 0.0 <= self.curb_height <= 1.0:

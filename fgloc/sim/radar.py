@@ -7,8 +7,9 @@ Per frame (vectorized over all frames at once):
   x (reference_range / range) ** returns_exponent) x the detection probability (logistic in
   range), split over the visible edges by their projected length, with a share concentrated
   at the corner nearest to the sensor (or at every visible corner) and optionally a share at
-  the wheels of the visible long side; heights from ``return_height`` (default
-  between 0.3 m and 90 % of the roof).
+  the wheels of the visible long side, and optionally a share on the roof (inside the
+  footprint, at the roof's height); heights from ``return_height`` (default between 0.3 m
+  and 90 % of the roof).
   Doppler is the range rate of the rigid-body point velocity ``v_c + yawrate x (p - c)``.
 * static clutter: persistent scatterers on curbs, poles, building facades and tree trunks,
   each detected per frame with a probability scaled to ``clutter_per_frame``.
@@ -158,6 +159,22 @@ def _wheels(rng: np.random.Generator, cfg: RadarSimConfig, rows: VehicleRows,
     return edge, frac, wheel
 
 
+def _roof(rng: np.random.Generator, cfg: RadarSimConfig, rows: VehicleRows, r: np.ndarray,
+          p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Move the share ``roof_fraction`` of the detections (rows ``r`` (m,) of ``rows``, at
+    ``p`` (m, 2) in L) to points uniform over their vehicle's footprint; returns the new
+    positions and the (m,) mask of the moved ones (their height is the roof's)."""
+    roof = rng.random(len(r)) < cfg.roof_fraction
+    k = r[roof]
+    along = (rng.random(len(k)) - 0.5) * rows.length[k]
+    across = (rng.random(len(k)) - 0.5) * rows.width[k]
+    h = np.column_stack([np.cos(rows.yaw[k]), np.sin(rows.yaw[k])])
+    p = p.copy()
+    p[roof] = rows.centre[k] + along[:, None] * h + across[:, None] * np.column_stack(
+        [-h[:, 1], h[:, 0]])
+    return p, roof
+
+
 def return_heights(rng: np.random.Generator, cfg: RadarSimConfig,
                    kind: np.ndarray) -> np.ndarray:
     """(m,) heights (m above the road) of vehicle returns of class indices ``kind``:
@@ -216,8 +233,13 @@ def vehicle_points(rng: np.random.Generator, cfg: RadarSimConfig, rows: VehicleR
         start, end = c[r, edge], c[r, (edge + 1) % 4]
     p = start + frac[:, None] * (end - start)
     kind = rows.kind[r]
+    roof = np.zeros(m, dtype=bool)
+    if cfg.roof_fraction > 0:
+        p, roof = _roof(rng, cfg, rows, r, p)
+        wheel &= ~roof
     road = terrain.road(p)
     z = road + return_heights(rng, cfg, kind)
+    z[roof] = road[roof] + np.array([vc.height for vc in VEHICLE_CLASSES])[kind[roof]]
     heading = np.column_stack([np.cos(rows.yaw[r]), np.sin(rows.yaw[r])])
     arm = p - rows.centre[r]
     vel = rows.v[r, None] * heading + rows.yawrate[r, None] * np.column_stack([-arm[:, 1],
