@@ -202,7 +202,8 @@ def test_traffic_density() -> None:
 def test_defaults_are_todays_simulator() -> None:
     """The new settings' defaults reproduce the scenario bit for bit (explicit = implicit)."""
     explicit = SimConfig(radar=dataclasses.replace(RadarSimConfig(), corners="nearest",
-                                                   wheel_fraction=0.0, return_height=None))
+                                                   wheel_fraction=0.0, return_height=None,
+                                                   roof_fraction=0.0))
     a = simulate_detailed("tjunction", 2, 4.0).scenario
     b = simulate_detailed("tjunction", 2, 4.0, config=explicit).scenario
     np.testing.assert_array_equal(a.radar.xyz, b.radar.xyz)
