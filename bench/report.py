@@ -221,8 +221,10 @@ TABLES: list[Table] = [
           "returns, far and sparse returns, an oblique junction, light traffic, wheel returns "
           "with their micro-Doppler, cyclists at the lanes' edges (4 per minute; the tracking "
           "figures count the motor vehicles, a kept cyclist track is a false one), a tenth of "
-          "the returns on the roofs (inside the footprints, not on the outlines) and all of "
-          "these but the micro-Doppler, the cyclists and the roof returns at once. Cells: "
+          "the returns on the roofs (inside the footprints, not on the outlines), pairs of "
+          "vehicles side by side in adjacent lanes (0-0.5 s apart, two 3 m lanes per "
+          "direction) and all of these but the micro-Doppler, the cyclists, the roof returns "
+          "and the pairs abreast at once. Cells: "
           "mean over the seeds / worst seed. cover 2 = tracks covering two "
           "vehicles at once; truck figures over the tracks following a truck (> 8 m). "
           "flagged = runs whose result says it is not sure (status ambiguous, or a weakly "
@@ -231,7 +233,7 @@ TABLES: list[Table] = [
           produce_robustness,
           {"settings": ["default", "platoons", "trucks", "low-returns", "far-sparse", "oblique",
                         "10-per-min", "wheel-doppler", "cyclists", "roof-returns",
-                        "combined"],
+                        "abreast", "combined"],
            "seeds": [1, 2, 3, 4, 5],
            "duration": 60.0},
           {"settings": ["combined"], "seeds": [1], "duration": 30.0}, parallel=True),

@@ -9,8 +9,10 @@ above the road); far and sparse returns (25 per vehicle and frame at 20 m fallin
 the heading: "wheel-doppler"); 4 cyclists per minute riding 1.4 m right of the lane centres
 besides the motor vehicles ("cyclists": the tracking figures count the motor vehicles only, a
 cyclist's track that fgloc keeps is a false track); a tenth of the returns on the roofs,
-inside the footprints ("roof-returns"; the independent generator's share); and all of these
-but the micro-Doppler, the cyclists and the roof returns at once ("combined", with returns at
+inside the footprints ("roof-returns"; the independent generator's share); pairs of vehicles
+side by side in adjacent lanes, 0-0.5 s apart, on roads of two 3 m lanes per direction
+("abreast"); and all of these but the micro-Doppler, the cyclists, the roof returns and the
+pairs abreast at once ("combined", with returns at
 every visible corner and at the wheels and more clutter). Seeds: odd ones simulate an
 intersection, even ones a T-junction.
 
@@ -78,6 +80,9 @@ SETTINGS: dict[str, dict] = {
     "wheel-doppler": {"radar": {"wheel_fraction": 0.3, "wheel_radius": 0.35}},
     "cyclists": {"traffic": {"cyclists_per_minute": 4.0}},
     "roof-returns": {"radar": {"roof_fraction": 0.1}},
+    "abreast": {"road": {"lane_width": 3.0, "lanes_per_direction": [2]},
+                "traffic": {"platoon_size": [2, 2], "platoon_headway": [0.0, 0.5],
+                            "platoon_abreast": True}},
     "combined": {
         "traffic": {**_PLATOONS, **_TRUCKS, "class_mix": [0.75, 0.15, 0.1]},
         "radar": {**_SPARSE, "return_height": [0.2, 1.5], "corners": "visible",

@@ -203,7 +203,8 @@ def test_defaults_are_todays_simulator() -> None:
     """The new settings' defaults reproduce the scenario bit for bit (explicit = implicit)."""
     explicit = SimConfig(radar=dataclasses.replace(RadarSimConfig(), corners="nearest",
                                                    wheel_fraction=0.0, return_height=None,
-                                                   roof_fraction=0.0))
+                                                   roof_fraction=0.0),
+                         traffic=dataclasses.replace(TrafficSimConfig(), platoon_abreast=False))
     a = simulate_detailed("tjunction", 2, 4.0).scenario
     b = simulate_detailed("tjunction", 2, 4.0, config=explicit).scenario
     np.testing.assert_array_equal(a.radar.xyz, b.radar.xyz)
@@ -243,6 +244,35 @@ def test_roof_returns_inside_the_footprint() -> None:
     assert 0.25 < shares[1] < 0.4
     with pytest.raises(ValueError, match="roof_fraction"):
         RadarSimConfig(roof_fraction=1.5)
+
+
+def _side_by_side_pairs(tracks: list) -> int:
+    """Pairs of true vehicles 2-4.5 m apart across the first one's heading and at most 5 m
+    along it for at least 20 common samples (one second)."""
+    pairs = 0
+    for i, a in enumerate(tracks):
+        for b in tracks[i + 1:]:
+            t, ia, ib = np.intersect1d(np.round(a.states[:, 0], 3), np.round(b.states[:, 0], 3),
+                                       return_indices=True)
+            d, h = a.states[ia, 1:3] - b.states[ib, 1:3], a.states[ia, 3]
+            lat = np.abs(d[:, 0] * np.sin(h) - d[:, 1] * np.cos(h))
+            lon = np.abs(d[:, 0] * np.cos(h) + d[:, 1] * np.sin(h))
+            pairs += int(np.sum((lat > 2.0) & (lat < 4.5) & (lon < 5.0)) >= 20)
+    return pairs
+
+
+def test_platoons_abreast_drive_side_by_side() -> None:
+    """With ``platoon_abreast`` a platoon's follower drives the lane beside its leader's:
+    pairs of vehicles side by side, several times as many as when it follows in line."""
+    counts = {}
+    for abreast in (False, True):
+        cfg = from_dict(SimConfig, {"road": {"lane_width": 3.0, "lanes_per_direction": [2]},
+                                    "traffic": {"platoon_size": [2, 2],
+                                                "platoon_headway": [0.0, 0.5],
+                                                "platoon_abreast": abreast}}, None)
+        counts[abreast] = _side_by_side_pairs(
+            simulate_detailed("intersection", 3, 60.0, config=cfg).scenario.truth.tracks)
+    assert counts[True] >= 8 and counts[True] >= 2 * counts[False]
 
 
 def _wheel_doppler_ratios(wheel_radius: float) -> tuple[np.ndarray, np.ndarray]:

@@ -218,6 +218,11 @@ class TrafficSimConfig:
     """Time headway (s, front to front) of each platoon follower behind its predecessor,
     uniform in this range; never closer than ``headway`` between them (time gap, rear to
     front)."""
+    platoon_abreast: bool = False
+    """Platoon followers drive the lane beside their predecessor's instead of its own (a route
+    whose start lies 2-4.5 m to the side of the predecessor's, heading within 15 deg; its own
+    where there is none) at its cruise speed: with a headway below a car's length over the
+    speed, pairs of vehicles side by side in adjacent lanes. False (default): one route."""
 
     def __post_init__(self) -> None:
         if self.cyclists_per_minute < 0 or not 0 < self.cyclist_speed[0] <= self.cyclist_speed[1]:

@@ -252,11 +252,27 @@ def _earliest(t: float, intervals: list[tuple[float, float]]) -> float:
     return t
 
 
+def _beside(routes: list[Route], r: int) -> list[int]:
+    """Indices of the routes whose start lies 2-4.5 m to the side of route ``r``'s start
+    (at most 2 m ahead or behind it) with a heading within 15 deg of its: the adjacent lanes
+    of its road, in its direction."""
+    p0, h0 = routes[r].xy[0], routes[r].heading[0]
+    u = np.array([np.cos(h0), np.sin(h0)])
+    out = []
+    for j, route in enumerate(routes):
+        d = route.xy[0] - p0
+        side, along = abs(d[0] * u[1] - d[1] * u[0]), abs(float(d @ u))
+        if (2.0 <= side <= 4.5 and along <= 2.0
+                and abs(wrap_angle(route.heading[0] - h0)) <= np.deg2rad(15.0)):
+            out.append(j)
+    return out
+
+
 def _new_vehicle(rng: np.random.Generator, cfg: TrafficSimConfig, routes: list[Route],
                  t_nominal: float, leader: Vehicle | None = None) -> Vehicle:
     """A random vehicle entering at ``t_nominal``; a platoon follower (``leader`` given) takes
-    the leader's route and speed profile and enters one platoon headway (front to front)
-    behind it."""
+    the leader's route and speed profile (with ``platoon_abreast`` a route beside it, at its
+    cruise speed) and enters one platoon headway (front to front) behind it."""
     kind = int(rng.choice(len(cfg.class_mix), p=np.asarray(cfg.class_mix) / sum(cfg.class_mix)))
     vc = VEHICLE_CLASSES[kind]
     if leader is None:
@@ -266,6 +282,10 @@ def _new_vehicle(rng: np.random.Generator, cfg: TrafficSimConfig, routes: list[R
         v = speed_profile(routes[r], v_cruise, rng.uniform(*cfg.speed_turn), cfg)
     else:
         r, v = leader.route, leader.v
+        beside = _beside(routes, r) if cfg.platoon_abreast else []
+        if beside:
+            r = beside[int(rng.integers(len(beside)))]
+            v = speed_profile(routes[r], float(leader.v[0]), rng.uniform(*cfg.speed_turn), cfg)
     if vc.name == "truck" and cfg.truck_length is not None:
         length = rng.uniform(*cfg.truck_length)
     else:
