@@ -12,9 +12,8 @@ cyclist's track that fgloc keeps is a false track); a tenth of the returns on th
 inside the footprints ("roof-returns"; the independent generator's share); pairs of vehicles
 side by side in adjacent lanes, 0-0.5 s apart, on roads of two 3 m lanes per direction
 ("abreast"); and all of these but the micro-Doppler, the cyclists, the roof returns and the
-pairs abreast at once ("combined", with returns at
-every visible corner and at the wheels and more clutter). Seeds: odd ones simulate an
-intersection, even ones a T-junction.
+pairs abreast at once ("combined", with returns at every visible corner and at the wheels
+and more clutter). Seeds: odd ones simulate an intersection, even ones a T-junction.
 
 Per run: tracks per eligible true vehicle (all tracks, false ones included), tracks covering
 two vehicles (a track whose contour covers at least half of the footprints of two true

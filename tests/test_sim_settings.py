@@ -252,7 +252,7 @@ def _side_by_side_pairs(tracks: list) -> int:
     pairs = 0
     for i, a in enumerate(tracks):
         for b in tracks[i + 1:]:
-            t, ia, ib = np.intersect1d(np.round(a.states[:, 0], 3), np.round(b.states[:, 0], 3),
+            _, ia, ib = np.intersect1d(np.round(a.states[:, 0], 3), np.round(b.states[:, 0], 3),
                                        return_indices=True)
             d, h = a.states[ia, 1:3] - b.states[ib, 1:3], a.states[ia, 3]
             lat = np.abs(d[:, 0] * np.sin(h) - d[:, 1] * np.cos(h))

@@ -41,6 +41,8 @@ FALSE_ALARM = -2
 NO_BOX = -1
 #: points per chunk in the occlusion test (memory bound)
 CHUNK = 65536
+#: roof height (m above the road) per vehicle class index
+ROOF_HEIGHT = np.array([vc.height for vc in VEHICLE_CLASSES])
 
 
 @dataclass
@@ -179,7 +181,7 @@ def return_heights(rng: np.random.Generator, cfg: RadarSimConfig,
                    kind: np.ndarray) -> np.ndarray:
     """(m,) heights (m above the road) of vehicle returns of class indices ``kind``:
     ``cfg.return_height`` uniform and clipped to the roof, or 0.3 m to 90 % of the roof."""
-    roof = np.array([vc.height for vc in VEHICLE_CLASSES])[kind]
+    roof = ROOF_HEIGHT[kind]
     if cfg.return_height is None:
         return rng.uniform(0.3, 0.9 * roof)
     low, high = cfg.return_height
@@ -239,7 +241,7 @@ def vehicle_points(rng: np.random.Generator, cfg: RadarSimConfig, rows: VehicleR
         wheel &= ~roof
     road = terrain.road(p)
     z = road + return_heights(rng, cfg, kind)
-    z[roof] = road[roof] + np.array([vc.height for vc in VEHICLE_CLASSES])[kind[roof]]
+    z[roof] = road[roof] + ROOF_HEIGHT[kind[roof]]
     heading = np.column_stack([np.cos(rows.yaw[r]), np.sin(rows.yaw[r])])
     arm = p - rows.centre[r]
     vel = rows.v[r, None] * heading + rows.yawrate[r, None] * np.column_stack([-arm[:, 1],
@@ -264,9 +266,8 @@ def vehicle_boxes(rows: VehicleRows, n_frames: int, terrain: Terrain) -> Boxes:
     corners = np.full((n_frames, k, 4, 2), np.nan)
     top = np.full((n_frames, k), np.nan)
     key = np.full((n_frames, k), NO_BOX, dtype=np.int64)
-    heights = np.array([vc.height for vc in VEHICLE_CLASSES])
     corners[frame, slot] = rows.corners()[order]
-    top[frame, slot] = terrain.road(rows.centre[order]) + heights[rows.kind[order]]
+    top[frame, slot] = terrain.road(rows.centre[order]) + ROOF_HEIGHT[rows.kind[order]]
     key[frame, slot] = rows.track[order]
     return Boxes(corners, top, key)
 
