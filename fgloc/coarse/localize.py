@@ -204,11 +204,14 @@ def _lane_fit(lev: np.ndarray, receding: np.ndarray, target: SignedLanes | LaneC
     return robust_score(d, tau), end
 
 
-def same_pose(a: np.ndarray, b: np.ndarray, cfg: CoarseConfig) -> bool:
+def same_pose(a: np.ndarray, b: np.ndarray, cfg: CoarseConfig,
+              yaw_deg: float | None = None) -> bool:
     """Whether planar poses ``a`` and ``b`` (x, y, yaw: m, m, rad) lie within
-    ``cfg.mode_separation`` m and ``mode_separation_deg`` of each other: one mode, not two."""
+    ``cfg.mode_separation`` m and ``yaw_deg`` (default ``mode_separation_deg``) of each
+    other: one mode, not two."""
+    sep = cfg.mode_separation_deg if yaw_deg is None else yaw_deg
     return bool(np.hypot(*(a[:2] - b[:2])) < cfg.mode_separation
-                and abs(wrap_angle(a[2] - b[2])) < np.deg2rad(cfg.mode_separation_deg))
+                and abs(wrap_angle(a[2] - b[2])) < np.deg2rad(sep))
 
 
 def _distinct(pose: np.ndarray, kept: list[tuple[float, np.ndarray]], cfg: CoarseConfig) -> bool:

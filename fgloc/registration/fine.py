@@ -43,6 +43,7 @@ from fgloc.registration.modes import (
     track_costs,
 )
 from fgloc.registration.sicp import SemanticTargets, SicpResult, sicp, track_covariance
+from fgloc.registration.slip import slip_starts
 from fgloc.registration.source import (
     SourceCloud,
     build_source_cloud,
@@ -293,29 +294,39 @@ def register_tracks(
     fits: list[ModeFit] = []
     sensor_c = coarse.T_coarse[:2, 3]
     tilt = coarse_tilt_covariance(coarse)
+    def fit_from(start: np.ndarray, lanes: str, lane_score: float) -> None:
+        """Register from ``start`` (3x3 C -> L) against the lanes ``lanes`` seen from it;
+        appends the fit, its SICP result and targets (and its model spread)."""
+        targets = mode_targets(scn, target, cfg, coarse, start, lanes, src.visible_side)
+        res = sicp(src.xy, src.label, targets, None, start, scfg,
+                   weights=src.weight, source_direction=src.direction)
+        T_local, z_std = placed_where_ended(coarse, se2_to_se3(res.T) @ coarse.T_coarse)
+        cov = sensor_covariance(track_covariance(res, src.xy, src.track_id, targets, scfg,
+                                                 sensor_c), res.T, sensor_c, tilt)
+        if src_constant is not None:
+            spread, d = model_spread(scn, cfg, target, coarse, start, lanes, src_constant,
+                                     res, scfg)
+            cov = None if cov is None else cov + spread
+            spreads.append(d)
+        fits.append(ModeFit(res.T, T_local, cov,
+                            track_costs(src, targets, res.T, cfg.coarse.mode_cost_scale,
+                                        cfg.sicp.direction_gate_deg),
+                            lane_score, res.converged, start, z_std, lanes))
+        runs.append((res, targets))
+
     with timer.stage("SICP"):
         for start, mode in zip(coarse.mode_starts(), coarse.modes or [None]):
-            lanes = KEEP_RIGHT if mode is None else mode.lanes
-            targets = mode_targets(scn, target, cfg, coarse, start, lanes, src.visible_side)
-            res = sicp(src.xy, src.label, targets, None, start, scfg,
-                       weights=src.weight, source_direction=src.direction)
-            T_local, z_std = placed_where_ended(coarse, se2_to_se3(res.T) @ coarse.T_coarse)
-            cov = sensor_covariance(track_covariance(res, src.xy, src.track_id, targets, scfg,
-                                                     sensor_c), res.T, sensor_c, tilt)
-            if src_constant is not None:
-                spread, d = model_spread(scn, cfg, target, coarse, start, lanes, src_constant,
-                                         res, scfg)
-                cov = None if cov is None else cov + spread
-                spreads.append(d)
-            fits.append(ModeFit(res.T, T_local, cov,
-                                track_costs(src, targets, res.T, cfg.coarse.mode_cost_scale,
-                                            cfg.sicp.direction_gate_deg),
-                                1.0 if mode is None else mode.lane_score, res.converged,
-                                start, z_std, lanes))
-            runs.append((res, targets))
+            fit_from(start, KEEP_RIGHT if mode is None else mode.lanes,
+                     1.0 if mode is None else mode.lane_score)
+        base = min(range(len(fits)), key=lambda k: fits[k].cost)
+        for start in slip_starts(src, runs[base][1], fits[base].T_fine, sensor_c,
+                                 cfg.fine.slip_tracks, cfg.coarse.mode_search_yaw_deg,
+                                 cfg.coarse.mode_cost_scale, cfg.sicp.direction_gate_deg):
+            fit_from(start, fits[base].lanes, fits[base].lane_score)
     # lane-line targets give every fit a covariance unless the data fix no pose
     choice = choose_mode(fits, cfg.coarse, prior=position_prior(scn, cfg.coarse),
-                         require_covariance=cfg.fine.target != "road-points")
+                         require_covariance=cfg.fine.target != "road-points",
+                         merge_deg=cfg.fine.merge_deg or None)
     best = next(i for i, f in enumerate(fits) if f is choice.best)
     res, targets = runs[best]
     T_fine = res.T

@@ -186,23 +186,27 @@ def separation_z(worse: np.ndarray, best: np.ndarray) -> float:
     return float(diff.sum() / norm) if norm > 0.0 else 0.0
 
 
-def distinct(fit: ModeFit, others: list[ModeFit], cfg: CoarseConfig) -> bool:
-    """Whether ``fit`` lies at least ``mode_separation`` m or ``mode_separation_deg`` away
-    from each of ``others`` of its lane model (a pose of its own, not one of theirs). Fits of
+def distinct(fit: ModeFit, others: list[ModeFit], cfg: CoarseConfig,
+             yaw_deg: float | None = None) -> bool:
+    """Whether ``fit`` lies at least ``mode_separation`` m or ``yaw_deg`` (default
+    ``mode_separation_deg``) away from each of ``others`` of its lane model (a pose of its
+    own, not one of theirs). Fits of
     two lane models are two hypotheses however near they end (the coarse stage keeps each
     model's modes apart too): on the example map's junction 5 the keep-right fit ended 0.05 m
     from the truth and the centre-lane fit 0.81 m away with a 1 % lower cost; merged, the
     truth was gone."""
-    return not any(fit.lanes == k.lanes and same_pose(fit.sensor, k.sensor, cfg)
+    return not any(fit.lanes == k.lanes and same_pose(fit.sensor, k.sensor, cfg, yaw_deg)
                    for k in others)
 
 
-def merge_modes(fits: list[ModeFit], cfg: CoarseConfig) -> list[ModeFit]:
+def merge_modes(fits: list[ModeFit], cfg: CoarseConfig,
+                yaw_deg: float | None = None) -> list[ModeFit]:
     """The fits best (least cost) first, without those that ended within
-    ``mode_separation`` m and ``mode_separation_deg`` of a better one (the same pose)."""
+    ``mode_separation`` m and ``yaw_deg`` (default ``mode_separation_deg``) of a better one
+    (the same pose)."""
     kept: list[ModeFit] = []
     for fit in sorted(fits, key=lambda f: f.cost):
-        if distinct(fit, kept, cfg):
+        if distinct(fit, kept, cfg, yaw_deg):
             kept.append(fit)
     return kept
 
@@ -472,7 +476,8 @@ def coarse_choice(coarse: CoarseResult, cfg: CoarseConfig,
 def choose_mode(fits: list[ModeFit], cfg: CoarseConfig,
                 starts: list[ModeFit] | None = None,
                 prior: PositionPrior | None = None, tolerance: bool = True,
-                require_covariance: bool = False) -> ModeChoice:
+                require_covariance: bool = False,
+                merge_deg: float | None = None) -> ModeChoice:
     """Merge the fits, pick the least cost and rule out modes by ``cfg.mode_z`` (module
     docstring). ``starts``: the fits the ``fits`` were refined from (their track costs on the
     same tracks); each one distinct from every merged fit is added after them as a mode of
@@ -480,8 +485,10 @@ def choose_mode(fits: list[ModeFit], cfg: CoarseConfig,
     the reported mode of an ambiguous result (:meth:`ModeChoice.selected_by`). ``tolerance``:
     whether one mode left must also be pinned to ``cfg.resolved_max_std``
     (:meth:`ModeChoice.with_tolerance`, with ``require_covariance``; the joint's is False: it
-    applies its own, see :func:`fgloc.registration.joint.joint_from_tracks`)."""
-    merged = merge_modes(fits, cfg)
+    applies its own, see :func:`fgloc.registration.joint.joint_from_tracks`). ``merge_deg``:
+    the yaw (deg) within which ``fits`` merge (None: ``cfg.mode_separation_deg``; the fine
+    stage passes ``[fine] merge_deg``, :mod:`fgloc.registration.slip`)."""
+    merged = merge_modes(fits, cfg, merge_deg)
     merged += [replace(s, origin="start") for s in merge_modes(starts or [], cfg)
                if distinct(s, merged, cfg)]
     best = merged[0].track_cost

@@ -94,6 +94,8 @@ def check_fine_config(cfg: FineConfig) -> None:
         "source": cfg.source not in SOURCE_KINDS,
         "target": cfg.target not in TARGET_KINDS,
         "visible_side": cfg.visible_side not in VISIBLE_SIDE_MODELS,
+        "slip_tracks": not cfg.slip_tracks >= 0,
+        "merge_deg": not cfg.merge_deg >= 0.0,
         "lane_sample_step": not cfg.lane_sample_step > 0.0,
         "centre_weight_sigma": not cfg.centre_weight_sigma >= 0.0,
         "start_range": not cfg.start_range >= 0.0,
