@@ -272,8 +272,10 @@ def register_tracks(
 
     Every coarse mode (``coarse.modes``) is registered, from its start (the tracks placed by
     the best mode moved rigidly onto it), against the targets seen from its sensor position;
-    the fits are compared on the same source cloud (:mod:`fgloc.registration.modes`) and the
-    best one is reported; when they cannot be told apart, or the one left is not pinned to
+    with ``[fine] slip_tracks`` the best fit is registered again from its slip starts
+    (:mod:`fgloc.registration.slip`); the fits are compared on the same source cloud
+    (:mod:`fgloc.registration.modes`; merged within ``[fine] merge_deg``) and the best one is
+    reported; when they cannot be told apart, or the one left is not pinned to
     ``coarse.resolved_max_std`` (or has no covariance: too few matched points, or one
     straight track that fixes nothing along its road), the result is ``ambiguous`` and its
     covariance covers the modes (their spread plus each one's own covariance).
@@ -294,6 +296,7 @@ def register_tracks(
     fits: list[ModeFit] = []
     sensor_c = coarse.T_coarse[:2, 3]
     tilt = coarse_tilt_covariance(coarse)
+
     def fit_from(start: np.ndarray, lanes: str, lane_score: float) -> None:
         """Register from ``start`` (3x3 C -> L) against the lanes ``lanes`` seen from it;
         appends the fit, its SICP result and targets (and its model spread)."""
