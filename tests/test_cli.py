@@ -90,11 +90,22 @@ def test_localize_too_few_dynamic_points_writes_nothing(scenario_dir, tmp_path, 
     assert not out.exists()
 
 
+def _first_seconds(scenario: Path, seconds: float, out: Path) -> Path:
+    """A copy of the scenario directory with only the radar rows of its first ``seconds``."""
+    shutil.copytree(scenario, out)
+    lines = (scenario / "radar.csv").read_text().splitlines()
+    t0 = float(lines[1].split(",")[0])
+    kept = [row for row in lines[1:] if float(row.split(",")[0]) < t0 + seconds]
+    (out / "radar.csv").write_text("\n".join([lines[0], *kept]) + "\n")
+    return out
+
+
 def test_localize_without_vehicle_tracks_exits_2_and_writes_nothing(scenario_dir, tmp_path,
                                                                      capsys):
     """Every track slower than the walking bound: filter-sicp has no vehicle to register and
     says why (exit 2, nothing written), the joint says its start failed; icp needs no
-    tracks."""
+    tracks. On the scenario's first 12 s (its tracks are born within them)."""
+    scenario_dir = _first_seconds(scenario_dir, 12.0, tmp_path / "short")
     cfg = tmp_path / "walk.toml"
     cfg.write_text("[tracking]\nwalking_speed = 100.0\n")
     out = tmp_path / "never"
