@@ -149,7 +149,7 @@ class FineConfig:
     both models, the estimate at the "aspect" fit: 0.5). 0 = no second fit. On a sparse
     T-junction (10 vehicles per minute, seed 5) "aspect" alone ended 0.45 m off with a
     largest std. dev. of 0.300 m (resolved); the constant fit lay 0.74 m from it."""
-    slip_tracks: int = 0
+    slip_tracks: int = 2
     """When > 0, the fine stage also registers from the best fit turned about the sensor by
     the angle that moves each of this many farthest tracks (with a same-direction lane beside
     theirs) one lane spacing across, both ways (:mod:`fgloc.registration.slip`), and compares
@@ -157,7 +157,7 @@ class FineConfig:
     at 150 m) meets the pose that did not. Turns beyond ``coarse.mode_search_yaw_deg`` are
     left out. 0 (the default until every table is rerun with it) = none; 2 measured in
     docs/experiments.md (issue 22)."""
-    merge_deg: float = 0.0
+    merge_deg: float = 0.5
     """The fine stage's fits merge into a better one within ``coarse.mode_separation`` m and
     this yaw (deg); 0 = ``coarse.mode_separation_deg`` (1 deg). A lane slip at 140 m ends 0.9
     deg from the pose without it (independent generator, junction 12 seed 2), so with
