@@ -110,8 +110,8 @@ def _yaw_deg(f: ModeFit) -> float:
 
 def test_the_fine_stage_keeps_fits_under_a_degree_apart():
     """Two fits 0.8 deg apart at one position: one mode at the coarse stage's separation
-    (``mode_separation_deg``, 1 deg, also the fine stage's default), two at a ``merge_deg``
-    of 0.5 deg."""
+    (``mode_separation_deg``, 1 deg), two at a ``merge_deg`` of 0.5 deg (the fine stage's
+    default)."""
     cfg = Config()
     fits = []
     for yaw_deg, cost in ((0.0, 10.0), (0.8, 10.5)):

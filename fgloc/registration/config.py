@@ -155,13 +155,13 @@ class FineConfig:
     theirs) one lane spacing across, both ways (:mod:`fgloc.registration.slip`), and compares
     those fits as modes: a pose that slipped its far vehicles one lane over (about a degree
     at 150 m) meets the pose that did not. Turns beyond ``coarse.mode_search_yaw_deg`` are
-    left out. 0 (the default until every table is rerun with it) = none; 2 measured in
-    docs/experiments.md (issue 22)."""
+    left out. 0 = none (the default until every table was rerun with 2; docs/experiments.md,
+    issue 22)."""
     merge_deg: float = 0.5
     """The fine stage's fits merge into a better one within ``coarse.mode_separation`` m and
-    this yaw (deg); 0 = ``coarse.mode_separation_deg`` (1 deg). A lane slip at 140 m ends 0.9
-    deg from the pose without it (independent generator, junction 12 seed 2), so with
-    ``slip_tracks`` set this wants about 0.5."""
+    this yaw (deg); 0 = ``coarse.mode_separation_deg`` (1 deg, the coarse stage's). A lane
+    slip at 140 m ends 0.9 deg from the pose without it (independent generator, junction 12
+    seed 2): at 1 deg the slip starts' fits would merge back into the slipped one."""
     lane_sample_step: float = 0.25
     """Spacing (m) of the samples on the lanelet centre lines (target "lane-centres")."""
     centre_weight_sigma: float = 0.25

@@ -13,10 +13,10 @@ degree apart at least, so the two poses were one mode.
 farthest tracks (with a same-direction lane beside its own) one lane spacing across, both
 ways; the fine stage registers from those starts too and compares every fit
 (:func:`fgloc.registration.modes.choose_mode`), its final fits merging only within ``[fine]
-merge_deg``: the unslipped pose becomes a mode of its own, tied or better. Off by default
-(``slip_tracks = 0``) until every benchmark table is rerun with it; figures with 2 tracks
-and 0.5 deg in docs/experiments.md. Frames: the fit is C -> L (3x3 SE(2)), the source
-points and the sensor in C, the targets in L; metres and radians.
+merge_deg``: the unslipped pose becomes a mode of its own, tied or better. On by default
+(``slip_tracks = 2``, ``merge_deg = 0.5``; figures in docs/experiments.md). Frames: the fit
+is C -> L (3x3 SE(2)), the source points and the sensor in C, the targets in L; metres and
+radians.
 """
 
 from __future__ import annotations
