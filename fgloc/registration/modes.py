@@ -98,8 +98,10 @@ class ModeFit:
     T_fine: 3x3 SE(2) C -> L of the final registration; T_local: 4x4 S -> L of the pose.
     covariance: 3x3 of the sensor's (x [m], y [m], yaw [rad]) in L, or None. track_cost: (J,)
     robust cost per track (the order of :func:`track_costs`'s ids, the same for every mode of
-    one run). lane_score: the coarse mode's lane-centre score. converged: the registration's.
-    start: 3x3 SE(2) C -> L, the coarse mode's start (:attr:`fgloc.coarse.CoarseMode.start`).
+    one run). lane_score: the coarse mode's lane-centre score (a slip start's fit carries that
+    of the fit it was turned from). converged: the registration's. start: 3x3 SE(2) C -> L,
+    the start it was registered from: the coarse mode's (:attr:`fgloc.coarse.CoarseMode.start`)
+    or a slip start (:func:`fgloc.registration.slip.slip_starts`).
     z_std: std. dev. (m) of the height (T_local's z, that of the coarse mode), or None.
     lanes: the lane model of two-way streets it was registered with
     (:mod:`fgloc.map.lane_models`). origin: "final" (a method's own fit) or "start" (the fit a
