@@ -74,6 +74,25 @@ def test_gap_rows_follow_a_quarter_turn() -> None:
     np.testing.assert_allclose(states[:, YAWRATE], speed / radius, rtol=0.15)
 
 
+@pytest.mark.parametrize("b_first", [(0.4, 0.9), (-0.5, 0.3)])
+def test_gap_rows_do_not_loop_when_the_ends_disagree_with_their_speeds(b_first) -> None:
+    """A coasted ahead of the car, or B's first row lags it: A ends at the origin heading +x
+    at 5 m/s, B starts 0.65 s later at ``b_first`` (1 m away, not the 3.25 m the speed asks
+    for) heading +x. The rows keep the heading (no turn, no yaw rate) and the centre moves
+    monotonically from A's end to B's start, never beyond either along +x."""
+    g = 0.65
+    a = _track(1, np.array([0.0]), np.array([[0.0, 0.0]]), np.array([0.0]), 5.0)
+    b = _track(2, np.array([g]), np.array([b_first]), np.array([0.0]), 5.0)
+    times = np.linspace(0.0, g, 15)[1:-1]
+    states, _ = gap_rows(a, b, times, 0.5)
+    np.testing.assert_allclose(states[:, [YAW, YAWRATE, A]], 0.0, atol=1e-12)
+    np.testing.assert_allclose(states[:, V], 5.0)
+    x = np.concatenate([[0.0], states[:, X], [b_first[0]]])
+    y = np.concatenate([[0.0], states[:, Y], [b_first[1]]])
+    for c in (x, y):
+        assert np.all(np.diff(c) * np.sign(c[-1]) >= -1e-12)
+
+
 def test_a_lost_track_is_joined_to_its_continuation() -> None:
     a, b = _straight(1, 0.0, 1.0), _straight(2, 2.0, 3.0)
     frames = np.arange(0, 61) * DT

@@ -18,11 +18,16 @@ hold the birth's guesses: the lane's heading, a default speed where the Doppler 
 
 Pairs are taken by that distance, smallest first, each track at most once as A and once as
 B; chains (A, B, C) join into one track with A's id. The frames between A's last and B's
-first row get rows interpolated between them: the centre on the cubic Hermite curve with
-A's last velocity and B's settled velocity as end tangents, heading and speed from its
-derivative, acceleration and yaw rate by differences, A's last contour; covariances blended
-linearly between the end rows' (not a filter's). Like the length retrodiction this is not
-causal: the reported rows of a track use later detections.
+first row get rows interpolated between them: heading and speed linear in time from A's
+last row to B's settled state (constant yaw rate and acceleration, as the CTRA model has
+them), the centre on the cubic Hermite curve from A's last to B's first centre with tangents
+along the two headings, A's contour; covariances blended linearly between the end rows' (not
+a filter's). A tangent's length is the speed times the gap, at most three times the chord's
+component along that heading (the Fritsch-Carlson bound: the curve does not run backward
+along it); without the bound, ends whose positions disagree with their speeds (a lost track
+coasting ahead of the vehicle, a new track's first row behind it) make the curve loop.
+Like the length retrodiction this is not causal: the reported rows of a track use later
+detections.
 """
 
 from __future__ import annotations
@@ -34,7 +39,7 @@ import numpy as np
 from fgloc.geo import wrap_angle
 from fgloc.labels import kappa_labels
 from fgloc.tracking.config import TrackingConfig
-from fgloc.tracks import N_KIN, YAW, YAWRATE, A, Track, V, X, Y
+from fgloc.tracks import YAW, YAWRATE, A, Track, V, X, Y
 
 
 @dataclass(frozen=True)
@@ -90,28 +95,24 @@ def gap_rows(a: Track, b: Track, times: np.ndarray, settle: float
     strictly between ``a``'s last and ``b``'s first row (module docstring)."""
     xa, xb = a.states[-1], _settled(b, settle)[1]
     t0, g = float(a.t[-1]), float(b.t[0] - a.t[-1])
-    s = (np.asarray(times, dtype=float) - t0) / g
+    s = ((np.asarray(times, dtype=float) - t0) / g)[:, None]
     pa, pb = xa[[X, Y]], b.states[0][[X, Y]]
-    ma, mb = _velocity(xa) * g, _velocity(xb) * g
+    turn = wrap_angle(xb[YAW] - xa[YAW])
+    ua, ub = (np.array([np.cos(y), np.sin(y)]) for y in (xa[YAW], xa[YAW] + turn))
+    chord = pb - pa
+    ma = ua * min(abs(xa[V]) * g, 3.0 * max(float(chord @ ua), 0.0))
+    mb = ub * min(abs(xb[V]) * g, 3.0 * max(float(chord @ ub), 0.0))
     s2, s3 = s * s, s * s * s
-    p = (np.outer(2 * s3 - 3 * s2 + 1, pa) + np.outer(s3 - 2 * s2 + s, ma)
-         + np.outer(-2 * s3 + 3 * s2, pb) + np.outer(s3 - s2, mb))
-    dp = (np.outer(6 * s2 - 6 * s, pa) + np.outer(3 * s2 - 4 * s + 1, ma)
-          + np.outer(-6 * s2 + 6 * s, pb) + np.outer(3 * s2 - 2 * s, mb)) / g
-    speed = np.linalg.norm(dp, axis=1)
-    heading = np.where(speed > 1e-6, np.arctan2(dp[:, 1], dp[:, 0]), xa[YAW])
-    # continuous from A's heading (the tracker's yaw is not wrapped)
-    yaw = xa[YAW] + np.unwrap(np.concatenate([[0.0], wrap_angle(heading - xa[YAW])]))[1:]
+    p = ((2 * s3 - 3 * s2 + 1) * pa + (s3 - 2 * s2 + s) * ma + (-2 * s3 + 3 * s2) * pb
+         + (s3 - s2) * mb)
     out = np.repeat(xa[None], len(s), axis=0)
-    out[:, X], out[:, Y], out[:, V], out[:, YAW] = p[:, 0], p[:, 1], speed, yaw
-    tt = np.concatenate([[t0], times, [t0 + g]])
-    out[:, A] = np.gradient(np.concatenate([[xa[V]], speed, [xb[V]]]), tt)[1:-1]
-    end_yaw = xa[YAW] + wrap_angle(xb[YAW] - xa[YAW])
-    out[:, YAWRATE] = np.gradient(np.concatenate([[xa[YAW]], yaw, [end_yaw]]), tt)[1:-1]
-    out[:, N_KIN:] = xa[N_KIN:]
+    out[:, X], out[:, Y] = p[:, 0], p[:, 1]
+    out[:, YAW] = xa[YAW] + turn * s[:, 0]              # continuous from A's (not wrapped)
+    out[:, V] = xa[V] + (xb[V] - xa[V]) * s[:, 0]
+    out[:, YAWRATE], out[:, A] = turn / g, (xb[V] - xa[V]) / g
     if a.covariances is None or b.covariances is None:
         return out, None
-    w = s[:, None, None]
+    w = s[:, :, None]
     return out, (1.0 - w) * a.covariances[-1] + w * b.covariances[0]
 
 
