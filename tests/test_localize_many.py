@@ -11,8 +11,8 @@ from fgloc.pipeline import METHODS, SharedStages, localize, localize_many
 from fgloc.sim import simulate
 
 
-def check_equal_to_separate_runs(methods: list[str], duration: float) -> None:
-    scn = simulate("tjunction", 4, duration=duration, vehicles=12)
+def check_equal_to_separate_runs(methods: list[str], seed: int, duration: float) -> None:
+    scn = simulate("tjunction", seed, duration=duration, vehicles=12)
     cfg = Config()
     stages = SharedStages(scn, cfg)
     many = localize_many(scn, methods, cfg, stages)
@@ -32,12 +32,12 @@ def check_equal_to_separate_runs(methods: list[str], duration: float) -> None:
 
 
 def test_icp_and_filter_sicp_share_their_stages() -> None:
-    check_equal_to_separate_runs(["icp", "filter-sicp"], 12.0)
+    check_equal_to_separate_runs(["icp", "filter-sicp"], 1, 10.0)    # resolved, 3 s a run
 
 
 @pytest.mark.slow
 def test_every_method_equals_its_separate_run() -> None:
-    check_equal_to_separate_runs(sorted(METHODS), 20.0)
+    check_equal_to_separate_runs(sorted(METHODS), 4, 20.0)    # ambiguous: modes and valleys
 
 
 def test_joint_on_smoothed_tracks_shares_the_smoothing_stage() -> None:
@@ -49,7 +49,7 @@ def test_joint_on_smoothed_tracks_shares_the_smoothing_stage() -> None:
     from fgloc.progress import Timer
     from fgloc.registration.joint import joint_from_tracks
 
-    scn = simulate("tjunction", 4, duration=12.0, vehicles=12)
+    scn = simulate("tjunction", 1, duration=10.0, vehicles=12)      # resolved, 4-6 s a run
     plain = Config()
     cfg = dataclasses.replace(plain, joint=dataclasses.replace(plain.joint, smoother="batch"))
     one = localize(scn, "joint", cfg)
