@@ -88,6 +88,26 @@ def _scene(lanelets: list[Lanelet], labels: dict[int, int]) -> tuple[object, Tar
     return scn, target
 
 
+def test_lane_centres_of_a_target_are_built_once_per_setting_and_read_only() -> None:
+    """:meth:`LaneCentres.of_target` equals :meth:`LaneCentres.build` on the target's
+    lanelets, returns the same object for the same map and setting (the valley's probes ask
+    60 times), a new one for another lane model, step or map, and no caller can change it."""
+    street, turn = _street(1, (0.0, 0.0), 0.0, 20.0, 7.0, "no"), _arc(7, 12.0, 7.0, "no")
+    scn, target = _scene([street, turn], {1: STRAIGHT, 7: LEFT})
+    lanes = LaneCentres.of_target(target, scn.lanelets, 0.5, 6.0, "resampled")
+    built = LaneCentres.build([street, turn], 0.5, 6.0, "resampled")
+    for name, value in vars(built).items():
+        np.testing.assert_array_equal(getattr(lanes, name), value, err_msg=name)
+    assert LaneCentres.of_target(target, scn.lanelets, 0.5, 6.0, "resampled") is lanes
+    centre_model = LaneCentres.of_target(target, scn.lanelets, 0.5, np.inf, "resampled")
+    assert np.abs(centre_model.xy - lanes.xy).max() > 1.0    # both directions on the centre
+    assert LaneCentres.of_target(target, scn.lanelets, 1.0, 6.0, "resampled") is not lanes
+    other_map = LaneletMap([street, turn])
+    assert LaneCentres.of_target(target, other_map, 0.5, 6.0, "resampled") is not lanes
+    with pytest.raises(ValueError, match="read-only"):
+        lanes.xy[0, 0] = 1.0
+
+
 def test_lane_against_a_turning_lanelet_takes_the_mirrored_label() -> None:
     turn = _arc(7, 12.0, 7.0, "no")
     scn, target = _scene([turn], {7: LEFT})

@@ -12,7 +12,7 @@ from scipy.spatial import cKDTree
 
 from fgloc.geo import wrap_angle
 from fgloc.map import TargetCloud
-from fgloc.scenario import TWO_WAY_MIN_WIDTH, Lanelet, lane_ambiguity, lane_lines
+from fgloc.scenario import TWO_WAY_MIN_WIDTH, Lanelet, LaneletMap, lane_ambiguity, lane_lines
 
 
 @dataclass
@@ -169,6 +169,26 @@ class LaneCentres:
         return cls(np.vstack(xy), np.vstack(normal), np.concatenate(against),
                    np.concatenate(which), np.concatenate(lane), np.vstack(offsets),
                    np.concatenate(bends))
+
+    @classmethod
+    def of_target(cls, target: TargetCloud, lanelet_map: LaneletMap, step: float,
+                  two_way_min_width: float, centre: str) -> LaneCentres:
+        """:meth:`build` on the lanelets of ``lanelet_map`` that hold points of ``target``
+        (:meth:`TargetCloud.lanelets`), built once per argument set and kept in
+        ``target.memo``, its arrays read-only: the coarse stage, every mode's fine and joint
+        targets and each probe of a valley ask for the same lanes (a valley's 60 probes
+        rebuilt them each time)."""
+        # the entry holds the map, so its id cannot be reused while the entry lives
+        key = ("lane centres", id(lanelet_map), step, two_way_min_width, centre)
+        hit = target.memo.get(key)
+        if hit is not None and hit[0] is lanelet_map:
+            return hit[1]
+        lanes = cls.build(target.lanelets(lanelet_map), step, two_way_min_width, centre)
+        for value in vars(lanes).values():
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
+        target.memo[key] = (lanelet_map, lanes)
+        return lanes
 
     def ambiguity(self) -> np.ndarray:
         """(K,) where vehicles drive is this uncertain (m) at each sample

@@ -542,9 +542,9 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
     road = RoadModel.build(target, cfg.raster_cell, pad, cfg.score_tau)
     lanelets = target.lanelets(scn.lanelets)
     map_cfg = map_cfg or MapConfig()
-    models = {m: LaneCentres.build(lanelets, cfg.lane_sample_step,
-                                   min_width(m, map_cfg.two_way_min_width),
-                                   map_cfg.centre_line)
+    models = {m: LaneCentres.of_target(target, scn.lanelets, cfg.lane_sample_step,
+                                     min_width(m, map_cfg.two_way_min_width),
+                                     map_cfg.centre_line)
               for m in lane_models(lanelets, map_cfg)}
     centre = approx_position_local(scn)
     height = scn.sensor.approx_height

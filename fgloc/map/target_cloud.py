@@ -58,6 +58,8 @@ class TargetCloud:
     label_source: "routing" or "curvature" per lanelet id (see :func:`map_labels`).
     ignored_lanelets: lanelets of the map not drivable by the configured participant, counted
     per kind (they hold no target point).
+    memo: what later stages derive from this cloud, built once and shared, by key
+    (:meth:`fgloc.coarse.icp.LaneCentres.of_target`); not an input.
     """
 
     xyz: np.ndarray
@@ -68,6 +70,8 @@ class TargetCloud:
     warnings: list[str] = field(default_factory=list)
     label_source: dict[int, str] = field(default_factory=dict)
     ignored_lanelets: dict[str, int] = field(default_factory=dict)
+    memo: dict[tuple, object] = field(default_factory=dict, init=False, repr=False,
+                                      compare=False)
 
     def __len__(self) -> int:
         return int(self.xyz.shape[0])

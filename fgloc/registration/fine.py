@@ -67,7 +67,7 @@ def lane_centre_points(
     centre: str = "resampled",
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(K, 2) samples (m, in L) of the lane centre lines of the lanelets in ``target``
-    (:meth:`LaneCentres.build`: one per direction on a wide two-way lanelet), every about
+    (:meth:`LaneCentres.of_target`: one per direction on a wide two-way lanelet), every about
     ``step`` m, the (K,) label code of each (its lanelet's label, mirrored on a lane driven
     against the lanelet's direction), the (K, 2) unit driving direction of each, the (K,)
     ambiguity (m) of where vehicles drive there (:meth:`LaneCentres.ambiguity`: its lanelet's
@@ -81,7 +81,7 @@ def lane_centre_points(
     from fgloc.coarse import LaneCentres
 
     lanelets = target.lanelets(scn.lanelets)
-    lanes = LaneCentres.build(lanelets, step, two_way_min_width, centre)
+    lanes = LaneCentres.of_target(target, scn.lanelets, step, two_way_min_width, centre)
     if towards is not None and isinstance(offset, VisibleSide):
         offset = offset.at(lanes.aspect(towards))
     xy = lanes.xy if towards is None else lanes.towards(towards, offset).xy

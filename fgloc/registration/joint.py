@@ -154,7 +154,7 @@ class LaneLines:
         from fgloc.registration.fine import lane_labels
 
         lanelets = target.lanelets(scn.lanelets)
-        lanes = LaneCentres.build(lanelets, step, two_way_min_width, centre)
+        lanes = LaneCentres.of_target(target, scn.lanelets, step, two_way_min_width, centre)
         if join_length > 0.0 and len(lanes.xy):
             keys = lane_keys(lanelets, lanes.lanelet, lanes.against, lanes.lane)
             xy, normal = smooth_lane_joins(lanes.xy, lanes.lane, keys, join_length, step,
