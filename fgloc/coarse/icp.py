@@ -181,7 +181,7 @@ class LaneCentres:
         # the entry holds the map, so its id cannot be reused while the entry lives
         key = ("lane centres", id(lanelet_map), step, two_way_min_width, centre)
         hit = target.memo.get(key)
-        if hit is not None and hit[0] is lanelet_map:
+        if hit is not None:
             return hit[1]
         lanes = cls.build(target.lanelets(lanelet_map), step, two_way_min_width, centre)
         for value in vars(lanes).values():
