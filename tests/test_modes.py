@@ -497,3 +497,24 @@ def test_traffic_that_never_turns_leaves_the_along_road_position_open():
         assert abs(float((res.T_local[:2, 3] - ends[0]) @ u) - mean_s) \
             < 0.25 * cfg.coarse.mode_separation, method
         assert _error_2d(res.T_local, truth) < prior_error + abs(mean_s - prior_s) + 0.3, method
+
+
+def test_lane_evidence_selects_among_tied_modes_of_two_lane_models():
+    """Two modes the track costs tie (z 1.0), one per lane model: without lane evidence the
+    least-cost one is reported; lane evidence against its model (z 2.8, the joint's centre
+    misfits, :mod:`fgloc.registration.lane_evidence`) reports the other (1.0 against 7.84),
+    still ambiguous; weak evidence (z 0.5) leaves the least-cost one (0.25 against 1.0). The
+    prior still counts beside it."""
+    centre = dataclasses.replace(_fit(0.0, 0.0, 0.0, [1.0]), lanes="centre")
+    right = dataclasses.replace(_fit(0.5, 0.0, 0.0, [1.0]), lanes="keep-right")
+    tie = ModeChoice([centre, right], np.array([0.0, 1.0]), [0, 1])
+    assert tie.selected_by(None).best is centre
+    picked = tie.selected_by(None, {"centre": 2.8, "keep-right": 0.0})
+    assert picked.best is right and picked.status == AMBIGUOUS and picked.tied == [0, 1]
+    assert tie.selected_by(None, {"centre": 0.5, "keep-right": 0.0}).best is centre
+    # a prior 0.9 m from the keep-right fit at 0.3 m sigma outweighs that lane evidence
+    prior = PositionPrior(np.array([-0.4, 0.0]), 0.3)
+    assert tie.selected_by(prior, {"centre": 2.8, "keep-right": 0.0}).best is centre
+    # choose_mode passes it on
+    assert choose_mode([centre, right], CoarseConfig(),
+                       lane_z={"centre": 2.8, "keep-right": 0.0}).best is right

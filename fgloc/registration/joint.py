@@ -102,6 +102,7 @@ from fgloc.registration.joint_solver import (
     linearize,
     solve_arrow,
 )
+from fgloc.registration.lane_evidence import decided_lane_model
 from fgloc.registration.sicp import _degeneracy, track_robust_covariance
 from fgloc.result import LocalizationResult, json_ready
 from fgloc.scenario import TWO_WAY_MIN_WIDTH, Scenario, lane_ambiguity
@@ -334,7 +335,9 @@ class JointResult:
     matched: (P, 2) matched contour points in L, matched_label (P,) their labels. history:
     per round pose, noise and cost. timing: seconds of building (track factors and points),
     association, point-row linearization with the system assembly, banded solves, cost
-    evaluations, the final marginal covariance, and the iteration count.
+    evaluations, the final marginal covariance, and the iteration count. track_misfit (n_tracks,):
+    :func:`track_misfit` of the tracks (in ``tracks``' order) at T, the lane-model evidence
+    (:mod:`fgloc.registration.lane_evidence`).
     """
 
     T: np.ndarray
@@ -352,6 +355,7 @@ class JointResult:
     n_states: int
     history: list[dict[str, float]]
     timing: dict[str, float]
+    track_misfit: np.ndarray
 
 
 def _add_time(timing: dict[str, float], key: str, t0: float) -> None:
@@ -578,24 +582,32 @@ def _ambiguity(lines: LaneLines, index: np.ndarray, scale: float) -> np.ndarray 
     return scale * np.where(index >= 0, lines.ambiguity[np.maximum(index, 0)], 0.0)
 
 
-def noise_levels(fp: FramePoints, states0: np.ndarray, T: np.ndarray, index: np.ndarray,
-                 target: np.ndarray, normal: np.ndarray, gp: ContourGP, n_tracks: int,
-                 floor: float, shift: np.ndarray | None = None) -> NoiseLevels:
-    """Moment estimates of the :class:`NoiseLevels` about the pose T from the filter's states
-    ``states0`` (F, 26), not the refined ones (which the point factors pull towards the
-    lines). Each track's mean across-line residual is its raw offset. The pose correction
-    ``dp`` (tx, ty, phi of a change of T) that fits the raw offsets best (least squares on
-    each track's mean of the residuals' derivatives) is taken off every residual first, so
-    the levels are those about the pose the offsets themselves favour, not inflated by T's
-    own error (estimated at a T off across a road, every track on that road would share T's
-    error in its offset: the offset level grows with it, the offsets' prior loosens and lets
-    T drift farther at the next estimate). The offsets' RMS with ``n_tracks - rank``
-    degrees of freedom (the pose takes up as many as it can move the offsets, at most
-    three) is the offset level; about them, the per-frame means give the frame level (MAD)
-    and the lag-1 correlation of consecutive frames of one track (clipped to [0, 0.95]);
-    the points about their frame mean the within level (MAD). Levels are at least
-    ``floor`` m. shift (P,): the points' side bias along ``normal`` (m; None = 0), taken
-    off the residuals."""
+@dataclass(frozen=True)
+class FrameResiduals:
+    """Across-line residuals of the filter's track centres about a pose (:func:`frame_residuals`).
+
+    dev (P,): each matched point's residual (m) about its track's offset; frame (P,): its
+    frame (index into the :class:`FramePoints` frames); fmean (F,): each frame's mean of
+    ``dev`` (0 without matched points); has (F,): frames with matched points; raw (T,): each
+    track's offset (m, its mean residual); seen (T,): tracks with matched points; rank: the
+    pose directions (at most three) the correction of the offsets took up."""
+
+    dev: np.ndarray
+    frame: np.ndarray
+    fmean: np.ndarray
+    has: np.ndarray
+    raw: np.ndarray
+    seen: np.ndarray
+    rank: int
+
+
+def frame_residuals(fp: FramePoints, states0: np.ndarray, T: np.ndarray, index: np.ndarray,
+                    target: np.ndarray, normal: np.ndarray, gp: ContourGP, n_tracks: int,
+                    shift: np.ndarray | None = None) -> FrameResiduals:
+    """The residuals of :func:`noise_levels` (its docstring): the matched points of the
+    filter's states ``states0`` moved by T against ``target`` along ``normal`` (minus
+    ``shift``), the pose correction that fits the tracks' offsets best taken off, about each
+    track's offset."""
     ok = index >= 0
     q = transform_points(T, fp.points(states0, gp.mu)[0])[ok]
     n = normal[ok]
@@ -619,8 +631,30 @@ def noise_levels(fp: FramePoints, states0: np.ndarray, T: np.ndarray, index: np.
     nf = len(fp.frame_state)
     fcount = np.bincount(frame, minlength=nf)
     fmean = np.bincount(frame, dev, minlength=nf) / np.maximum(fcount, 1)
-    within = 1.4826 * float(np.median(np.abs(dev - fmean[frame])))
-    has = fcount > 0
+    return FrameResiduals(dev, frame, fmean, fcount > 0, raw, seen, int(rank))
+
+
+def noise_levels(fp: FramePoints, states0: np.ndarray, T: np.ndarray, index: np.ndarray,
+                 target: np.ndarray, normal: np.ndarray, gp: ContourGP, n_tracks: int,
+                 floor: float, shift: np.ndarray | None = None) -> NoiseLevels:
+    """Moment estimates of the :class:`NoiseLevels` about the pose T from the filter's states
+    ``states0`` (F, 26), not the refined ones (which the point factors pull towards the
+    lines). Each track's mean across-line residual is its raw offset. The pose correction
+    ``dp`` (tx, ty, phi of a change of T) that fits the raw offsets best (least squares on
+    each track's mean of the residuals' derivatives) is taken off every residual first, so
+    the levels are those about the pose the offsets themselves favour, not inflated by T's
+    own error (estimated at a T off across a road, every track on that road would share T's
+    error in its offset: the offset level grows with it, the offsets' prior loosens and lets
+    T drift farther at the next estimate). The offsets' RMS with ``n_tracks - rank``
+    degrees of freedom (the pose takes up as many as it can move the offsets, at most
+    three) is the offset level; about them, the per-frame means give the frame level (MAD)
+    and the lag-1 correlation of consecutive frames of one track (clipped to [0, 0.95]);
+    the points about their frame mean the within level (MAD). Levels are at least
+    ``floor`` m. shift (P,): the points' side bias along ``normal`` (m; None = 0), taken
+    off the residuals."""
+    r = frame_residuals(fp, states0, T, index, target, normal, gp, n_tracks, shift)
+    fmean, has = r.fmean, r.has
+    within = 1.4826 * float(np.median(np.abs(r.dev - fmean[r.frame])))
     level = 1.4826 * float(np.median(np.abs(fmean[has])))
     pair = has[:-1] & has[1:] & (fp.frame_track[:-1] == fp.frame_track[1:])
     rho = 0.0
@@ -628,8 +662,20 @@ def noise_levels(fp: FramePoints, states0: np.ndarray, T: np.ndarray, index: np.
         a = np.clip(fmean[:-1][pair], -3 * level, 3 * level)
         b = np.clip(fmean[1:][pair], -3 * level, 3 * level)
         rho = float(np.clip(np.sum(a * b) / np.sqrt(np.sum(a * a) * np.sum(b * b)), 0.0, 0.95))
-    offset = float(np.sqrt(np.sum(raw[seen] ** 2) / max(1, int(seen.sum()) - rank)))
+    offset = float(np.sqrt(np.sum(r.raw[r.seen] ** 2) / max(1, int(r.seen.sum()) - r.rank)))
     return NoiseLevels(max(floor, within), max(floor, level), rho, max(floor, offset))
+
+
+def track_misfit(fp: FramePoints, residuals: FrameResiduals, n_tracks: int, scale: float
+                 ) -> np.ndarray:
+    """(T,) each track's summed robust cost ``min(m, scale)^2 / scale^2`` of its frames' mean
+    residuals m (m, :class:`FrameResiduals`), a frame without matched points costing 1 (as
+    an unmatched detection does in :func:`fgloc.registration.modes.track_costs`): how far the
+    track's centre wanders across its line beyond a constant offset. The lane models of a
+    two-way street differ there (:mod:`fgloc.registration.lane_evidence`)."""
+    m = np.minimum(np.abs(residuals.fmean), scale)
+    rho = np.where(residuals.has, m**2 / scale**2, 1.0)
+    return np.bincount(fp.frame_track, weights=rho, minlength=n_tracks)
 
 
 def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
@@ -750,6 +796,12 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
             converged = True
             break
 
+    # how far each track wanders across its line at the final pose (lane-model evidence)
+    basis = side_basis(target, normal, sensor_l, jc, centre)
+    misfit = track_misfit(fp, frame_residuals(fp, states0, se2(*pose[:3]), index, target, normal,
+                                              gp, len(dec.tracks),
+                                              None if basis is None else basis @ pose[3:]),
+                          len(dec.tracks), cfg.coarse.mode_cost_scale)
     t0 = time.perf_counter()
     # the final information, with the considered biases as more (last) global parameters
     columns, consider_sd = considered_columns(target, normal, index, sensor_l, lines, jc)
@@ -783,7 +835,7 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
             {int(tr.id): float(v) for tr, v in zip(dec.tracks, b)})
     return JointResult(T, cov, cov_model, refined, rounds, converged, noise.summary(), offs,
                        matched, fp.label[ok], int(ok.sum()), len(dec.tracks), len(x),
-                       history, timing)
+                       history, timing, misfit)
 
 
 # ---- degeneracy --------------------------------------------------------------------------
@@ -907,9 +959,15 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
                                 mode.start, z_std, mode.lanes))
             runs.append(jr)
         comparable = [m for m in start.mode_fits if m.track_cost.shape == cost.shape]
+        lanes, lane_evidence = decided_lane_model(
+            [(f.lanes, r.track_misfit) for f, r in zip(fits, runs)], cfg.coarse.mode_z)
+        if lanes is not None:       # the other lane models' fits and starts are ruled out
+            runs = [r for f, r in zip(fits, runs) if f.lanes == lanes]
+            fits = [f for f in fits if f.lanes == lanes]
+            comparable = [m for m in comparable if m.lanes == lanes]
         choice = choose_mode(fits, cfg.coarse, comparable, position_prior(scn, cfg.coarse),
-                             tolerance=False).with_tolerance(cfg.joint.resolved_max_std,
-                                                             "joint.resolved_max_std")
+                             tolerance=False, lane_z=lane_evidence["z"]).with_tolerance(
+                                 cfg.joint.resolved_max_std, "joint.resolved_max_std")
         # the joint run of the reported mode (of a kept start: the run that left it)
         jr = runs[next(i for i, f in enumerate(fits) if f is choice.best
                        or (f.lanes == choice.best.lanes and np.array_equal(f.start,
@@ -947,6 +1005,7 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
         "sensor_covariance_model": cov_model,
         "coarse_tilt_std_m": None if tilt is None else _sensor_std(tilt),
         "degeneracy": degen,
+        "lane_models": lane_evidence,
         "history": jr.history,
         "timing_s": jr.timing,
     }

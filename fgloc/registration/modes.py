@@ -68,7 +68,7 @@ placed by the best mode, moved rigidly by the mode's start) and hands its final 
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
 
@@ -313,13 +313,20 @@ class ModeChoice:
         """The reported fit."""
         return self.fits[0]
 
-    def selected_by(self, prior: PositionPrior | None) -> ModeChoice:
+    def selected_by(self, prior: PositionPrior | None,
+                    lane_z: Mapping[str, float] | None = None) -> ModeChoice:
         """The same comparison with the tied mode of highest posterior under ``prior`` first
-        (module docstring); unchanged when resolved or without a prior."""
-        if prior is None or len(self.tied) == 1:
+        (module docstring); ``lane_z``: lane model -> standard errors by which another
+        model's evidence beats it (:mod:`fgloc.registration.lane_evidence`; missing: 0), one
+        more independent term of each mode's score. Unchanged when resolved, or without a
+        prior and lane evidence."""
+        if len(self.tied) == 1 or (prior is None and not lane_z):
             return self
+        lane_z = lane_z or {}
         score = [max(float(self.z[k]), 0.0) ** 2
-                 + float(np.sum((self.fits[k].sensor[:2] - prior.xy) ** 2)) / prior.sigma**2
+                 + max(float(lane_z.get(self.fits[k].lanes, 0.0)), 0.0) ** 2
+                 + (0.0 if prior is None else
+                    float(np.sum((self.fits[k].sensor[:2] - prior.xy) ** 2)) / prior.sigma**2)
                  for k in self.tied]
         pick = self.tied[int(np.argmin(score))]
         order = [pick, *(k for k in range(len(self.fits)) if k != pick)]
@@ -479,7 +486,8 @@ def choose_mode(fits: list[ModeFit], cfg: CoarseConfig,
                 starts: list[ModeFit] | None = None,
                 prior: PositionPrior | None = None, tolerance: bool = True,
                 require_covariance: bool = False,
-                merge_deg: float | None = None) -> ModeChoice:
+                merge_deg: float | None = None,
+                lane_z: Mapping[str, float] | None = None) -> ModeChoice:
     """Merge the fits, pick the least cost and rule out modes by ``cfg.mode_z`` (module
     docstring). ``starts``: the fits the ``fits`` were refined from (their track costs on the
     same tracks); each one distinct from every merged fit is added after them as a mode of
@@ -489,14 +497,15 @@ def choose_mode(fits: list[ModeFit], cfg: CoarseConfig,
     (:meth:`ModeChoice.with_tolerance`, with ``require_covariance``; the joint's is False: it
     applies its own, see :func:`fgloc.registration.joint.joint_from_tracks`). ``merge_deg``:
     the yaw (deg) within which ``fits`` merge (None: ``cfg.mode_separation_deg``; the fine
-    stage passes ``[fine] merge_deg``, :mod:`fgloc.registration.slip`)."""
+    stage passes ``[fine] merge_deg``, :mod:`fgloc.registration.slip`). ``lane_z``: the lane
+    models' evidence weighed in that selection (:meth:`ModeChoice.selected_by`)."""
     merged = merge_modes(fits, cfg, merge_deg)
     merged += [replace(s, origin="start") for s in merge_modes(starts or [], cfg)
                if distinct(s, merged, cfg)]
     best = merged[0].track_cost
     z = np.array([separation_z(f.track_cost, best) for f in merged])
     tied = [k for k in range(len(merged)) if k == 0 or z[k] < cfg.mode_z]
-    choice = ModeChoice(merged, z, tied).selected_by(prior).agreeing(cfg)
+    choice = ModeChoice(merged, z, tied).selected_by(prior, lane_z).agreeing(cfg)
     return choice.with_tolerance(cfg.resolved_max_std,
                                  require_covariance=require_covariance) if tolerance else choice
 
