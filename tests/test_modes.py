@@ -436,8 +436,10 @@ def test_a_main_road_few_turning_vehicles_fix_is_not_reported_resolved():
     """T-junction, 10 vehicles per minute, seed 5: 3 of the 11 vehicles turn and disagree on
     the position along the main road. Before, every method resolved it: icp 0.48 m off (inside
     a 5.5 m lane-score tie), filter-sicp 0.31 m, smoother-sicp 0.32 m. Now a method resolves
-    it only within 0.3 m; one that does not is ambiguous along the main road with the truth
-    within 0.5 m of its pose +-2 std. devs. along it, and its covariance holds the truth."""
+    it only within 0.3 m; one that does not is ambiguous along the main road (a weak direction,
+    or tied modes on it: icp's coarse stage keeps three, 2.6 and 13.4 m apart along it) with
+    the truth within 0.5 m of its pose +-2 std. devs. along it or of a tied mode, and its
+    covariance holds the truth."""
     from bench.sparse import truth_distance
 
     scn = sparse("tjunction", 5, 10.0)
@@ -451,7 +453,9 @@ def test_a_main_road_few_turning_vehicles_fix_is_not_reported_resolved():
         if res.status == RESOLVED:
             assert _error_2d(res.T_local, truth) < 0.3, method
         else:
-            assert res.weak_direction is not None, method
+            # ambiguous along the main road: one mode not pinned there, or tied modes on it
+            tied = sum(bool(m["tied"]) for m in res.modes)
+            assert res.weak_direction is not None or tied > 1, method
             assert res.to_json()["weak_direction"] == res.weak_direction, method
             assert truth_distance(res, truth) < 0.5, method
     assert out["icp"].status == AMBIGUOUS and out["filter-sicp"].status == AMBIGUOUS
