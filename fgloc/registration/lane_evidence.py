@@ -13,12 +13,13 @@ The joint fits the track *centres* to the lines. At its final pose each track's 
 mean across-line residual about the track's own offset, the pose correction that fits the
 offsets best taken off first (:func:`fgloc.registration.joint.frame_residuals`, the residuals
 of the joint's noise levels); :func:`fgloc.registration.joint.track_misfit` sums their
-robust costs per track. A constant offset costs nothing (a driver off the line, a straight
-street under either model) and the pose cannot take it up: a track that keeps to the right
-half of a two-way street and turns out of it wanders across the centre line as it goes, a
-track on the centre line across the right-half line. On junction 5 the frame level
-(:class:`~fgloc.registration.joint.NoiseLevels`) of the true model was 0.10-0.33 m, of the
-other 0.36-0.68 m.
+robust costs per track. A track's constant offset from its line costs nothing (a driver off
+the line); a change of it along the track does, and neither the track's offset nor the pose
+takes it up: a track that keeps to the right half of a two-way street and turns out of it
+wanders across the centre line as it goes, a track on the centre line across the right-half
+line. On junction 5 (8 runs with both models: four kinds of traffic, seeds 1-2) the frame
+level (:class:`~fgloc.registration.joint.NoiseLevels`) of the traffic's model was 0.10-0.33 m,
+of the other 0.33-0.68 m, higher in every run.
 
 The misfits of the fits of two models are compared track by track like the modes' costs
 (:func:`fgloc.registration.modes.separation_z`, each model by its best fit, the least summed
