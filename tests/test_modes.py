@@ -519,6 +519,9 @@ def test_lane_evidence_selects_among_tied_modes_of_two_lane_models():
     # a prior 0.9 m from the keep-right fit at 0.3 m sigma outweighs that lane evidence
     prior = PositionPrior(np.array([-0.4, 0.0]), 0.3)
     assert tie.selected_by(prior, {"centre": 2.8, "keep-right": 0.0}).best is centre
-    # choose_mode passes it on
+    # choose_mode passes it on, and rules a model out at mode_z (3), kept starts included
     assert choose_mode([centre, right], CoarseConfig(),
                        lane_z={"centre": 2.8, "keep-right": 0.0}).best is right
+    out = choose_mode([centre, right], CoarseConfig(), [centre],
+                      lane_z={"centre": 3.2, "keep-right": 0.0})
+    assert [f.lanes for f in out.fits] == ["keep-right"] and out.tied == [0]

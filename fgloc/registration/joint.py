@@ -959,12 +959,8 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
                                 mode.start, z_std, mode.lanes))
             runs.append(jr)
         comparable = [m for m in start.mode_fits if m.track_cost.shape == cost.shape]
-        lanes, lane_evidence = decided_lane_model(
+        _, lane_evidence = decided_lane_model(
             [(f.lanes, r.track_misfit) for f, r in zip(fits, runs)], cfg.coarse.mode_z)
-        if lanes is not None:       # the other lane models' fits and starts are ruled out
-            runs = [r for f, r in zip(fits, runs) if f.lanes == lanes]
-            fits = [f for f in fits if f.lanes == lanes]
-            comparable = [m for m in comparable if m.lanes == lanes]
         choice = choose_mode(fits, cfg.coarse, comparable, position_prior(scn, cfg.coarse),
                              tolerance=False, lane_z=lane_evidence["z"]).with_tolerance(
                                  cfg.joint.resolved_max_std, "joint.resolved_max_std")

@@ -497,8 +497,15 @@ def choose_mode(fits: list[ModeFit], cfg: CoarseConfig,
     (:meth:`ModeChoice.with_tolerance`, with ``require_covariance``; the joint's is False: it
     applies its own, see :func:`fgloc.registration.joint.joint_from_tracks`). ``merge_deg``:
     the yaw (deg) within which ``fits`` merge (None: ``cfg.mode_separation_deg``; the fine
-    stage passes ``[fine] merge_deg``, :mod:`fgloc.registration.slip`). ``lane_z``: the lane
-    models' evidence weighed in that selection (:meth:`ModeChoice.selected_by`)."""
+    stage passes ``[fine] merge_deg``, :mod:`fgloc.registration.slip`). ``lane_z``: lane
+    model -> standard errors by which another model's evidence beats it
+    (:mod:`fgloc.registration.lane_evidence`; missing: 0, at least one model 0): the fits and
+    starts of a model beaten by ``cfg.mode_z`` are ruled out, a weaker z is weighed in the
+    selection (:meth:`ModeChoice.selected_by`)."""
+    lane_z = lane_z or {}
+    if lane_z:
+        fits, starts = ([f for f in group if lane_z.get(f.lanes, 0.0) < cfg.mode_z]
+                        for group in (fits, starts or []))
     merged = merge_modes(fits, cfg, merge_deg)
     merged += [replace(s, origin="start") for s in merge_modes(starts or [], cfg)
                if distinct(s, merged, cfg)]
