@@ -38,7 +38,7 @@ def _filter_sicp(scn, lanes: str):
     return res, chosen, tied, pose_error(res.T_local, scn.truth.sensor_pose).d2d
 
 
-@pytest.mark.parametrize("traffic", [KEEP_RIGHT, CENTRE])
+@pytest.mark.parametrize("traffic", [KEEP_RIGHT, pytest.param(CENTRE, marks=pytest.mark.slow)])
 def test_auto_finds_the_lane_model_of_the_traffic(traffic: str) -> None:
     """One scenario per kind of traffic (seed 1): ``auto`` resolves to the traffic's model
     (centre-line traffic was ambiguous before the coarse stage's Doppler gate) and ends well

@@ -20,6 +20,7 @@ from fgloc.registration.modes import (
     PositionPrior,
     choose_mode,
     separation_z,
+    track_costs,
 )
 from fgloc.sim import SimConfig, simulate
 
@@ -525,3 +526,29 @@ def test_lane_evidence_selects_among_tied_modes_of_two_lane_models():
     out = choose_mode([centre, right], CoarseConfig(), [centre],
                       lane_z={"centre": 3.2, "keep-right": 0.0})
     assert [f.lanes for f in out.fits] == ["keep-right"] and out.tied == [0]
+
+
+@pytest.mark.parametrize("mode", ["hard", "soft", "none"])
+def test_track_costs_match_labels_as_sicp_does(mode: str) -> None:
+    """A right-turn point 0.3 m beside a straight lane and 4 m from a right-turn lane: the
+    hard labels score it against the turn lane (capped at 1), the soft ones against the
+    straight lane seen 1/sqrt(0.1) times farther, no labels against the straight lane; a
+    straight point on the straight lane costs nothing in every mode."""
+    from fgloc.labels import RIGHT, STRAIGHT
+    from fgloc.registration.config import SicpConfig
+    from fgloc.registration.sicp import SemanticTargets, label_compatibility
+    from fgloc.registration.source import SourceCloud
+
+    x = np.linspace(-20.0, 20.0, 161)
+    lane = np.column_stack([x, np.zeros_like(x)])
+    targets = SemanticTargets.build(np.vstack([lane, lane + [0.0, 4.3]]),
+                                    np.r_[np.full(len(x), STRAIGHT), np.full(len(x), RIGHT)])
+    src = SourceCloud(np.array([[0.0, 0.3], [5.0, 0.0]]), np.array([RIGHT, STRAIGHT], np.int8),
+                      np.array([0, 1]), "detections", 2, 2, 2)
+    compat = label_compatibility(dataclasses.replace(SicpConfig(), mode=mode))
+    cost = track_costs(src, targets, np.eye(3), 1.5, 180.0, compat)
+    expected = {"hard": 1.0, "soft": 0.3**2 / 0.1 / 1.5**2, "none": 0.3**2 / 1.5**2}[mode]
+    assert cost[0] == pytest.approx(expected, rel=1e-9)
+    assert cost[1] == pytest.approx(0.0, abs=1e-12)
+    if mode == "hard":     # the default: the identity, as before the argument existed
+        np.testing.assert_array_equal(cost, track_costs(src, targets, np.eye(3), 1.5))

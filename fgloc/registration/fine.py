@@ -42,7 +42,13 @@ from fgloc.registration.modes import (
     position_prior,
     track_costs,
 )
-from fgloc.registration.sicp import SemanticTargets, SicpResult, sicp, track_covariance
+from fgloc.registration.sicp import (
+    SemanticTargets,
+    SicpResult,
+    label_compatibility,
+    sicp,
+    track_covariance,
+)
 from fgloc.registration.slip import slip_starts
 from fgloc.registration.source import (
     SourceCloud,
@@ -313,7 +319,8 @@ def register_tracks(
             spreads.append(d)
         fits.append(ModeFit(res.T, T_local, cov,
                             track_costs(src, targets, res.T, cfg.coarse.mode_cost_scale,
-                                        cfg.sicp.direction_gate_deg),
+                                        cfg.sicp.direction_gate_deg,
+                                        label_compatibility(cfg.sicp)),
                             lane_score, res.converged, start, z_std, lanes))
         runs.append((res, targets))
 

@@ -103,7 +103,7 @@ from fgloc.registration.joint_solver import (
     solve_arrow,
 )
 from fgloc.registration.lane_evidence import decided_lane_model
-from fgloc.registration.sicp import _degeneracy, track_robust_covariance
+from fgloc.registration.sicp import _degeneracy, label_compatibility, track_robust_covariance
 from fgloc.result import LocalizationResult, json_ready
 from fgloc.scenario import TWO_WAY_MIN_WIDTH, Scenario, lane_ambiguity
 from fgloc.smoothing.banded_lm import BandedLayout
@@ -952,7 +952,7 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
             targets = mode_targets(scn, target, cfg, coarse, mode.start, mode.lanes)
             T_local, z_std = placed_where_ended(coarse, se2_to_se3(jr.T) @ coarse.T_coarse)
             cost = track_costs(cloud, targets, jr.T, cfg.coarse.mode_cost_scale,
-                               cfg.sicp.direction_gate_deg)
+                               cfg.sicp.direction_gate_deg, label_compatibility(cfg.sicp))
             if mode.track_cost.shape == cost.shape and mode.cost < cost.sum():
                 cost = mode.track_cost      # the mode's evidence: its start fits the data better
             fits.append(ModeFit(jr.T, T_local, cov, cost, mode.lane_score, jr.converged,

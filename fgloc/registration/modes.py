@@ -155,26 +155,33 @@ def placed_where_ended(coarse: CoarseResult, T_local: np.ndarray
 
 
 def track_costs(src: SourceCloud, targets: SemanticTargets, T: np.ndarray, scale: float,
-                gate_deg: float = 180.0) -> np.ndarray:
+                gate_deg: float = 180.0, compat: np.ndarray | None = None) -> np.ndarray:
     """Summed robust cost ``min(d, scale)^2 / scale^2`` per track (ordered by track id) of the
     source points moved by T (3x3 C -> L); d is the distance (m) to the nearest target point
-    of the point's label (of any label when the target has none of it) and, where the source
-    and the target carry driving directions and ``gate_deg`` < 180, of a direction within
-    ``gate_deg`` of the point's (as SICP matches, ``sicp.direction_gate_deg``: a vehicle is
-    scored against the lanes of its direction, so a lane model with more lines per street
-    does not fit the other direction's vehicles better)."""
+    of a label compatible with the point's, divided by the square root of that compatibility
+    (``compat``, 3x3 source x target label, :func:`fgloc.registration.sicp.label_compatibility`
+    as SICP matches; None: the identity, only the point's own label), of any label when the
+    target has none of the compatible ones, and, where the source and the target carry driving
+    directions and ``gate_deg`` < 180, of a direction within ``gate_deg`` of the point's (as
+    SICP matches, ``sicp.direction_gate_deg``: a vehicle is scored against the lanes of its
+    direction, so a lane model with more lines per street does not fit the other direction's
+    vehicles better)."""
     xy = transform_points(T, src.xy)
     directed = (src.direction is not None and targets.direction is not None
                 and gate_deg < 180.0)
     heading = src.direction @ T[:2, :2].T if directed else None
     min_cos = float(np.cos(np.deg2rad(gate_deg)))
-    d = np.full(len(xy), scale)
+    compat = np.eye(3) if compat is None else np.asarray(compat, float)
+    d = np.full(len(xy), np.inf)
     for code in np.unique(src.label):
-        sel = src.label == code
-        key = int(code) if targets.count(int(code)) else ALL
-        if targets.count(key):
-            d[sel] = targets.nearest(key, xy[sel], scale,
+        sel = np.flatnonzero(src.label == code)
+        keys = [(t, float(c)) for t, c in enumerate(compat[int(code)])
+                if c > 0.0 and targets.count(t)] or [(ALL, 1.0)]
+        for key, c in keys:
+            if targets.count(key):
+                dk = targets.nearest(key, xy[sel], scale * np.sqrt(c),
                                      None if heading is None else heading[sel], min_cos)[0]
+                d[sel] = np.minimum(d[sel], dk / np.sqrt(c))
     rho = np.minimum(d, scale) ** 2 / scale**2
     _, inv = np.unique(src.track_id, return_inverse=True)
     return np.bincount(inv.reshape(-1), weights=rho)

@@ -330,6 +330,15 @@ def check_config(cfg: SicpConfig) -> None:
         raise ValueError(f"invalid sicp config field {bad[0]}: {getattr(cfg, bad[0])!r}")
 
 
+def label_compatibility(cfg: SicpConfig) -> np.ndarray:
+    """3x3 compatibility (source label x target label, codes of :mod:`fgloc.labels`) of the
+    correspondences of ``cfg.mode``: identity ("hard"), ``cfg.compatibility`` ("soft"), all
+    ones ("none")."""
+    if cfg.mode == "none":
+        return np.ones((len(NAMES), len(NAMES)))
+    return np.eye(len(NAMES)) if cfg.mode == "hard" else np.asarray(cfg.compatibility, float)
+
+
 def _groups(source_label: np.ndarray, targets: SemanticTargets, cfg: SicpConfig) -> _Groups:
     """Label groups, dropped labels and the compatibility matrix (source code x group)."""
     n_min = cfg.min_points_per_label
@@ -350,7 +359,7 @@ def _groups(source_label: np.ndarray, targets: SemanticTargets, cfg: SicpConfig)
                             f"points (< min_points_per_label = {n_min})")
         elif n_tgt >= n_min:
             codes.append(code)
-    compat = np.eye(len(NAMES)) if cfg.mode == "hard" else np.asarray(cfg.compatibility, float)
+    compat = label_compatibility(cfg)
     kept = np.array([NAMES[c] not in dropped for c in sorted(NAMES)])
     group = np.where(kept[source_label], source_label, -1)
     return _Groups(codes, group, compat[:, codes], dropped, warnings)
