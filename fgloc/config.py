@@ -52,6 +52,13 @@ class MapConfig:
     turn_angle_deg: float = 30.0
     """Heading change (deg) from a junction movement's predecessor to its successor above which
     the movement is a turn ("routing" labels)."""
+    lane_labels: str = "lanelet"
+    """Labels of the lane samples (the fine and the joint targets): "lanelet" = their
+    lanelet's (``labels``), "path" = the curvature of the lane's path through its joins,
+    smoothed over ``path_sigma`` m, against ``gamma`` (what a vehicle driving it shows, as
+    the tracks are labelled; :mod:`fgloc.map.path_labels`)."""
+    path_sigma: float = 2.0
+    """Gaussian smoothing length (m) of the lanes' headings for ``lane_labels = "path"``."""
     two_way_lanes: str = "auto"
     """Where each direction drives on a two-way street mapped as one lanelet (``one_way =
     no``; :mod:`fgloc.map.lane_models`): "keep-right" = one lane per direction on the centre of
@@ -78,6 +85,10 @@ class MapConfig:
                              f"{self.centre_line!r}")
         if self.labels not in ("routing", "curvature"):
             raise ValueError(f"labels must be 'routing' or 'curvature', got {self.labels!r}")
+        if self.lane_labels not in ("lanelet", "path"):
+            raise ValueError(f"lane_labels must be 'lanelet' or 'path', got {self.lane_labels!r}")
+        if not self.path_sigma >= 0.0:
+            raise ValueError(f"path_sigma must be >= 0 (m), got {self.path_sigma}")
         if not 0.0 < self.turn_angle_deg < 180.0:
             raise ValueError(f"turn_angle_deg must be in (0, 180), got {self.turn_angle_deg}")
         if self.two_way_lanes not in ("auto", "keep-right", "centre"):

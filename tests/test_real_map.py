@@ -760,3 +760,44 @@ def test_simulate_on_a_map_in_another_utm_zone(tmp_path: Path) -> None:
     write_scenario(sim.scenario, tmp_path / "scn", map_osm=sim.map_osm)
     loaded = load_scenario(tmp_path / "scn")
     assert loaded.crs == "EPSG:32633" and len(loaded.lanelets) == len(sim.scenario.lanelets)
+
+
+def test_path_labels_follow_the_turns_and_the_kinks_of_the_crop(crop_sim) -> None:
+    """``[map] lane_labels = "path"`` on the example map's crop: the lanelets whose own centre
+    line turns by more than 45 deg keep their turn's label on at least 80 % of their samples;
+    long lanelets that turn by less than 3 deg stay straight on at least three quarters (their
+    ends bend into the next lanelet; 0.77 the least at writing); and chains of
+    short lanelets bent only at their joins (own turn under 1 deg, labelled straight by the
+    lanelet rules) turn somewhere, as the vehicles driving them do."""
+    from fgloc.coarse import LaneCentres
+    from fgloc.config import MapConfig
+    from fgloc.labels import LEFT, RIGHT, STRAIGHT
+    from fgloc.map.target_cloud import build_target_cloud
+    from fgloc.registration.fine import lane_labels
+
+    scn = crop_sim[2]
+    cfg = MapConfig()
+    target = build_target_cloud(scn, cfg)
+    lanelets = target.lanelets(scn.lanelets)
+    lanes = LaneCentres.of_target(target, scn.lanelets, 0.25, cfg.two_way_min_width,
+                                  cfg.centre_line)
+    by_lanelet = lane_labels(target, lanelets, lanes)
+    by_path = lane_labels(target, lanelets, lanes, MapConfig(lane_labels="path"), scn.lanelets)
+    turns, straights, kinked = 0, 0, 0
+    for k, ll in enumerate(lanelets):
+        sel = (lanes.lanelet == k) & ~lanes.against
+        if not sel.any():
+            continue
+        c = ll.centerline(20)
+        h = np.arctan2(np.diff(c[:, 1]), np.diff(c[:, 0]))
+        turn = float(np.degrees(np.angle(np.exp(1j * (h[-1] - h[0])))))
+        share = np.bincount(by_path[sel], minlength=3) / sel.sum()
+        if abs(turn) > 45.0:
+            assert share[LEFT if turn > 0 else RIGHT] >= 0.8, (ll.id, turn, share)
+            turns += 1
+        elif abs(turn) < 3.0 and sel.sum() >= 100:
+            assert share[STRAIGHT] >= 0.75, (ll.id, turn, share)
+            straights += 1
+        if abs(turn) < 1.0 and np.all(by_lanelet[sel] == STRAIGHT) and share[STRAIGHT] < 0.5:
+            kinked += 1
+    assert turns >= 4 and straights >= 8 and kinked >= 5

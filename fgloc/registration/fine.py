@@ -29,7 +29,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from scipy.spatial import cKDTree
 
-from fgloc.config import Config
+from fgloc.config import Config, MapConfig
 from fgloc.geo import se2_params, se2_to_se3, transform_points, wrap_angle
 from fgloc.labels import NAMES, mirrored
 from fgloc.map.lane_models import KEEP_RIGHT, min_width
@@ -59,7 +59,7 @@ from fgloc.registration.source import (
 )
 from fgloc.registration.visible_side import VisibleSide
 from fgloc.result import LocalizationResult, json_ready
-from fgloc.scenario import TWO_WAY_MIN_WIDTH, Lanelet, Scenario
+from fgloc.scenario import TWO_WAY_MIN_WIDTH, Lanelet, LaneletMap, Scenario
 
 if TYPE_CHECKING:
     from fgloc.coarse import CoarseResult, LaneCentres
@@ -70,7 +70,7 @@ if TYPE_CHECKING:
 def lane_centre_points(
     scn: Scenario, target: TargetCloud, step: float, towards: np.ndarray | None = None,
     offset: float | VisibleSide = 0.0, two_way_min_width: float = TWO_WAY_MIN_WIDTH,
-    centre: str = "resampled",
+    centre: str = "resampled", labels: MapConfig | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """(K, 2) samples (m, in L) of the lane centre lines of the lanelets in ``target``
     (:meth:`LaneCentres.of_target`: one per direction on a wide two-way lanelet), every about
@@ -83,7 +83,8 @@ def lane_centre_points(
     (the sensor); a :class:`VisibleSide` offset shifts each sample by its value at the
     sample's aspect seen from there. ``two_way_min_width`` (m) sets the lane model of two-way
     lanelets (:func:`fgloc.map.lane_models.min_width`), ``centre`` the kind of the lanelets'
-    centre lines (``[map] centre_line``)."""
+    centre lines (``[map] centre_line``), ``labels`` how the samples are labelled
+    (:func:`lane_labels`; None: by their lanelets)."""
     from fgloc.coarse import LaneCentres
 
     lanelets = target.lanelets(scn.lanelets)
@@ -92,13 +93,24 @@ def lane_centre_points(
         offset = offset.at(lanes.aspect(towards))
     xy = lanes.xy if towards is None else lanes.towards(towards, offset).xy
     direction = np.column_stack([lanes.normal[:, 1], -lanes.normal[:, 0]])
-    return xy, lane_labels(target, lanelets, lanes), direction, lanes.ambiguity(), lanes.lane
+    return (xy, lane_labels(target, lanelets, lanes, labels, scn.lanelets), direction,
+            lanes.ambiguity(), lanes.lane)
 
 
-def lane_labels(target: TargetCloud, lanelets: list[Lanelet], lanes: LaneCentres) -> np.ndarray:
-    """(K,) int8 label code of each sample of ``lanes`` (built from ``lanelets``): its
-    lanelet's label in ``target``, mirrored (left <-> right) on a lane driven against the
-    lanelet's direction."""
+def lane_labels(target: TargetCloud, lanelets: list[Lanelet], lanes: LaneCentres,
+                cfg: MapConfig | None = None, lmap: LaneletMap | None = None) -> np.ndarray:
+    """(K,) int8 label code of each sample of ``lanes`` (built from ``lanelets``, of the map
+    ``lmap``): its lanelet's label in ``target``, mirrored (left <-> right) on a lane driven
+    against the lanelet's direction; with ``cfg.lane_labels = "path"`` the label of its lane's
+    path curvature instead (:mod:`fgloc.map.path_labels`)."""
+    if cfg is not None and cfg.lane_labels == "path" and len(lanes.xy):
+        from fgloc.map.lane_joins import lane_keys
+        from fgloc.map.path_labels import path_labels
+
+        heading = np.column_stack([lanes.normal[:, 1], -lanes.normal[:, 0]])
+        keys = lane_keys(lanelets, lanes.lanelet, lanes.against, lanes.lane)
+        return path_labels(lanes.xy, heading, lanes.lane, keys, cfg.path_sigma, cfg.gamma,
+                           lmap).astype(np.int8)
     own = np.array([target.lanelet_labels[ll.id] for ll in lanelets], np.int8)[lanes.lanelet]
     return np.where(lanes.against, mirrored(own), own).astype(np.int8)
 
@@ -123,7 +135,7 @@ def fine_targets(
         towards = sensor_xy
         offset = cfg.coarse.visible_side_offset if side is None else side
     xy, label, direction, ambiguity, lane = lane_centre_points(
-        scn, target, step, towards, offset, width, cfg.map.centre_line)
+        scn, target, step, towards, offset, width, cfg.map.centre_line, cfg.map)
     return SemanticTargets.build(xy, label, direction,
                                  centre_weights(ambiguity, cfg.fine.centre_weight_sigma), lane)
 

@@ -86,7 +86,7 @@ from scipy.spatial import cKDTree
 from factors.gp import ContourGP
 from factors.gtsam_factors import ContourMeasurement, huber_weights
 from factors.registration_factors import line_sqrt_info
-from fgloc.config import Config
+from fgloc.config import Config, MapConfig
 from fgloc.errors import LocalizationError
 from fgloc.geo import se2, se2_params, se2_to_se3, transform_points, wrap_angle
 from fgloc.labels import NAMES
@@ -141,7 +141,8 @@ class LaneLines:
     @classmethod
     def build(cls, scn: Scenario, target: TargetCloud, step: float, sensor_xy: np.ndarray,
               offset: float, two_way_min_width: float = TWO_WAY_MIN_WIDTH,
-              join_length: float = 0.0, centre: str = "resampled") -> LaneLines:
+              join_length: float = 0.0, centre: str = "resampled",
+              labels: MapConfig | None = None) -> LaneLines:
         """Lane lines of the lanelets that hold target points (:meth:`LaneCentres.build`;
         labels mirrored on a lane driven against its lanelet, ``two_way_min_width`` sets the
         lane model of two-way lanelets),
@@ -149,7 +150,8 @@ class LaneLines:
         the centre lines); ``lane`` is the index of each sample's lane line. ``join_length``
         > 0: each lane smoothed through its joins with the lanes before and after it with
         that steering length (m) (:func:`fgloc.map.lane_joins.smooth_lane_joins`); ``centre``:
-        the kind of the lanelets' centre lines (``[map] centre_line``)."""
+        the kind of the lanelets' centre lines (``[map] centre_line``); ``labels``: how the
+        samples are labelled (:func:`fgloc.registration.fine.lane_labels`)."""
         from fgloc.coarse import LaneCentres
         from fgloc.map.lane_joins import lane_keys, smooth_lane_joins
         from fgloc.registration.fine import lane_labels
@@ -163,7 +165,8 @@ class LaneLines:
             lanes = dataclasses.replace(lanes, xy=xy, normal=normal)
         side = np.sign(np.einsum("ij,ij->i", np.asarray(sensor_xy) - lanes.xy, lanes.normal))
         return cls.of(lanes.xy + (offset * side)[:, None] * lanes.normal, lanes.normal,
-                      lane_labels(target, lanelets, lanes), lanes.lane, lanes.centre_offset,
+                      lane_labels(target, lanelets, lanes, labels, scn.lanelets), lanes.lane,
+                      lanes.centre_offset,
                       lanes.bend)
 
     @classmethod
@@ -945,7 +948,8 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
             mode_sensor = transform_points(mode.start, sensor_c[None])[0]
             lines = LaneLines.build(scn, target, cfg.fine.lane_sample_step, mode_sensor, offset,
                                     min_width(mode.lanes, cfg.map.two_way_min_width),
-                                    cfg.joint.join_smoothing_length, cfg.map.centre_line)
+                                    cfg.joint.join_smoothing_length, cfg.map.centre_line,
+                                    cfg.map)
             T0 = mode.T_fine if cfg.joint.start == "sicp" else mode.start
             jr = joint_refine(subset, det_xy, sensor_c, lines, T0, cfg, trusted, rates)
             cov = sensor_covariance(jr.covariance, jr.T, sensor_c, tilt)
