@@ -8,10 +8,10 @@ turn all the way round, and a kink where two lanelets join makes every vehicle t
 metres (docs/experiments.md, "Labels that disagree with the map").
 
 Here each lane sample takes the label of the curvature of its lane's path: the lane's line
-continued through its joins into the lane before and after it (only where that lane is
-unique: a diverge or a merge leaves the line ending there), its heading smoothed along the arc
-length by a Gaussian of ``sigma`` m (a vehicle takes a kink over a few metres), the curvature
-the heading's rate of change per metre; above ``gamma`` (1/m) LEFT, below ``-gamma`` RIGHT.
+continued through its joins into the lanes before and after it, its heading smoothed along
+the arc length by a Gaussian of ``sigma`` m (a vehicle takes a kink over a few metres), the
+curvature the heading's rate of change per metre; above ``gamma`` (1/m) LEFT, below
+``-gamma`` RIGHT.
 The lanes before and after are those of :func:`fgloc.map.lane_joins.lane_neighbours` (the
 routing graph's, the straightest of several), followed over as many lanes as ``3 sigma`` m
 need (a roundabout's lanelets can be 4 m long).

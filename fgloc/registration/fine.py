@@ -107,10 +107,19 @@ def lane_labels(target: TargetCloud, lanelets: list[Lanelet], lanes: LaneCentres
         from fgloc.map.lane_joins import lane_keys
         from fgloc.map.path_labels import path_labels
 
+        # kept in target.memo like the lanes themselves (the entry holds them, so their id
+        # cannot be reused while it lives): every mode and each probe of a valley asks again
+        key = ("path labels", id(lanes), id(lmap), cfg.path_sigma, cfg.gamma)
+        hit = target.memo.get(key)
+        if hit is not None:
+            return hit[1]
         heading = np.column_stack([lanes.normal[:, 1], -lanes.normal[:, 0]])
         keys = lane_keys(lanelets, lanes.lanelet, lanes.against, lanes.lane)
-        return path_labels(lanes.xy, heading, lanes.lane, keys, cfg.path_sigma, cfg.gamma,
-                           lmap).astype(np.int8)
+        labels = path_labels(lanes.xy, heading, lanes.lane, keys, cfg.path_sigma, cfg.gamma,
+                             lmap).astype(np.int8)
+        labels.setflags(write=False)
+        target.memo[key] = ((lanes, lmap), labels)
+        return labels
     own = np.array([target.lanelet_labels[ll.id] for ll in lanelets], np.int8)[lanes.lanelet]
     return np.where(lanes.against, mirrored(own), own).astype(np.int8)
 
