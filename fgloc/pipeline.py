@@ -253,8 +253,7 @@ def _with_valley(scn: Scenario, cfg: Config, coarse_stage: tuple[TargetCloud, Co
     against each mode's fine targets, with the measured visible sides when ``visible_side``)
     when they are samples of one; else ``res`` itself."""
     from fgloc.registration.fine import mode_targets
-    from fgloc.registration.modes import position_prior, track_costs, track_valley
-    from fgloc.registration.sicp import label_compatibility
+    from fgloc.registration.modes import mode_track_costs, position_prior, track_valley
     from fgloc.registration.source import build_source_cloud
 
     if sum(bool(m["tied"]) for m in res.modes) < 2:
@@ -265,8 +264,7 @@ def _with_valley(scn: Scenario, cfg: Config, coarse_stage: tuple[TargetCloud, Co
 
     def cost_at(fit: ModeFit, T: np.ndarray) -> np.ndarray:
         targets = mode_targets(scn, target, cfg, coarse, fit.start, fit.lanes, side)
-        return track_costs(src, targets, T, cfg.coarse.mode_cost_scale,
-                           cfg.sicp.direction_gate_deg, label_compatibility(cfg.sicp))
+        return mode_track_costs(src, targets, T, cfg)
 
     choice = choice_of(res)
     valley = track_valley(choice, cost_at, position_prior(scn, cfg.coarse), cfg.coarse)

@@ -83,7 +83,7 @@ def _walk(k: int, link: np.ndarray, first: np.ndarray, last: np.ndarray, reach: 
         cum = np.concatenate([[0.0], np.cumsum(seg[::-1] if backwards else seg)])
         take = idx[::-1][cum <= reach - got][::-1] if backwards else idx[cum <= reach - got]
         parts.append(take)
-        got += float(cum[min(len(take), len(cum)) - 1]) if len(take) else reach
+        got += float(cum[len(take) - 1]) if len(take) else reach
         j = int(link[j])
     if backwards:
         parts = parts[::-1]

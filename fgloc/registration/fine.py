@@ -38,14 +38,13 @@ from fgloc.registration.config import FineConfig, SicpConfig
 from fgloc.registration.modes import (
     ModeFit,
     choose_mode,
+    mode_track_costs,
     placed_where_ended,
     position_prior,
-    track_costs,
 )
 from fgloc.registration.sicp import (
     SemanticTargets,
     SicpResult,
-    label_compatibility,
     sicp,
     track_covariance,
 )
@@ -339,9 +338,7 @@ def register_tracks(
             cov = None if cov is None else cov + spread
             spreads.append(d)
         fits.append(ModeFit(res.T, T_local, cov,
-                            track_costs(src, targets, res.T, cfg.coarse.mode_cost_scale,
-                                        cfg.sicp.direction_gate_deg,
-                                        label_compatibility(cfg.sicp)),
+                            mode_track_costs(src, targets, res.T, cfg),
                             lane_score, res.converged, start, z_std, lanes))
         runs.append((res, targets))
 

@@ -103,7 +103,7 @@ from fgloc.registration.joint_solver import (
     solve_arrow,
 )
 from fgloc.registration.lane_evidence import decided_lane_model
-from fgloc.registration.sicp import _degeneracy, label_compatibility, track_robust_covariance
+from fgloc.registration.sicp import _degeneracy, track_robust_covariance
 from fgloc.result import LocalizationResult, json_ready
 from fgloc.scenario import TWO_WAY_MIN_WIDTH, Scenario, lane_ambiguity
 from fgloc.smoothing.banded_lm import BandedLayout
@@ -917,9 +917,9 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
     from fgloc.registration.modes import (
         ModeFit,
         choose_mode,
+        mode_track_costs,
         placed_where_ended,
         position_prior,
-        track_costs,
     )
     from fgloc.registration.source import build_source_cloud, choose_tracks
     from fgloc.smoothing.graph import detection_range_rates, extent_trusted, placed_detections
@@ -955,8 +955,7 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
             cov = sensor_covariance(jr.covariance, jr.T, sensor_c, tilt)
             targets = mode_targets(scn, target, cfg, coarse, mode.start, mode.lanes)
             T_local, z_std = placed_where_ended(coarse, se2_to_se3(jr.T) @ coarse.T_coarse)
-            cost = track_costs(cloud, targets, jr.T, cfg.coarse.mode_cost_scale,
-                               cfg.sicp.direction_gate_deg, label_compatibility(cfg.sicp))
+            cost = mode_track_costs(cloud, targets, jr.T, cfg)
             if mode.track_cost.shape == cost.shape and mode.cost < cost.sum():
                 cost = mode.track_cost      # the mode's evidence: its start fits the data better
             fits.append(ModeFit(jr.T, T_local, cov, cost, mode.lane_score, jr.converged,

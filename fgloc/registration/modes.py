@@ -76,11 +76,11 @@ import numpy as np
 
 from fgloc.coarse.localize import same_pose
 from fgloc.coarse.valley import Valley, find_valley
-from fgloc.config import CoarseConfig
+from fgloc.config import CoarseConfig, Config
 from fgloc.geo import LocalFrame, pose_from_se3, se2_to_se3, transform_points, wrap_angle
 from fgloc.map import approx_position_local
 from fgloc.map.lane_models import KEEP_RIGHT, other_model_note
-from fgloc.registration.sicp import ALL, SemanticTargets
+from fgloc.registration.sicp import ALL, SemanticTargets, label_compatibility
 from fgloc.registration.source import SourceCloud
 
 if TYPE_CHECKING:
@@ -185,6 +185,14 @@ def track_costs(src: SourceCloud, targets: SemanticTargets, T: np.ndarray, scale
     rho = np.minimum(d, scale) ** 2 / scale**2
     _, inv = np.unique(src.track_id, return_inverse=True)
     return np.bincount(inv.reshape(-1), weights=rho)
+
+
+def mode_track_costs(src: SourceCloud, targets: SemanticTargets, T: np.ndarray,
+                     cfg: Config) -> np.ndarray:
+    """:func:`track_costs` as every method compares its modes: ``coarse.mode_cost_scale``,
+    ``sicp.direction_gate_deg`` and the labels matched as ``sicp.mode`` matches them."""
+    return track_costs(src, targets, T, cfg.coarse.mode_cost_scale,
+                       cfg.sicp.direction_gate_deg, label_compatibility(cfg.sicp))
 
 
 def separation_z(worse: np.ndarray, best: np.ndarray) -> float:
