@@ -52,11 +52,11 @@ class MapConfig:
     turn_angle_deg: float = 30.0
     """Heading change (deg) from a junction movement's predecessor to its successor above which
     the movement is a turn ("routing" labels)."""
-    lane_labels: str = "lanelet"
-    """Labels of the lane samples (the fine and the joint targets): "lanelet" = their
-    lanelet's (``labels``), "path" = the curvature of the lane's path through its joins,
-    smoothed over ``path_sigma`` m, against ``gamma`` (what a vehicle driving it shows, as
-    the tracks are labelled; :mod:`fgloc.map.path_labels`)."""
+    lane_labels: str = "path"
+    """Labels of the lane samples (the fine and the joint targets): "path" = the curvature of
+    the lane's path through its joins, smoothed over ``path_sigma`` m, against ``gamma`` (what
+    a vehicle driving it shows, as the tracks are labelled; :mod:`fgloc.map.path_labels`),
+    "lanelet" = their lanelet's (``labels``)."""
     path_sigma: float = 2.0
     """Gaussian smoothing length (m) of the lanes' headings for ``lane_labels = "path"``."""
     two_way_lanes: str = "auto"

@@ -82,7 +82,7 @@ def test_a_lane_without_neighbours_keeps_its_own_curvature() -> None:
 def test_config_names_a_bad_lane_label_rule() -> None:
     from fgloc.config import MapConfig
 
-    assert MapConfig().lane_labels == "lanelet"
+    assert MapConfig().lane_labels == "path"
     with pytest.raises(ValueError, match="lane_labels must be 'lanelet' or 'path'"):
         MapConfig(lane_labels="curvature")
     with pytest.raises(ValueError, match="path_sigma must be >= 0"):
