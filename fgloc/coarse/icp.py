@@ -190,6 +190,11 @@ class LaneCentres:
         target.memo[key] = (lanelet_map, lanes)
         return lanes
 
+    @property
+    def direction(self) -> np.ndarray:
+        """(K, 2) unit driving direction of each sample (its left normal turned clockwise)."""
+        return np.column_stack([self.normal[:, 1], -self.normal[:, 0]])
+
     def ambiguity(self) -> np.ndarray:
         """(K,) where vehicles drive is this uncertain (m) at each sample
         (:func:`fgloc.scenario.lane_ambiguity` of the centre offset and the bend)."""

@@ -40,6 +40,13 @@ JOIN_TOLERANCE = 0.5
 JOIN_MAX_TURN_DEG = 60.0
 
 
+def lane_ends(lane: np.ndarray, n_lanes: int) -> tuple[np.ndarray, np.ndarray]:
+    """(first, last) sample index (n_lanes,) of every lane of the grouped, ascending lane
+    indices ``lane`` (a lane without samples: ``last == first - 1``)."""
+    k = np.arange(n_lanes)
+    return (np.searchsorted(lane, k, side="left"), np.searchsorted(lane, k, side="right") - 1)
+
+
 def lane_neighbours(xy: np.ndarray, lane: np.ndarray, keys: list[tuple[int, bool]],
                     lmap: LaneletMap | None = None, tol: float = JOIN_TOLERANCE,
                     max_turn_deg: float = JOIN_MAX_TURN_DEG) -> tuple[np.ndarray, np.ndarray]:
@@ -52,8 +59,7 @@ def lane_neighbours(xy: np.ndarray, lane: np.ndarray, keys: list[tuple[int, bool
     xy = np.asarray(xy, dtype=float)
     lane = np.asarray(lane)
     n_lanes = len(keys)
-    first = np.searchsorted(lane, np.arange(n_lanes), side="left")
-    last = np.searchsorted(lane, np.arange(n_lanes), side="right") - 1
+    first, last = lane_ends(lane, n_lanes)
     ok = last > first
     nxt = np.minimum(first + 1, len(xy) - 1)
     prv = np.maximum(last - 1, 0)
@@ -111,8 +117,7 @@ def smooth_lane_joins(xy: np.ndarray, lane: np.ndarray, keys: list[tuple[int, bo
     if np.any(np.diff(lane) < 0):
         raise ValueError("smooth_lane_joins: the samples must be grouped by lane in order")
     n_lanes = len(keys)
-    first = np.searchsorted(lane, np.arange(n_lanes), side="left")
-    last = np.searchsorted(lane, np.arange(n_lanes), side="right") - 1
+    first, last = lane_ends(lane, n_lanes)
     if length <= 0.0 or not len(xy):
         return xy.copy(), _normals(xy, first, last)
     pred, succ = lane_neighbours(xy, lane, keys, lmap)
@@ -179,5 +184,5 @@ def lane_keys(lanelets: list[Lanelet], lanelet_index: np.ndarray, against: np.nd
     lanelet index (into ``lanelets``), direction flag and lane index
     (:class:`fgloc.coarse.LaneCentres`)."""
     n_lanes = int(lane.max()) + 1 if len(lane) else 0
-    first = np.searchsorted(lane, np.arange(n_lanes), side="left")
+    first, _ = lane_ends(lane, n_lanes)
     return [(lanelets[int(lanelet_index[i])].id, bool(against[i])) for i in first]

@@ -22,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
-from fgloc.map.lane_joins import lane_neighbours
+from fgloc.map.lane_joins import lane_ends, lane_neighbours
 from fgloc.map.lanelet_labels import labels_from_curvature
 from fgloc.scenario import LaneletMap
 
@@ -37,8 +37,7 @@ def path_curvature(xy: np.ndarray, heading: np.ndarray, lane: np.ndarray,
     xy, heading, lane = np.asarray(xy, float), np.asarray(heading, float), np.asarray(lane)
     if len(xy) == 0:
         return np.zeros(0)
-    first = np.searchsorted(lane, np.arange(len(keys)), side="left")
-    last = np.searchsorted(lane, np.arange(len(keys)), side="right") - 1
+    first, last = lane_ends(lane, len(keys))
     prv, nxt = lane_neighbours(xy, lane, keys, lmap)
     reach = 3.0 * sigma
     out = np.zeros(len(xy))

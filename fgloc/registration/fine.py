@@ -91,8 +91,7 @@ def lane_centre_points(
     if towards is not None and isinstance(offset, VisibleSide):
         offset = offset.at(lanes.aspect(towards))
     xy = lanes.xy if towards is None else lanes.towards(towards, offset).xy
-    direction = np.column_stack([lanes.normal[:, 1], -lanes.normal[:, 0]])
-    return (xy, lane_labels(target, lanelets, lanes, labels, scn.lanelets), direction,
+    return (xy, lane_labels(target, lanelets, lanes, labels, scn.lanelets), lanes.direction,
             lanes.ambiguity(), lanes.lane)
 
 
@@ -112,9 +111,8 @@ def lane_labels(target: TargetCloud, lanelets: list[Lanelet], lanes: LaneCentres
         hit = target.memo.get(key)
         if hit is not None:
             return hit[1]
-        heading = np.column_stack([lanes.normal[:, 1], -lanes.normal[:, 0]])
         keys = lane_keys(lanelets, lanes.lanelet, lanes.against, lanes.lane)
-        labels = path_labels(lanes.xy, heading, lanes.lane, keys, cfg.path_sigma, cfg.gamma,
+        labels = path_labels(lanes.xy, lanes.direction, lanes.lane, keys, cfg.path_sigma, cfg.gamma,
                              lmap).astype(np.int8)
         labels.setflags(write=False)
         target.memo[key] = ((lanes, lmap), labels)

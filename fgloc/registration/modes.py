@@ -78,6 +78,7 @@ from fgloc.coarse.localize import same_pose
 from fgloc.coarse.valley import Valley, find_valley
 from fgloc.config import CoarseConfig, Config
 from fgloc.geo import LocalFrame, pose_from_se3, se2_to_se3, transform_points, wrap_angle
+from fgloc.labels import NAMES
 from fgloc.map import approx_position_local
 from fgloc.map.lane_models import KEEP_RIGHT, other_model_note
 from fgloc.registration.sicp import ALL, SemanticTargets, label_compatibility
@@ -159,7 +160,7 @@ def track_costs(src: SourceCloud, targets: SemanticTargets, T: np.ndarray, scale
     """Summed robust cost ``min(d, scale)^2 / scale^2`` per track (ordered by track id) of the
     source points moved by T (3x3 C -> L); d is the distance (m) to the nearest target point
     of a label compatible with the point's, divided by the square root of that compatibility
-    (``compat``, 3x3 source x target label, :func:`fgloc.registration.sicp.label_compatibility`
+    (``compat``, source x target label, :func:`fgloc.registration.sicp.label_compatibility`
     as SICP matches; None: the identity, only the point's own label), of any label when the
     target has none of the compatible ones, and, where the source and the target carry driving
     directions and ``gate_deg`` < 180, of a direction within ``gate_deg`` of the point's (as
@@ -171,7 +172,7 @@ def track_costs(src: SourceCloud, targets: SemanticTargets, T: np.ndarray, scale
                 and gate_deg < 180.0)
     heading = src.direction @ T[:2, :2].T if directed else None
     min_cos = float(np.cos(np.deg2rad(gate_deg)))
-    compat = np.eye(3) if compat is None else np.asarray(compat, float)
+    compat = np.eye(len(NAMES)) if compat is None else np.asarray(compat, float)
     d = np.full(len(xy), np.inf)
     for code in np.unique(src.label):
         sel = np.flatnonzero(src.label == code)
