@@ -8,13 +8,14 @@ lines as mapped, "centre-lanelet2", and keep-right with pedestrians and cyclists
 own ways and trams on its rails, "keep-right-users"; :data:`TRAFFIC`)
 and each seed, ``fgloc.sim.real_map.simulate_on_map`` builds a scenario at that
 junction (``--duration`` s of traffic) and ``fgloc.localize_many`` runs every method on it; once
-per ``[map] labels`` mode (routing graph, Menger curvature); the 2D, yaw and height errors
+per label source of the lane samples (:data:`LABELS`: their lane's path, the default, or their
+lanelet's label from the routing graph or from Menger curvature); the 2D, yaw and height errors
 against the simulated truth are printed per run, then the mean and the worst seed per
 traffic, labels, junction and method. docs/benchmarks.md's table comes from
 ``python -m bench.report --only real_map``.
 
     OMP_NUM_THREADS=1 python -m bench.real_map --seeds 1 2 3
-    OMP_NUM_THREADS=1 python -m bench.real_map --seeds 1 --two-way-traffic centre --labels routing
+    OMP_NUM_THREADS=1 python -m bench.real_map --seeds 1 --two-way-traffic centre --labels path
     OMP_NUM_THREADS=1 python -m bench.real_map --config variant.toml   # not the defaults
 """
 
@@ -62,6 +63,14 @@ TRAFFIC: dict[str, dict[str, str | float]] = {
 }
 
 
+#: Label sources of the lane samples compared: name -> ``[map]`` (lane_labels, labels).
+LABELS: dict[str, tuple[str, str]] = {
+    "path": ("path", "routing"),
+    "routing": ("lanelet", "routing"),
+    "curvature": ("lanelet", "curvature"),
+}
+
+
 #: (traffic, labels, junction index, method) -> (2D m, yaw deg, ambiguous 0/1, dz m) of every
 #: seed (dz signed: the result's height minus the truth's)
 Errors = dict[tuple[str, str, int, str], list[tuple[float, float, float, float]]]
@@ -87,7 +96,7 @@ def run_one(map_path: Path, kind: str, k: int, site: tuple[float, float], seed: 
             duration: float, labels: list[str], config: Path | None = None
             ) -> list[dict[str, object]]:
     """One scenario (two-way traffic ``kind``, junction index ``k`` at ``site``, ``seed``),
-    localized by every method once per ``[map] labels`` mode with the fgloc config TOML
+    localized by every method once per label source (:data:`LABELS`) with the fgloc config TOML
     ``config`` (None: the defaults): one row per (labels, method) with the 2D, yaw and
     height errors and the result's status."""
     scn = scenario(map_path, kind, site, seed, duration)
@@ -95,7 +104,7 @@ def run_one(map_path: Path, kind: str, k: int, site: tuple[float, float], seed: 
     for mode in labels:
         t0 = time.perf_counter()
         cfg = load_config(config)
-        cfg.map.labels = mode
+        cfg.map.lane_labels, cfg.map.labels = LABELS[mode]
         res = localize_many(scn, METHODS, cfg)
         line = [f"traffic {kind} junction {k + 1} seed {seed} labels {mode}:"]
         for m, r in res.items():
@@ -138,7 +147,7 @@ def errors_of(rows: list[dict[str, object]]) -> Errors:
 
 def table(sites: list[tuple[float, float]], seeds: list[int], labels: list[str],
           errors: Errors) -> str:
-    """Markdown table: per two-way traffic kind and labels mode, every junction's and all runs'
+    """Markdown table: per two-way traffic kind and label source, every junction's and all runs'
     mean and worst per method (the height error: its signed mean and worst magnitude), and
     how many of the runs were ambiguous."""
     rows = ["| two-way traffic | junction (lat, lon) | labels | method | 2D mean (m) "
@@ -170,8 +179,9 @@ def main() -> None:
     ap.add_argument("--junctions", type=int, default=3)
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--duration", type=float, default=60.0)
-    ap.add_argument("--labels", choices=["routing", "curvature"], nargs="+",
-                    default=["routing", "curvature"], help="[map] labels modes compared")
+    ap.add_argument("--labels", choices=list(LABELS), nargs="+",
+                    default=["path", "routing"], help="label sources of the lane samples "
+                    "compared (LABELS)")
     ap.add_argument("--two-way-traffic", choices=list(TRAFFIC), nargs="+",
                     default=list(TRAFFIC),
                     help="the kinds of simulated traffic (TRAFFIC): where vehicles drive on "
@@ -179,7 +189,8 @@ def main() -> None:
                     "as mapped (keep-right-mapped) and on lanelet2's centre lines "
                     "(centre-lanelet2); one row group per kind")
     ap.add_argument("--config", type=Path, default=None,
-                    help="fgloc config TOML (default: all defaults; [map] labels is set per mode)")
+                    help="fgloc config TOML (default: all defaults; [map] lane_labels and "
+                    "labels are set per label source)")
     args = ap.parse_args()
     sites, rows = run(args.map, args.junctions, args.seeds, args.duration, args.labels,
                       args.two_way_traffic, config=args.config)

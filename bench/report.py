@@ -268,14 +268,16 @@ TABLES: list[Table] = [
           "every method, mean and worst seed per junction (the height error dz: its signed "
           "mean and largest magnitude) and the runs whose result was "
           "ambiguous (the pose given is the best mode's; [map] two_way_lanes = auto: the "
-          "lane models of two-way streets are modes); each scenario localized with the "
-          "routing-graph labels (the default) and with Menger-curvature labels only.",
+          "lane models of two-way streets are modes); each scenario localized with the lane "
+          "samples labelled by their lane's path (labels path, the default [map] lane_labels) "
+          "and by their lanelet's routing-graph label (labels routing, lane_labels = "
+          "\"lanelet\").",
           produce_real_map,
           {"junctions": 6, "seeds": [1, 2, 3], "duration": 60.0,
-           "labels": ["routing", "curvature"],
+           "labels": ["path", "routing"],
            "traffic": ["keep-right", "centre", "keep-right-mapped", "centre-lanelet2",
                        "keep-right-users"]},
-          {"junctions": 1, "seeds": [1], "duration": 30.0, "labels": ["routing"],
+          {"junctions": 1, "seeds": [1], "duration": 30.0, "labels": ["path"],
            "traffic": ["keep-right", "centre"]}, parallel=True),
     Table("independent", "Scenarios of an independent generator", "bench/independent.py",
           "Scenarios written by bench/independent_gen.py, a generator written without fgloc's "
