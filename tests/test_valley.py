@@ -102,6 +102,28 @@ def test_modes_sampled_along_a_road_report_the_road_and_cover_the_truth():
     assert e @ np.linalg.solve(cov, e) < 1.0
     assert np.sqrt(cov[0, 0]) > 3.0 and np.sqrt(cov[1, 1]) == pytest.approx(0.5, rel=0.01)
     assert "not determined" in with_valley.warnings("joint")[0]
-    # a road the tracks' costs rise along off x = 3 +- 0.5: no valley, the modes stand
-    assert track_valley(choice, lambda f, T: np.ones(n) * (1.0 + abs(T[0, 2] - 4.0)),
+    # every track costlier between the modes at x = 4 and 6 (at 5 +- 0.6): distinct modes,
+    # not samples of one road; no valley, the modes stand
+    assert track_valley(choice, lambda f, T: np.ones(n) * (1.0 + (abs(T[0, 2] - 5.0) < 0.6)),
                         prior, CFG) is None
+
+
+def test_valley_is_scanned_against_the_cost_at_the_fits_own_pose():
+    """A joint fit keeps its start's per-track costs when the start fit the data better
+    (:func:`fgloc.registration.joint.joint_from_tracks`): they are another scoring than
+    ``cost_at`` at the fit's pose. The valley compares poses on the line with the fit's pose
+    under one scoring: the road here ends at x = -8 and 9 m (every track 2 costlier beyond),
+    which a baseline of the carried costs (the same values in another order) would hide."""
+    n = 12
+    b = np.arange(1.0, n + 1.0)
+
+    def cost_at(fit: ModeFit, T: np.ndarray) -> np.ndarray:
+        return b + (0.0 if -8.0 <= T[0, 2] <= 9.0 else 2.0)
+
+    carried = b[::-1].copy()                      # the start's costs: another scoring
+    fits = [_fit(x, 0.0, carried) for x in (2.0, 4.0, 6.0)]
+    choice = choose_mode(fits, CFG)
+    valley = track_valley(choice, cost_at, PositionPrior(np.array([0.5, 1.0]), 50.0), CFG)
+    assert valley is not None
+    assert valley.lo + valley.origin[0] == pytest.approx(-8.0)
+    assert valley.hi + valley.origin[0] == pytest.approx(9.0)

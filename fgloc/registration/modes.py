@@ -539,18 +539,20 @@ def track_valley(choice: ModeChoice, cost_at: Callable[[ModeFit, np.ndarray], np
     None (resolved, tied modes of two lane models, or not samples of one line). The line
     passes through the least-cost tied fit with its yaw; a pose on it ties when that fit does
     not beat it by ``cfg.mode_z`` (:func:`separation_z` of the per-track costs
-    ``cost_at(fit, T)``: T the 3x3 SE(2) C -> L of the pose, scored against the targets of
-    ``fit``'s mode) -- the test that tied the modes."""
+    ``cost_at(fit, T)`` against ``cost_at(fit, fit.T_fine)``: T the 3x3 SE(2) C -> L of the
+    pose, scored against the targets of ``fit``'s mode) -- the test that tied the modes, under
+    one scoring (not against ``fit.track_cost``: a joint fit may carry its start's costs)."""
     if choice.status == RESOLVED or len({choice.fits[k].lanes for k in choice.tied}) > 1:
         return None
     tied = [choice.fits[k] for k in choice.tied]
     at = min(range(len(tied)), key=lambda k: tied[k].cost)
     ref = tied[at]
+    base = cost_at(ref, np.array(ref.T_fine, dtype=float))
 
     def z_at(xy: np.ndarray) -> float:
         T = np.array(ref.T_fine, dtype=float)
         T[:2, 2] += xy - ref.sensor[:2]
-        return separation_z(cost_at(ref, T), ref.track_cost)
+        return separation_z(cost_at(ref, T), base)
 
     poses = np.array([f.sensor for f in tied])
     return find_valley(poses, at, prior.xy, prior.sigma, cfg, z_at)
