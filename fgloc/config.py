@@ -28,6 +28,9 @@ else:  # pragma: no cover - exercised on Python 3.10 only
 
 T = TypeVar("T")
 
+#: ``[coarse] tie_test`` values (:func:`fgloc.registration.modes.separation_z`).
+TIE_TESTS = ("self-normalized", "robust")
+
 
 @dataclass
 class MapConfig:
@@ -272,8 +275,18 @@ class CoarseConfig:
     point of its label."""
     mode_z: float = 3.0
     """A mode is told apart from the best when the best fits better by at least this many
-    standard errors over the tracks (self-normalized sum of the per-track cost differences);
+    standard errors over the tracks (``tie_test`` on the per-track cost differences);
     otherwise the result is ``ambiguous``."""
+    tie_test: str = "robust"
+    """How the per-track cost differences D between a mode and the best are read as standard
+    errors (:func:`fgloc.registration.modes.separation_z`): "self-normalized" (``sum D /
+    sqrt(sum D^2)``: at most sqrt(k) when k tracks differ, so a few turning tracks never
+    outvote many indifferent straight ones) or "robust" (the larger of that and the sum
+    without the one most favourable track over an absolute scale, the median track's spread
+    with ``tie_noise_floor`` as its least)."""
+    tie_noise_floor: float = 1.0
+    """Least std. dev. (cost units: detections at the full robust cost) of an indifferent
+    track's cost difference in the "robust" ``tie_test``."""
     approx_position_sigma: float = 5.0
     """Std. dev. (m, per axis) of sensor.toml's ``approx_position`` (documented as off by up to
     about 10 m: 2 sigma) as a prior on the sensor's position. It decides only which of the
@@ -329,6 +342,11 @@ class CoarseConfig:
         if not self.approx_position_sigma > 0.0:
             raise ValueError("approx_position_sigma must be > 0 (m), got "
                              f"{self.approx_position_sigma}")
+        if self.tie_test not in TIE_TESTS:
+            raise ValueError(f"tie_test must be one of {', '.join(TIE_TESTS)}, got "
+                             f"{self.tie_test!r}")
+        if not self.tie_noise_floor > 0.0:
+            raise ValueError(f"tie_noise_floor must be > 0, got {self.tie_noise_floor}")
 
 
 @dataclass

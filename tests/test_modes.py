@@ -40,6 +40,37 @@ def test_separation_z_is_a_self_normalized_sum_over_tracks():
     assert separation_z(np.array([100.0, 0, 0, 0]), np.zeros(4)) == pytest.approx(1.0)
 
 
+def test_robust_separation_counts_concordant_tracks_against_indifferent_ones():
+    """The robust test (``tie_test = "robust"``): three turning tracks that fit a shift along
+    the road 10 cost units worse each, eleven straight ones indifferent. Self-normalized
+    that is sqrt(3) standard errors whatever the eleven do; with the absolute scale (the
+    median track's spread, floor 1) it is (30 - 10) / sqrt(13), the most favourable track
+    left out."""
+    worse = np.array([10.0, 10.0, 10.0] + [0.0] * 11)
+    best = np.zeros(14)
+    assert separation_z(worse, best) == pytest.approx(np.sqrt(3.0))
+    assert separation_z(worse, best, 1.0) == pytest.approx(20.0 / np.sqrt(13.0))
+    # the indifferent tracks' own spread is the scale: noisy tracks hide the three again
+    noisy = worse + np.r_[0.0, 0.0, 0.0, np.tile([4.0, -4.0], 5), 4.0]
+    assert separation_z(noisy, best, 1.0) < 3.0
+    # one track alone is never enough, however large its difference
+    assert separation_z(np.array([100.0] + [0.0] * 13), best, 1.0) == pytest.approx(1.0)
+    # it only adds evidence: never below the self-normalized z
+    rng = np.random.default_rng(3)
+    for _ in range(50):
+        d = rng.normal(0.0, 3.0, 9)
+        assert separation_z(d, np.zeros(9), 1.0) >= separation_z(d, np.zeros(9)) - 1e-12
+    # the configuration picks the test
+    three = _fit(3.5, 0.0, 0.0, worse + 1.0)
+    good = _fit(0.0, 0.0, 0.0, best + 1.0)
+    assert choose_mode([good, three], CoarseConfig()).status == RESOLVED
+    assert choose_mode([good, three], CoarseConfig(tie_test="self-normalized")).tied == [0, 1]
+    with pytest.raises(ValueError, match="tie_test"):
+        CoarseConfig(tie_test="t")
+    with pytest.raises(ValueError, match="tie_noise_floor"):
+        CoarseConfig(tie_noise_floor=0.0)
+
+
 def test_choice_rules_out_a_mode_only_when_the_tracks_agree():
     cfg = CoarseConfig()
     good = _fit(0.0, 0.0, 0.0, [1.0] * 12)

@@ -196,12 +196,33 @@ def mode_track_costs(src: SourceCloud, targets: SemanticTargets, T: np.ndarray,
                        cfg.sicp.direction_gate_deg, label_compatibility(cfg.sicp))
 
 
-def separation_z(worse: np.ndarray, best: np.ndarray) -> float:
-    """Standard errors by which per-track costs ``best`` beat ``worse`` (same tracks):
-    ``sum D / sqrt(sum D^2)``, ``D = worse - best``; 0 when they agree exactly."""
+def separation_z(worse: np.ndarray, best: np.ndarray, noise_floor: float | None = None
+                 ) -> float:
+    """Standard errors by which per-track costs ``best`` beat ``worse`` (same tracks), from
+    ``D = worse - best``; 0 when they agree exactly.
+
+    Self-normalized (``noise_floor`` None): ``sum D / sqrt(sum D^2)``, about N(0, 1) when the
+    differences are symmetric about 0, at most ``sqrt(k)`` when k tracks carry them. With a
+    ``noise_floor`` (cost units, :func:`track_costs`) the larger of that and a robust z with
+    an absolute scale: the sum of D without the track that favours ``best`` most, over
+    ``sqrt(n - 1) s``; ``s`` = 1.4826 median |D| (the spread of an indifferent track's
+    difference, the median track taken as one), at least ``noise_floor``. So two tracks that
+    fit ``worse`` far worse than the rest differ count against it however many others are
+    indifferent (a road's turning tracks against its straight ones), one alone does not
+    (fewer than 3 tracks: self-normalized only)."""
     diff = np.asarray(worse, float) - np.asarray(best, float)
     norm = float(np.sqrt((diff**2).sum()))
-    return float(diff.sum() / norm) if norm > 0.0 else 0.0
+    z = float(diff.sum() / norm) if norm > 0.0 else 0.0
+    if noise_floor is None or len(diff) < 3:
+        return z
+    s = max(1.4826 * float(np.median(np.abs(diff))), noise_floor)
+    return max(z, float(diff.sum() - diff.max()) / (np.sqrt(len(diff) - 1.0) * s))
+
+
+def tie_z(worse: np.ndarray, best: np.ndarray, cfg: CoarseConfig) -> float:
+    """:func:`separation_z` as the modes are compared (``coarse.tie_test``,
+    ``coarse.tie_noise_floor``)."""
+    return separation_z(worse, best, cfg.tie_noise_floor if cfg.tie_test == "robust" else None)
 
 
 def distinct(fit: ModeFit, others: list[ModeFit], cfg: CoarseConfig,
@@ -526,7 +547,7 @@ def choose_mode(fits: list[ModeFit], cfg: CoarseConfig,
     merged += [replace(s, origin="start") for s in merge_modes(starts or [], cfg)
                if distinct(s, merged, cfg)]
     best = merged[0].track_cost
-    z = np.array([separation_z(f.track_cost, best) for f in merged])
+    z = np.array([tie_z(f.track_cost, best, cfg) for f in merged])
     tied = [k for k in range(len(merged)) if k == 0 or z[k] < cfg.mode_z]
     choice = ModeChoice(merged, z, tied).selected_by(prior, lane_z).agreeing(cfg)
     return choice.with_tolerance(cfg.resolved_max_std,
@@ -552,7 +573,7 @@ def track_valley(choice: ModeChoice, cost_at: Callable[[ModeFit, np.ndarray], np
     def z_at(xy: np.ndarray) -> float:
         T = np.array(ref.T_fine, dtype=float)
         T[:2, 2] += xy - ref.sensor[:2]
-        return separation_z(cost_at(ref, T), base)
+        return tie_z(cost_at(ref, T), base, cfg)
 
     poses = np.array([f.sensor for f in tied])
     return find_valley(poses, at, prior.xy, prior.sigma, cfg, z_at)
