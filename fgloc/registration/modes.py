@@ -28,11 +28,13 @@ placed by the best mode, moved rigidly by the mode's start) and hands its final 
 * **Height**: a final pose takes the z (and its std. dev.) of the coarse mode nearest to where
   it ended (:func:`height_mode`), which need not be the one it started from.
 * **Told apart?** The points of one vehicle share its errors, so the evidence against mode k
-  is counted per track: ``D_j`` = track j's cost under k minus under the best mode, and
-  ``z_k = sum_j D_j / sqrt(sum_j D_j^2)`` (a self-normalized sum: about N(0, 1) when the
-  tracks' differences are symmetric about 0, i.e. when k fits as well; ``sqrt(n)`` when n
-  tracks all prefer the best by the same amount). Mode k is ruled out when
-  ``z_k >= coarse.mode_z``; otherwise the result is ``status = "ambiguous"``.
+  is counted per track: ``D_j`` = track j's cost under k minus under the best mode, read as
+  ``z_k`` standard errors by :func:`separation_z` (``coarse.tie_test``: the self-normalized
+  ``sum_j D_j / sqrt(sum_j D_j^2)``, about N(0, 1) when k fits as well but at most sqrt(k)
+  when k tracks carry the difference; "robust", the default, also an absolute scale from the
+  median track, so a few concordant turning tracks count against many indifferent straight
+  ones). Mode k is ruled out when ``z_k >= coarse.mode_z``; otherwise the result is
+  ``status = "ambiguous"``.
 * **Lane models**: where a two-way street is mapped as one lanelet, the coarse stage gives
   its modes in both lane models (:mod:`fgloc.map.lane_models`); each is registered against
   its own model's targets and scored against them, and the two models compete like any two
