@@ -16,7 +16,7 @@ from test_independent_gen import CROP, JUNCTION_3, nearest_vehicle
 
 from bench.independent_gen import generate
 from fgloc.coarse import coarse_localize
-from fgloc.coarse.points import dynamic_points, on_trail
+from fgloc.coarse.points import dbscan_not_noise, dynamic_points, on_trail
 from fgloc.config import CoarseConfig, Config
 from fgloc.evaluation.pose import pose_error
 from fgloc.io import load_scenario
@@ -94,3 +94,38 @@ def test_coarse_fit_under_uniform_false_alarms(uniform: Scenario) -> None:
     err = pose_error(res.T_coarse, uniform.truth.sensor_pose)
     assert res.n_points_off_trail > 0 and res.fitness >= 0.95
     assert err.d2d < 0.6 and err.dyaw_deg < 0.5
+
+
+def test_dbscan_noise_test_in_closed_form() -> None:
+    """Points 0.4 m apart on a line with eps 0.5 m and 3 points: each inner point has itself
+    and its two neighbours (core), the ends only two (border: within eps of a core point);
+    a point 0.9 m beyond an end is within eps of no core point (noise), and a pair alone is
+    noise. min_points 1: every point is core."""
+    line = np.column_stack([np.arange(6) * 0.4, np.zeros(6), np.zeros(6)])
+    pts = np.vstack([line, [[2.0 + 0.9, 0.0, 0.0], [50.0, 0.0, 0.0], [50.3, 0.0, 0.0]]])
+    assert dbscan_not_noise(pts, 0.5, 3).tolist() == [True] * 6 + [False] * 3
+    assert dbscan_not_noise(pts, 0.5, 1).all()
+    assert dbscan_not_noise(np.zeros((0, 3)), 0.5, 3).shape == (0,)
+
+
+def test_dbscan_noise_test_agrees_with_open3d() -> None:
+    """The peer: Open3D's cluster_dbscan labels exactly the same points noise on random
+    clouds, uniform and clustered, flat and deep, over radii and point counts."""
+    from fgloc._open3d import open3d
+
+    o3d = open3d()
+    rng = np.random.default_rng(11)
+    kept = noise = 0
+    for trial in range(40):
+        n, scale = int(rng.integers(5, 2000)), rng.uniform(5.0, 150.0)
+        pts = rng.uniform(0.0, scale, (n, 3)) * [1.0, 1.0, rng.uniform(0.01, 1.0)]
+        if trial % 2:
+            pts[n // 4:] = rng.normal(rng.uniform(0.0, scale, 3), rng.uniform(0.5, 5.0),
+                                      (n - n // 4, 3))
+        eps, k = rng.uniform(0.2, 4.0), int(rng.integers(1, 12))
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
+        peer = np.asarray(cloud.cluster_dbscan(eps, k, False)) >= 0
+        mine = dbscan_not_noise(pts, eps, k)
+        np.testing.assert_array_equal(mine, peer, err_msg=f"trial {trial}")
+        kept, noise = kept + int(peer.sum()), noise + int((~peer).sum())
+    assert kept > 1000 and noise > 1000           # both outcomes were compared

@@ -4,7 +4,7 @@ road points of the target cloud, giving ``T_coarse`` (sensor frame S -> local fr
 Method
 ------
 1. Source: detections with ``|doppler| >= lambda`` from the whole recording, voxel-downsampled
-   per Doppler sign and filtered by DBSCAN (Open3D) to drop isolated clutter.
+   per Doppler sign and filtered by DBSCAN's noise test to drop isolated clutter.
 2. The pose is split as ``R = Rz(yaw) R_tilt`` with ``R_tilt = Ry(pitch) Rx(roll)``. Dynamic
    points lie on vehicle bodies 0.3-1.5 m above the asphalt while the target is the asphalt, so a
    3D point-to-point ICP would pull the sensor down by the reflection height. Instead:

@@ -1,5 +1,6 @@
 """The coarse stage's source: the accumulated dynamic radar points, voxel-averaged and filtered
-by DBSCAN (Open3D), in the sensor frame S (step 1 of :mod:`fgloc.coarse.localize`).
+by DBSCAN's noise test (:func:`dbscan_not_noise`), in the sensor frame S (step 1 of
+:mod:`fgloc.coarse.localize`).
 
 Before the voxels, each moving detection must lie on a trail (:func:`on_trail`): a vehicle
 returns detections frame after frame within a few metres of each other, a false alarm (a
@@ -18,7 +19,6 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from fgloc._open3d import open3d
 from fgloc.config import CoarseConfig
 from fgloc.map import voxel_centroids
 from fgloc.scenario import RadarData
@@ -79,11 +79,23 @@ def dynamic_points(radar: RadarData, cfg: CoarseConfig) -> DynamicSource:
     on = dyn[trail]
     sign = (np.asarray(radar.doppler)[moving][trail] > 0).astype(np.int64)
     pts, sign = voxel_centroids(on, sign, cfg.voxel_size)
-    keep = np.zeros(0, dtype=bool)
-    if len(pts):
-        o3d = open3d()
-        pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
-        keep = np.asarray(pcd.cluster_dbscan(cfg.dbscan_eps, cfg.dbscan_min_points, False)) >= 0
+    keep = dbscan_not_noise(pts, cfg.dbscan_eps, cfg.dbscan_min_points)
     return DynamicSource(pts[keep], sign[keep] == 1,
                          on[:: max(1, len(on) // cfg.vertical_points)],
                          int(dyn.shape[0]), int((~trail).sum()))
+
+
+def dbscan_not_noise(pts: np.ndarray, eps: float, min_points: int) -> np.ndarray:
+    """(n,) True where DBSCAN (radius ``eps`` m, ``min_points``) does not label the point
+    (n, 3) as noise: a core point (at least ``min_points`` points, itself included, within
+    ``eps``) or one within ``eps`` of a core point. Which cluster a point joins does not
+    matter here, so no clustering is run; Open3D's ``cluster_dbscan`` labels the same points
+    noise (tests/test_coarse_trail.py) but its import alone took 2 s of a run."""
+    pts = np.asarray(pts, dtype=float).reshape(-1, 3)
+    if not len(pts):
+        return np.zeros(0, dtype=bool)
+    core = cKDTree(pts).query_ball_point(pts, eps, return_length=True) >= min_points
+    if not core.any():
+        return core
+    dist, _ = cKDTree(pts[core]).query(pts, distance_upper_bound=eps)
+    return dist <= eps
