@@ -115,6 +115,19 @@ def test_factors_never_imports_fgloc():
     assert not bad, f"factors imports fgloc: {bad}"
 
 
+def test_no_run_imports_open3d():
+    """Open3D is the benchmarks' peer, not a stage: importing it (dash, plotly, IPython with
+    it) cost a run 2 s and 190 MB. Only the helper that loads it for bench/ and the tests
+    (``fgloc._open3d``) may import it, anywhere in a function or not."""
+    files = module_files()
+    heavy = {"open3d", "fgloc._open3d"}
+    bad = sorted(m for m, p in files.items()
+                 if m != "fgloc._open3d" and heavy & imports_of(m, p, set(files) | heavy))
+    assert not bad, f"modules importing open3d: {bad}"
+    helper = imports_of("fgloc._open3d", files["fgloc._open3d"], set(files) | heavy)
+    assert "open3d" in helper                    # the check sees a function-local import
+
+
 def test_finds_cycles_and_resolves_relative_imports(tmp_path):
     pkg = tmp_path / "pkg"
     (pkg / "sub").mkdir(parents=True)
