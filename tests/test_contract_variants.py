@@ -2,8 +2,9 @@
 
 A simulated scenario is re-written with other valid choices: LAS 1.2 point format 1 tiles
 without a CRS record (the CRS then comes from sensor.toml), a Lanelet2 map written by lanelet2
-itself, radar.csv without the optional columns and with CRLF line ends, a sensor.toml with only
-the required keys, ground truth at 10 Hz. It must load and localize like the original.
+itself, radar.csv without the optional columns, with CRLF line ends and UNIX epoch times (the
+contract only asks for seconds, non-decreasing), a sensor.toml with only the required keys,
+ground truth at 10 Hz on the same clock. It must load and localize like the original.
 """
 
 from __future__ import annotations
@@ -26,6 +27,9 @@ from fgloc.geo import pose_from_se3, transformer
 from fgloc.io import load_scenario
 from fgloc.pipeline import localize
 from fgloc.sim import simulate
+
+#: the clock the variant's times count from: 2025-12-01 00:00 UTC in UNIX seconds
+EPOCH = 1764547200.0
 
 
 def _write_las12_without_crs(path: Path, xyz_world: np.ndarray, cls: np.ndarray) -> None:
@@ -69,7 +73,7 @@ def variant_dir(tmp_path_factory) -> tuple[Path, object]:
     _write_las12_without_crs(d / "als" / "b.las", world[half:], scn.als.classification[half:])
     _write_map_with_lanelet2(d / "map.osm", scn)
     r = scn.radar
-    body = np.column_stack([r.t, r.xyz, r.doppler])
+    body = np.column_stack([r.t + EPOCH, r.xyz, r.doppler])
     lines = ["t,x,y,z,doppler"] + [",".join(f"{v:.5f}" for v in row) for row in body]
     (d / "radar.csv").write_bytes(("\r\n".join(lines) + "\r\n").encode())
     E, N = scn.sensor.approx_position
@@ -79,6 +83,7 @@ def variant_dir(tmp_path_factory) -> tuple[Path, object]:
     tracks = []
     for tr in scn.truth.tracks:
         st = tr.states[::2].copy()  # 10 Hz
+        st[:, 0] += EPOCH
         st[:, 1:3] = scn.frame.to_world(st[:, 1:3])
         tracks.append({"id": tr.id, "length": tr.length, "width": tr.width, "states": st.tolist()})
     gt = {
@@ -102,6 +107,7 @@ def test_variant_loads_like_the_original(variant_dir):
     got = load_scenario(d)
     assert got.crs == "EPSG:25832"
     assert len(got.radar) == len(scn.radar) and got.radar.rcs is None
+    assert np.allclose(got.radar.t - EPOCH, scn.radar.t, atol=1e-5)
     assert len(got.als) == len(scn.als)
     assert len(got.lanelets) == len(scn.lanelets)
     # same geometry in the world frame to within the LAS scale (1 cm) and map precision
