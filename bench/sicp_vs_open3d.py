@@ -63,7 +63,7 @@ def make_clouds(case: str, seed: int, duration: float, voxel: float, offset: flo
                 direction_deg: float, yaw_deg: float) -> Clouds:
     scn = simulate(case, seed, duration)
     tc = build_target_cloud(scn, MapConfig())
-    dyn = dynamic_points(scn.radar, CoarseConfig())[0]
+    dyn = dynamic_points(scn.radar, CoarseConfig()).xyz
     flat = transform_points(scn.truth.sensor_pose, dyn) * np.array([1.0, 1.0, 0.0])
     xy = voxel_centroids(flat, np.zeros(len(flat), dtype=np.int64), voxel)[0][:, :2]
     txy = tc.xyz[:, :2]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 
+import numpy as np
 import pytest
 
 from bench import report, results
@@ -162,3 +163,14 @@ def test_the_robustness_table_runs_every_setting_of_the_matrix() -> None:
 
     table = next(t for t in report.TABLES if t.name == "robustness")
     assert table.full["settings"] == list(SETTINGS)
+
+
+def test_sicp_against_open3d_builds_its_clouds_from_the_coarse_source() -> None:
+    """bench/sicp_vs_open3d.py's clouds: the coarse source's points (its DynamicSource) on the
+    road, displaced by D (2 m at 30 deg, 3 deg); D itself scores 0, the identity D's yaw."""
+    from bench.sicp_vs_open3d import errors, make_clouds
+
+    c = make_clouds("intersection", 1, 6.0, 1.0, 2.0, 30.0, 3.0)
+    assert len(c.source_xy) > 50 and c.source_label.shape == (len(c.source_xy),)
+    assert errors(c.D, c) == pytest.approx((0.0, 0.0), abs=1e-9)
+    assert errors(np.eye(3), c)[1] == pytest.approx(3.0)
