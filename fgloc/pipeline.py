@@ -5,7 +5,8 @@ that knows), the stages several methods share, computed once per scenario
 ``localize(scenario, method, config)`` is the library entry point (the CLI calls it too); it is
 ``localize_many(scenario, [method], config)[method]``, so one code path runs every method.
 Data flows map -> coarse -> tracking -> smoothing -> registration (the subpackages of
-:mod:`fgloc`); the stages are imported on use, so ``fgloc config`` needs neither Open3D nor gtsam.
+:mod:`fgloc`); the stages are imported on use, so ``fgloc config`` needs no gtsam (and no
+stage imports Open3D, the benchmarks' peer).
 """
 
 from __future__ import annotations

@@ -2,9 +2,9 @@
 
 Under pytest-xdist (README's test command: ``-n auto``, one worker per CPU) each worker keeps
 to one BLAS / OpenMP thread, unless the environment says otherwise: with two workers on two
-CPUs, numpy's and Open3D's thread pools would otherwise contend for the same cores. xdist
-sets ``PYTEST_XDIST_WORKER_COUNT`` before a worker loads this file, and no numpy is imported
-by then."""
+CPUs, numpy's thread pools (and Open3D's in its peer tests) would otherwise contend for the
+same cores. xdist sets ``PYTEST_XDIST_WORKER_COUNT`` before a worker loads this file, and no
+numpy is imported by then."""
 
 import os
 

@@ -25,8 +25,8 @@ from fgloc.batch.job import died_attempts, record_crash, run_job
 from fgloc.batch.manifest import Job
 from fgloc.errors import FglocError
 
-#: Thread-count variables set to 1 in every worker (one job per core; BLAS/OpenMP/Open3D
-#: threads on top of worker processes oversubscribe the cores).
+#: Thread-count variables set to 1 in every worker (one job per core; BLAS/OpenMP threads
+#: on top of worker processes oversubscribe the cores).
 THREAD_ENV: tuple[str, ...] = (
     "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS",
 )
