@@ -20,10 +20,16 @@ At a junction ``site`` (lat, lon) of a Lanelet2 map it draws, from one seed:
 * vehicles arriving as a Poisson process (``vehicles_per_minute``; the roads filled before
   t = 0) on a random route: cars 4.5 x 1.8 x 1.5 m (75 %), vans 5.5 x 2.0 x 2.2 m (15 %),
   trucks 10-16 x 2.5 x 3.5 m (10 %); desired speed 7-13 m/s, at most 2.5 m/s^2 lateral,
-  1.5 m/s^2 acceleration, 2.5 m/s^2 braking; 1.5 s behind the vehicle ahead on the same route
-  (vehicles on different routes do not see each other: where routes share a lane or
-  cross, their boxes overlap -- in the benchmark's 24 static runs 55 pairs of vehicles,
-  29 of them for 1-15 s);
+  1.5 m/s^2 acceleration, 2.5 m/s^2 braking (6 m/s^2 at most); all vehicles driven together
+  in steps of a frame: where routes share a lane or cross (conflict zones found for a 5.5 x
+  2.2 m box at the paths' angle, head-on meetings on two-way streets excepted) a vehicle
+  keeps 2 m plus 1.5 s of its speed behind a vehicle ahead, stops before a crossing another
+  vehicle is in or that it could not leave with room behind it, and yields to one that
+  reaches a zone sooner (within 6 s; one that can no longer stop goes first); a vehicle
+  standing still for 15 s drives through (a deadlock broken); in the benchmark's 24 static
+  runs 13 pairs of true boxes still touch, 4 of them for 1-6 s (a truck's corners on a
+  turn, deadlocks broken; the generator before, blind to other routes, had 55 pairs, 29 for
+  1-15 s), and 77 of 397 vehicles wait somewhere (8 s on average);
 * a 20 Hz radar (120 x 30 deg field of view, 150 m): per vehicle and frame a Poisson number of
   returns (mean 12 within 30 m, falling as 1 / range, at least 2) on the faces of its box that
   face the sensor at 0.2-0.9 of its height, one in ten on its roof; rigid-body Doppler plus
@@ -60,7 +66,7 @@ import math
 import shutil
 import warnings
 import xml.etree.ElementTree as ET
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import lanelet2
@@ -69,6 +75,7 @@ import numpy as np
 import pyproj
 from matplotlib.path import Path as Polygon
 from scipy.ndimage import gaussian_filter1d
+from scipy.spatial import cKDTree
 
 CRS = "EPSG:25832"
 #: radar frame rate (Hz)
@@ -88,8 +95,20 @@ PATH_SIGMA, CURVATURE_SIGMA = 2.0, 1.0
 LATERAL_ACC, ACCELERATION, BRAKING = 2.5, 1.5, 2.5
 #: slowest speed of the profile (m/s)
 MIN_SPEED = 1.0
-#: time (s) a vehicle keeps behind the one ahead on its route, and the gap (m) between them
-HEADWAY, BUMPER_GAP = 1.5, 2.0
+#: time (s) a vehicle keeps behind an obstacle at its speed, the gap (m) it keeps at a
+#: standstill, and its hardest braking (m/s^2; the speed profile's BRAKING is its usual)
+HEADWAY, STANDSTILL_GAP, HARD_BRAKING = 1.5, 2.0, 6.0
+#: the box (length, width; m) two routes' conflict zones are found for (a van; a truck's
+#: corners may still touch a vehicle beside its path on a turn), and the heading difference
+#: (deg) above which vehicles meet head on
+CONFLICT_BOX, ONCOMING_DEG = (5.5, 2.2), 150.0
+#: a conflict zone whose paths meet at this angle (deg) or more is a crossing; conflict points
+#: closer than ZONE_GAP (m) along a route are one zone; a vehicle standing still MAX_WAIT s
+#: ignores crossings and priorities for its length and DEADLOCK_REACH m (a deadlock broken)
+CROSSING_DEG, ZONE_GAP, MAX_WAIT, DEADLOCK_REACH = 30.0, 5.5, 15.0, 20.0
+#: a vehicle yields at a zone to one that reaches it sooner, within this many seconds; only
+#: vehicles closer than NEAR (m) to it are looked at
+YIELD_HORIZON, NEAR = 6.0, 80.0
 #: at most this many routes, from this many tries
 MAX_ROUTES, ROUTE_TRIES = 12, 40
 #: static clutter: kerb scatterers, poles and the share of frames each is seen in
@@ -401,16 +420,6 @@ class Vehicle:
     frames: np.ndarray
 
 
-@dataclass
-class Leader:
-    """The last vehicle sent on a route: when it passes each of the route's vertices (s),
-    its length (m) and its speed (m/s) at the route's end."""
-
-    times: np.ndarray
-    length: float
-    end_speed: float
-
-
 def draw_box(rng: np.random.Generator) -> tuple[str, float, float, float]:
     """A vehicle class and its length, width, height (m): car 75 %, van 15 %, truck 10 %."""
     u = rng.random()
@@ -430,56 +439,214 @@ def arrival_times(rng: np.random.Generator, start: float, end: float, rate: floa
     return out
 
 
-def passing_times(route: Route, v: np.ndarray, t0: float, length: float,
-                  leader: Leader | None) -> np.ndarray:
-    """(n,) when a vehicle entering ``route`` at ``t0`` s with the speed profile ``v`` passes
-    its vertices, held :data:`HEADWAY` s behind ``leader`` (its rear :data:`BUMPER_GAP` m
-    ahead of this one's front)."""
-    s = route.s
-    tt = t0 + np.concatenate([[0.0], np.cumsum(np.diff(s) / (0.5 * (v[1:] + v[:-1])))])
-    if leader is None:
-        return tt
-    ahead = s + (0.5 * (leader.length + length) + BUMPER_GAP)
-    t_leader = (np.interp(ahead, s, leader.times)
-                + np.maximum(ahead - s[-1], 0) / max(leader.end_speed, MIN_SPEED))
-    tt = np.maximum(tt, t_leader + HEADWAY)
-    return np.maximum.accumulate(tt + 1e-9 * np.arange(len(tt)))
+@dataclass
+class Zone:
+    """Where two routes come close enough for vehicles on them to touch (one of
+    :func:`conflict_zones`): the conflict points' arc lengths ``s_a`` (m,) on the first
+    route, in order, and ``s_b`` (m,) the nearest points' on the second; a ``crossing``
+    (the paths' median angle there :data:`CROSSING_DEG` or more) or a shared stretch."""
+
+    s_a: np.ndarray
+    s_b: np.ndarray
+    crossing: bool
 
 
-def sample_states(route: Route, tt: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(n, 6) states [t, x, y, yaw, v, yaw rate] at the times ``t`` (n,) s of a vehicle that
-    passes the route's vertices at ``tt``; v and yaw rate by central differences over one
-    frame."""
-    s, h = route.s, 0.5 / FRAME_RATE
-    sk, sp, sm = (np.interp(t + dt, tt, s) for dt in (0.0, h, -h))
-    heading = np.interp(sk, s, route.heading)
-    yaw_rate = (np.interp(sp, s, route.heading) - np.interp(sm, s, route.heading)) / (2 * h)
-    return np.column_stack([t, np.interp(sk, s, route.xy[:, 0]), np.interp(sk, s, route.xy[:, 1]),
-                            (heading + math.pi) % (2 * math.pi) - math.pi, (sp - sm) / (2 * h),
-                            yaw_rate])
+def conflict_zones(a: Route, b: Route) -> list[Zone]:
+    """The :class:`Zone` s of route ``a`` with route ``b`` (``a`` with itself: one, every
+    vertex): vertices of ``a`` closer to ``b``'s path than two boxes of :data:`CONFLICT_BOX`
+    (length, width) at the paths' angle theta need beside each other, half of ``length |sin
+    theta| + width |cos theta|`` plus half a width (``width`` for parallel paths: adjacent
+    lanes, 3 m or more apart, do not conflict), not head on (heading difference above
+    :data:`ONCOMING_DEG`: vehicles meeting on a two-way street pass each other); split where
+    consecutive ones lie more than :data:`ZONE_GAP` apart along ``a``."""
+    length, width = CONFLICT_BOX
+    d, j = cKDTree(b.xy).query(a.xy, distance_upper_bound=0.5 * (length + 2 * width))
+    i = np.flatnonzero(np.isfinite(d))
+    j = j[i]
+    turn = np.abs((a.heading[i] - b.heading[j] + math.pi) % (2 * math.pi) - math.pi)
+    reach = 0.5 * (length * np.sin(turn) + width * np.abs(np.cos(turn)) + width)
+    keep = (d[i] < reach) & (turn < math.radians(ONCOMING_DEG))
+    s_a, s_b, turn = a.s[i[keep]], b.s[j[keep]], turn[keep]
+    cuts = np.flatnonzero(np.diff(s_a) > ZONE_GAP) + 1
+    return [Zone(x, y, bool(np.median(u) >= math.radians(CROSSING_DEG)))
+            for x, y, u in zip(*(np.split(q, cuts) for q in (s_a, s_b, turn))) if len(x)]
+
+
+@dataclass
+class Driver:
+    """A vehicle on its route during the simulation (:func:`drive`): its ``box`` (class,
+    length, width, height; :func:`draw_box`), route index, speed profile ``v_des`` (m/s at
+    the route's vertices), arc position ``s`` (m, its
+    centre), speed ``v`` (m/s), how long (s) it has stood still, ``waited``, and up to which
+    arc position (m) it drives through a deadlock, ``through``; ``s_hist``, ``v_hist``,
+    ``frames``: its samples."""
+
+    id: int
+    box: tuple[str, float, float, float]
+    route: int
+    v_des: np.ndarray
+    s: float = 0.0
+    v: float = 0.0
+    waited: float = 0.0
+    through: float = -math.inf
+    s_hist: list = field(default_factory=list)
+    v_hist: list = field(default_factory=list)
+    frames: list = field(default_factory=list)
+
+    @property
+    def length(self) -> float:
+        """Its box's length (m)."""
+        return self.box[1]
+
+
+def crossing_spans(k: int, zones: dict[tuple[int, int], list[Zone]], n_routes: int
+                   ) -> np.ndarray:
+    """(m, 2) arc-length spans (m) of route ``k`` inside a crossing with any other route, the
+    overlapping ones merged, in order."""
+    spans = sorted((float(z.s_a[0]), float(z.s_a[-1])) for b in range(n_routes) if b != k
+                   for z in zones[k, b] if z.crossing)
+    merged: list[list[float]] = []
+    for lo, hi in spans:
+        if merged and lo <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], hi)
+        else:
+            merged.append([lo, hi])
+    return np.array(merged).reshape(-1, 2)
+
+
+def _obstacle(me: Driver, others: list[Driver], zones: dict[tuple[int, int], list[Zone]],
+              crossings: np.ndarray) -> float:
+    """Distance (m) from ``me``'s front to where it must stop behind: the nearest point of
+    its route ahead that a box of ``others`` covers on a shared stretch (a vehicle ahead),
+    the entry of a crossing another vehicle is in (no waiting inside it), or the entry of a
+    zone that another vehicle reaches first. Priority at a zone both still approach: one
+    that can no longer stop before it (its braking distance at :data:`BRAKING`) over one
+    that can, else the one that reaches it sooner (within :data:`YIELD_HORIZON` s), ties to
+    the lower id. It does not stop inside a crossing with any route (``crossings``, its
+    :func:`crossing_spans`): with the obstacle beyond one closer than its length and
+    :data:`STANDSTILL_GAP` past the crossing's end, it stops before the crossing (queues
+    spilling into a junction would lock it). A vehicle that has stood still for
+    :data:`MAX_WAIT` s ignores crossings and
+    priorities for its length and :data:`DEADLOCK_REACH` m (a deadlock of vehicles waiting for
+    each other in a circle broken: it drives through the one in its way). inf: nothing
+    ahead."""
+    front = me.s + 0.5 * me.length
+    stop = me.v ** 2 / (2.0 * BRAKING) + 0.5
+    best = math.inf
+    for o in others:
+        o_half = 0.5 * o.length
+        for z in zones[me.route, o.route]:
+            ahead = z.s_a > front
+            if not ahead.any():
+                continue
+            stuck = me.s < me.through                  # a deadlock broken: it drives through
+            if z.crossing and stuck:
+                continue
+            mine = float(z.s_a[0]) - front
+            covered = ahead & (np.abs(z.s_b - o.s) <= o_half)
+            if covered.any():
+                # behind it on a shared stretch; before a crossing it is in, not into it
+                best = min(best, mine if z.crossing and mine > 0.0
+                           else float(z.s_a[covered][0]) - front)
+                continue
+            theirs = float(z.s_b.min()) - (o.s + o_half)
+            if mine <= 0.0 or theirs <= 0.0 or me.route == o.route or stuck:
+                continue               # inside it already, or it is behind on its own stretch
+            t_me, t_o = mine / max(me.v, 0.5), theirs / max(o.v, 0.5)
+            if t_o >= YIELD_HORIZON:
+                continue
+            committed = (mine < stop, theirs < o.v ** 2 / (2.0 * BRAKING) + 0.5)
+            o_first = (committed[1] and not committed[0]) or (
+                committed[0] == committed[1] and (t_o < t_me or (t_o == t_me and o.id < me.id)))
+            if o_first:
+                best = min(best, mine)
+    if not me.s < me.through:
+        # no stop inside a crossing: before one it cannot leave with room behind it
+        for lo, hi in crossings:
+            if front < lo < front + best and best - (hi - front) < me.length + STANDSTILL_GAP:
+                return lo - front
+    return best
 
 
 def drive(routes: list[Route], rng: np.random.Generator, duration: float,
           vehicles_per_minute: float) -> list[Vehicle]:
     """The vehicles on their route during at least two of the ``duration`` s of radar frames
-    (ids in order from 0): arrivals from L / 3 s before t = 0 on (L the longest route's length
-    in m), so the roads are filled at t = 0; each on a random route at 7-13 m/s desired."""
-    frame_t = np.arange(int(round(duration * FRAME_RATE))) / FRAME_RATE
+    (ids in order from 0), simulated together in steps of one frame: arrivals from L / 3 s
+    before t = 0 on (L the longest route's length in m), so the roads are filled at t = 0;
+    each on a random route at 7-13 m/s desired (:func:`speed_profile`), entering when its
+    route's start is free, and keeping :data:`STANDSTILL_GAP` m plus :data:`HEADWAY` s of its
+    speed behind the obstacle :func:`_obstacle` finds (a vehicle ahead on a shared stretch,
+    one in a crossing, a zone another reaches first), braking at most at
+    :data:`HARD_BRAKING`."""
+    dt = 1.0 / FRAME_RATE
+    n_frames = int(round(duration * FRAME_RATE))
     start = -max(r.s[-1] for r in routes) / 3.0
-    leaders: dict[int, Leader] = {}
-    vehicles: list[Vehicle] = []
+    zones = {(a, b): conflict_zones(routes[a], routes[b])
+             for a in range(len(routes)) for b in range(len(routes))}
+    crossings = [crossing_spans(k, zones, len(routes)) for k in range(len(routes))]
+    waiting: list[tuple[float, Driver]] = []
     for t0 in arrival_times(rng, start, duration, vehicles_per_minute / 60.0):
         k = int(rng.integers(len(routes)))
-        kind, length, width, height = draw_box(rng)
-        v = speed_profile(routes[k], rng.uniform(7, 13))
-        tt = passing_times(routes[k], v, t0, length, leaders.get(k))
-        leaders[k] = Leader(tt, length, v[-1])
-        on = (frame_t >= tt[0]) & (frame_t <= tt[-1])
+        box = draw_box(rng)
+        v_des = speed_profile(routes[k], rng.uniform(7, 13))
+        waiting.append((t0, Driver(len(waiting), box, k, v_des)))
+    active: list[Driver] = []
+    done: list[Driver] = []
+    for step in range(int(math.floor(start / dt)), n_frames):
+        t = step * dt
+        for t0, d in [w for w in waiting if w[0] <= t]:
+            # its box and the gaps before and behind it on its route's start free
+            d.s, d.v = -0.5 * d.length - STANDSTILL_GAP, 0.0
+            gap = _obstacle(d, active, zones, crossings[d.route]) - d.length - 2.0 * STANDSTILL_GAP
+            if gap < 0.0:
+                continue                                     # its start is not free yet
+            d.s = 0.0
+            d.v = float(min(d.v_des[0], math.sqrt(2.0 * BRAKING * gap)))
+            waiting.remove((t0, d))
+            active.append(d)
+        xy = np.array([np.interp(d.s, routes[d.route].s, routes[d.route].xy[:, 0]) for d in active]
+                      + [np.interp(d.s, routes[d.route].s, routes[d.route].xy[:, 1])
+                         for d in active]).reshape(2, -1).T
+        near = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1)) < NEAR
+        gaps = [_obstacle(d, [o for j, o in enumerate(active) if near[i, j] and j != i], zones,
+                          crossings[d.route]) for i, d in enumerate(active)]
+        for d, gap in zip(active, gaps):
+            room = max(gap - STANDSTILL_GAP, 0.0)
+            target = min(float(np.interp(d.s, routes[d.route].s, d.v_des)), room / HEADWAY,
+                         math.sqrt(2.0 * BRAKING * room))
+            d.v = max(0.0, d.v + float(np.clip(target - d.v, -HARD_BRAKING * dt,
+                                                ACCELERATION * dt)))
+            d.s += d.v * dt
+            d.waited = d.waited + dt if d.v < 0.1 else 0.0
+            if d.waited > MAX_WAIT:
+                d.through, d.waited = d.s + d.length + DEADLOCK_REACH, 0.0
+            if step >= 0:
+                d.frames.append(step)
+                d.s_hist.append(d.s)
+                d.v_hist.append(d.v)
+        done += [d for d in active if d.s >= routes[d.route].s[-1]]
+        active = [d for d in active if d.s < routes[d.route].s[-1]]
+    vehicles: list[Vehicle] = []
+    for d in sorted(done + active, key=lambda d: d.id):
+        frames = np.asarray(d.frames, dtype=np.int64)
+        on = np.asarray(d.s_hist) <= routes[d.route].s[-1]
         if on.sum() < 2:
             continue
-        vehicles.append(Vehicle(len(vehicles), kind, length, width, height, k,
-                                sample_states(routes[k], tt, frame_t[on]), np.nonzero(on)[0]))
+        states = route_states(routes[d.route], frames[on] * dt, np.asarray(d.s_hist)[on],
+                              np.asarray(d.v_hist)[on])
+        vehicles.append(Vehicle(len(vehicles), *d.box, d.route, states, frames[on]))
     return vehicles
+
+
+def route_states(route: Route, t: np.ndarray, s: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """(n, 6) states [t, x, y, yaw, v, yaw rate] of a vehicle at arc positions ``s`` (m) of
+    ``route`` with speeds ``v`` (m/s) at the times ``t`` (s): yaw rate = v x the path's
+    heading change per metre."""
+    heading = np.interp(s, route.s, route.heading)
+    turn = np.interp(s, route.s, np.gradient(route.heading, route.s))
+    return np.column_stack([t, np.interp(s, route.s, route.xy[:, 0]),
+                            np.interp(s, route.s, route.xy[:, 1]),
+                            (heading + math.pi) % (2 * math.pi) - math.pi, v, v * turn])
 
 
 # ----------------------------------------------------------------------------- radar
