@@ -472,14 +472,14 @@ def conflict_zones(a: Route, b: Route) -> list[Zone]:
             for x, y, u in zip(*(np.split(q, cuts) for q in (s_a, s_b, turn))) if len(x)]
 
 
-@dataclass
+@dataclass(eq=False)
 class Driver:
     """A vehicle on its route during the simulation (:func:`drive`): its ``box`` (class,
     length, width, height; :func:`draw_box`), route index, speed profile ``v_des`` (m/s at
-    the route's vertices), arc position ``s`` (m, its
-    centre), speed ``v`` (m/s), how long (s) it has stood still, ``waited``, and up to which
-    arc position (m) it drives through a deadlock, ``through``; ``s_hist``, ``v_hist``,
-    ``frames``: its samples."""
+    the route's vertices), arc position ``s`` (m, its centre), speed ``v`` (m/s), how long
+    (s) it has stood still, ``waited``, and up to which arc position (m) it drives through a
+    deadlock, ``through``; ``s_hist``, ``v_hist``, ``frames``: its samples. Equal only to
+    itself."""
 
     id: int
     box: tuple[str, float, float, float]
@@ -497,6 +497,11 @@ class Driver:
     def length(self) -> float:
         """Its box's length (m)."""
         return self.box[1]
+
+    def stops_within(self, distance: float) -> bool:
+        """Whether it can still stop within ``distance`` (m) braking at :data:`BRAKING` (with
+        0.5 m to spare)."""
+        return distance >= self.v ** 2 / (2.0 * BRAKING) + 0.5
 
 
 def crossing_spans(k: int, zones: dict[tuple[int, int], list[Zone]], n_routes: int
@@ -526,12 +531,11 @@ def _obstacle(me: Driver, others: list[Driver], zones: dict[tuple[int, int], lis
     :func:`crossing_spans`): with the obstacle beyond one closer than its length and
     :data:`STANDSTILL_GAP` past the crossing's end, it stops before the crossing (queues
     spilling into a junction would lock it). A vehicle that has stood still for
-    :data:`MAX_WAIT` s ignores crossings and
-    priorities for its length and :data:`DEADLOCK_REACH` m (a deadlock of vehicles waiting for
-    each other in a circle broken: it drives through the one in its way). inf: nothing
-    ahead."""
+    :data:`MAX_WAIT` s ignores crossings and priorities for its length and
+    :data:`DEADLOCK_REACH` m (a deadlock of vehicles waiting for each other in a circle
+    broken: it drives through the one in its way). inf: nothing ahead."""
     front = me.s + 0.5 * me.length
-    stop = me.v ** 2 / (2.0 * BRAKING) + 0.5
+    stuck = me.s < me.through                          # a deadlock broken: it drives through
     best = math.inf
     for o in others:
         o_half = 0.5 * o.length
@@ -539,7 +543,6 @@ def _obstacle(me: Driver, others: list[Driver], zones: dict[tuple[int, int], lis
             ahead = z.s_a > front
             if not ahead.any():
                 continue
-            stuck = me.s < me.through                  # a deadlock broken: it drives through
             if z.crossing and stuck:
                 continue
             mine = float(z.s_a[0]) - front
@@ -555,12 +558,12 @@ def _obstacle(me: Driver, others: list[Driver], zones: dict[tuple[int, int], lis
             t_me, t_o = mine / max(me.v, 0.5), theirs / max(o.v, 0.5)
             if t_o >= YIELD_HORIZON:
                 continue
-            committed = (mine < stop, theirs < o.v ** 2 / (2.0 * BRAKING) + 0.5)
+            committed = (not me.stops_within(mine), not o.stops_within(theirs))
             o_first = (committed[1] and not committed[0]) or (
                 committed[0] == committed[1] and (t_o < t_me or (t_o == t_me and o.id < me.id)))
             if o_first:
                 best = min(best, mine)
-    if not me.s < me.through:
+    if not stuck:
         # no stop inside a crossing: before one it cannot leave with room behind it
         for lo, hi in crossings:
             if front < lo < front + best and best - (hi - front) < me.length + STANDSTILL_GAP:
@@ -604,10 +607,9 @@ def drive(routes: list[Route], rng: np.random.Generator, duration: float,
             d.v = float(min(d.v_des[0], math.sqrt(2.0 * BRAKING * gap)))
             waiting.remove((t0, d))
             active.append(d)
-        xy = np.array([np.interp(d.s, routes[d.route].s, routes[d.route].xy[:, 0]) for d in active]
-                      + [np.interp(d.s, routes[d.route].s, routes[d.route].xy[:, 1])
-                         for d in active]).reshape(2, -1).T
-        near = np.hypot(*(xy[:, None] - xy[None]).transpose(2, 0, 1)) < NEAR
+        xy = np.array([[np.interp(d.s, routes[d.route].s, routes[d.route].xy[:, i])
+                        for i in (0, 1)] for d in active]).reshape(-1, 2)
+        near = np.linalg.norm(xy[:, None] - xy[None], axis=2) < NEAR
         gaps = [_obstacle(d, [o for j, o in enumerate(active) if near[i, j] and j != i], zones,
                           crossings[d.route]) for i, d in enumerate(active)]
         for d, gap in zip(active, gaps):
