@@ -3,7 +3,8 @@ T-junction's main road with one turning vehicle) is observed along the road only
 the side road's few points, so ICP creeps along it by a nearly constant fraction per
 iteration while the RMSE hardly changes. With the defaults (the pose-step test and the
 accelerated iterations) it ends where it ends from the known pose; plain iterations with the
-RMSE test alone (the paper's) stop short."""
+RMSE test alone (the paper's) stop short. An extrapolation that would raise the cost is
+refused (an unguarded one slid 3 m along a road on the independent generator's junction 12)."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ import pytest
 
 from fgloc.geo import se2, transform_points
 from fgloc.labels import STRAIGHT
+from fgloc.registration import sicp as sicp_module
 from fgloc.registration.config import SicpConfig
 from fgloc.registration.sicp import sicp
 
@@ -53,6 +55,34 @@ def test_creep_along_a_weak_direction_ends_at_the_pose(seed):
     assert err["from the truth"] < 0.05, ends   # the data's own minimum is the known pose
     assert err["default"] < 0.05, ends
     assert err["plain"] > max(0.1, 2.0 * err["default"]), ends
+
+
+def test_an_extrapolation_that_raises_the_cost_is_refused(monkeypatch):
+    """The first extrapolation proposed is replaced by a 5 m jump along the road (an
+    overshoot of the geometric series where the steps shrink slowly): there the side road's
+    points fall out of range and the main road's fit alike, so a jump taken would stay; it
+    raises the cost and is refused, and the later, true extrapolations bring SICP to the pose."""
+    target, src_l, label = _road(1)
+    T_true = se2(0.3, -0.2, np.deg2rad(0.2))
+    src = transform_points(np.linalg.inv(T_true), src_l)
+    real_extrapolation = sicp_module._extrapolation
+    proposed = []
+
+    def overshoot_once(now, last, centre, turn):
+        real = real_extrapolation(now, last, centre, turn)
+        if real is not None:
+            proposed.append(real)
+            if len(proposed) == 1:
+                return se2(5.0 * np.sign(now[0]), 0.0, 0.0)
+        return real
+
+    monkeypatch.setattr(sicp_module, "_extrapolation", overshoot_once)
+    cfg = dataclasses.replace(SicpConfig(), max_correspondence=5.0)
+    res = sicp(src, np.full(len(src), STRAIGHT), target, label,
+               se2(0.3 - 0.8, -0.2, np.deg2rad(0.2)), cfg)
+    assert len(proposed) >= 2                    # the jump, then the true extrapolations
+    assert res.converged, res.stop_reason
+    assert np.hypot(*(res.T[:2, 2] - T_true[:2, 2])) < 0.05
 
 
 def test_step_tolerances_are_checked():

@@ -52,7 +52,11 @@ class SicpConfig:
     """At the range floor, when two consecutive alignments point the same way and shrink,
     jump to where their geometric series ends (accelerated ICP, Besl & McKay 1992; at most 25
     steps): ICP creeps along a weakly observed direction by a nearly constant fraction per
-    iteration. False: plain iterations (the paper's)."""
+    iteration. The jump is taken only where it lowers the trimmed matching cost (the sum of
+    ``min(d^2 / c, r^2)`` over the points at the floor range ``r``): where the steps shrink
+    slowly for another reason (matches changing lanes) the series overshoots (the independent
+    generator's junction 12 seed 1: a start 0.4 m from the fit jumped 2.4 m, then 8 m, and
+    ended 3 m away). False: plain iterations (the paper's)."""
     kernel: str = "none"
     """Robust kernel of the iteratively reweighted alignment: "none", "huber" or "cauchy"."""
     kernel_scale: float = 1.0

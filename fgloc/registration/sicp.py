@@ -28,7 +28,9 @@ Algorithm (one call of :func:`sicp`)
    consecutive iterations, the inlier RMSE changes by less than ``rmse_tol`` and the last
    alignment moved the pose by less than ``step_tol`` / ``step_tol_deg`` (along a weakly
    observed direction ICP creeps while the RMSE hardly changes); otherwise the call stops
-   after ``max_iterations`` alignments (``converged = False``).
+   after ``max_iterations`` alignments (``converged = False``). At the floor, a creep (two
+   alignments the same way, shrinking) is extrapolated to the end of its geometric series
+   (``accelerate``) where that lowers the trimmed matching cost.
 
 Uncertainty
 -----------
@@ -541,10 +543,22 @@ def sicp(
     stop, iterations = "max_iterations", 0
     moved_by, turned_by = np.inf, np.inf        # the last alignment's move (m) and turn (rad)
     last: np.ndarray | None = None              # the last alignment's (move, arc) at the floor
+    min_cos = float(np.cos(np.deg2rad(cfg.direction_gate_deg)))
+
+    def match_at(T: np.ndarray) -> _Matches:
+        return _match(transform_points(T, src), g, targets, rng,
+                      u_src @ T[:2, :2].T if directed else None, min_cos)
+
+    def trimmed_cost(T: np.ndarray) -> float:
+        """sum_i w_i min(d_i^2 / c_i, r^2) at T (user weights w, matching cost d^2 / c;
+        unmatched points at the range r): the objective an extrapolation must lower."""
+        mm = match_at(T)
+        cost = np.where(mm.ok, mm.dist**2 / np.where(mm.ok, mm.compat, 1.0), rng**2)
+        return float(np.sum(user_w * np.minimum(cost, rng**2)))
+
     while True:  # each pass matches at the current T and range, so m always belongs to T
         moved = transform_points(T, src)
-        m = _match(moved, g, targets, rng, u_src @ T[:2, :2].T if directed else None,
-                   float(np.cos(np.deg2rad(cfg.direction_gate_deg))))
+        m = match_at(T)
         ok = m.ok & (user_w > 0.0)
         w_all = np.zeros(src.shape[0])
         w_all[ok] = user_w[ok] * m.compat[ok] * kernel_weights(m.dist[ok], cfg.kernel,
@@ -572,9 +586,11 @@ def sicp(
             radius = float(np.sqrt(np.mean(np.sum((moved[ok] - centre) ** 2, axis=1))))
             now = np.array([*move, turn * radius])
             extra = None if last is None else _extrapolation(now, last, centre + move, turn)
-            if extra is not None:
+            if extra is not None and trimmed_cost(extra @ T) < trimmed_cost(T):
                 T = extra @ T
-            last = None if extra is not None else now
+                last = None
+            else:
+                last = now
         iterations += 1
         prev_rng, prev_rmse = rng, rmse
         rng = max(cfg.min_correspondence, rng * cfg.range_decay)
