@@ -33,6 +33,7 @@ if TYPE_CHECKING:
     from fgloc.config import CoarseConfig
     from fgloc.map import TargetCloud
     from fgloc.registration.modes import ModeChoice, ModeFit
+    from fgloc.registration.sicp import SemanticTargets
 
 
 @dataclass
@@ -263,9 +264,12 @@ def _with_valley(scn: Scenario, cfg: Config, coarse_stage: tuple[TargetCloud, Co
     src = build_source_cloud(scn, tracks, coarse.T_coarse, cfg)
     side = src.visible_side if visible_side else None
 
+    built: dict[int, SemanticTargets] = {}     # id(fit) -> its targets, KD-trees built once
+
     def cost_at(fit: ModeFit, T: np.ndarray) -> np.ndarray:
-        targets = mode_targets(scn, target, cfg, coarse, fit.start, fit.lanes, side)
-        return mode_track_costs(src, targets, T, cfg)
+        if id(fit) not in built:
+            built[id(fit)] = mode_targets(scn, target, cfg, coarse, fit.start, fit.lanes, side)
+        return mode_track_costs(src, built[id(fit)], T, cfg)
 
     choice = choice_of(res)
     valley = track_valley(choice, cost_at, position_prior(scn, cfg.coarse), cfg.coarse)
