@@ -545,20 +545,21 @@ def sicp(
     last: np.ndarray | None = None              # the last alignment's (move, arc) at the floor
     min_cos = float(np.cos(np.deg2rad(cfg.direction_gate_deg)))
 
-    def match_at(T: np.ndarray) -> _Matches:
-        return _match(transform_points(T, src), g, targets, rng,
-                      u_src @ T[:2, :2].T if directed else None, min_cos)
+    def match_at(T: np.ndarray, moved: np.ndarray) -> _Matches:
+        """Correspondences of the source points ``moved`` (= T applied to them)."""
+        return _match(moved, g, targets, rng, u_src @ T[:2, :2].T if directed else None,
+                      min_cos)
 
     def trimmed_cost(T: np.ndarray) -> float:
         """sum_i w_i min(d_i^2 / c_i, r^2) at T (user weights w, matching cost d^2 / c;
         unmatched points at the range r): the objective an extrapolation must lower."""
-        mm = match_at(T)
+        mm = match_at(T, transform_points(T, src))
         cost = np.where(mm.ok, mm.dist**2 / np.where(mm.ok, mm.compat, 1.0), rng**2)
         return float(np.sum(user_w * np.minimum(cost, rng**2)))
 
     while True:  # each pass matches at the current T and range, so m always belongs to T
         moved = transform_points(T, src)
-        m = match_at(T)
+        m = match_at(T, moved)
         ok = m.ok & (user_w > 0.0)
         w_all = np.zeros(src.shape[0])
         w_all[ok] = user_w[ok] * m.compat[ok] * kernel_weights(m.dist[ok], cfg.kernel,
