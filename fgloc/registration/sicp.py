@@ -545,21 +545,25 @@ def sicp(
     last: np.ndarray | None = None              # the last alignment's (move, arc) at the floor
     min_cos = float(np.cos(np.deg2rad(cfg.direction_gate_deg)))
 
-    def match_at(T: np.ndarray, moved: np.ndarray) -> _Matches:
-        """Correspondences of the source points ``moved`` (= T applied to them)."""
+    ahead: _Matches | None = None               # matches at T made by the extrapolation test
+
+    def match_at(T: np.ndarray, moved: np.ndarray | None = None) -> _Matches:
+        """Correspondences of the source points moved by T (``moved``, when given)."""
+        moved = transform_points(T, src) if moved is None else moved
         return _match(moved, g, targets, rng, u_src @ T[:2, :2].T if directed else None,
                       min_cos)
 
-    def trimmed_cost(T: np.ndarray) -> float:
-        """sum_i w_i min(d_i^2 / c_i, r^2) at T (user weights w, matching cost d^2 / c;
-        unmatched points at the range r): the objective an extrapolation must lower."""
-        mm = match_at(T, transform_points(T, src))
+    def trimmed_cost(mm: _Matches) -> float:
+        """sum_i w_i min(d_i^2 / c_i, r^2) of the matches ``mm`` (user weights w, matching
+        cost d^2 / c; unmatched points at the range r): the objective an extrapolation must
+        lower."""
         cost = np.where(mm.ok, mm.dist**2 / np.where(mm.ok, mm.compat, 1.0), rng**2)
         return float(np.sum(user_w * np.minimum(cost, rng**2)))
 
     while True:  # each pass matches at the current T and range, so m always belongs to T
         moved = transform_points(T, src)
-        m = match_at(T, moved)
+        m = match_at(T, moved) if ahead is None else ahead
+        ahead = None
         ok = m.ok & (user_w > 0.0)
         w_all = np.zeros(src.shape[0])
         w_all[ok] = user_w[ok] * m.compat[ok] * kernel_weights(m.dist[ok], cfg.kernel,
@@ -587,11 +591,14 @@ def sicp(
             radius = float(np.sqrt(np.mean(np.sum((moved[ok] - centre) ** 2, axis=1))))
             now = np.array([*move, turn * radius])
             extra = None if last is None else _extrapolation(now, last, centre + move, turn)
-            if extra is not None and trimmed_cost(extra @ T) < trimmed_cost(T):
-                T = extra @ T
-                last = None
-            else:
+            if extra is None:
                 last = now
+            else:   # the range stays at its floor: the next pass reuses the chosen T's matches
+                at_step, at_jump = match_at(T), match_at(extra @ T)
+                if trimmed_cost(at_jump) < trimmed_cost(at_step):
+                    T, ahead, last = extra @ T, at_jump, None
+                else:
+                    ahead, last = at_step, now
         iterations += 1
         prev_rng, prev_rmse = rng, rmse
         rng = max(cfg.min_correspondence, rng * cfg.range_decay)
