@@ -26,6 +26,7 @@ from bench.independent_gen import (
 )
 from fgloc.io import load_scenario
 from fgloc.scenario import Scenario
+from fgloc.sim.scenery import box_corners
 
 ROOT = Path(__file__).resolve().parent.parent
 GENERATOR = ROOT / "bench" / "independent_gen.py"
@@ -111,14 +112,6 @@ def test_moving_radar_points_lie_on_true_vehicles(scenario):
     assert np.mean(nearest[moving] <= 1.0) >= 0.95
 
 
-def box_corners(state: np.ndarray, length: float, width: float) -> np.ndarray:
-    """(4, 2) corners of a box ``length`` x ``width`` at ``state`` (t, x, y, yaw, ...)."""
-    h = np.array([np.cos(state[3]), np.sin(state[3])])
-    n = np.array([-h[1], h[0]])
-    return np.array([state[1:3] + a * length / 2 * h + b * width / 2 * n
-                     for a, b in ((1, 1), (1, -1), (-1, -1), (-1, 1))])
-
-
 def boxes_overlap(a: np.ndarray, b: np.ndarray) -> bool:
     """Whether the convex quadrilaterals ``a`` and ``b`` (4, 2) overlap (no separating axis
     among their edges' normals)."""
@@ -145,8 +138,9 @@ def test_true_vehicles_do_not_drive_through_each_other(tmp_path):
             near = np.hypot(*(a.states[ka, 1:3] - b.states[kb, 1:3]).T) < 20.0
             for x, y in zip(a.states[ka[near]], b.states[kb[near]]):
                 pairs += 1
-                assert not boxes_overlap(box_corners(x, a.length, a.width),
-                                         box_corners(y, b.length, b.width)), (a.id, b.id, x[0])
+                assert not boxes_overlap(box_corners(x[1:3], x[3], a.length, a.width),
+                                         box_corners(y[1:3], y[3], b.length, b.width)), (
+                    a.id, b.id, x[0])
     assert pairs > 100                       # vehicles came within 20 m of each other
     assert any((tr.states[:, 4] < 0.1).any() for tr in tracks)   # some waited
 
