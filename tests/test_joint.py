@@ -52,11 +52,12 @@ def _visible_points(centre: np.ndarray, yaw: float, sensor: np.ndarray,
 
 
 def _scene(crossing: bool, T_true: np.ndarray, sensor_l: np.ndarray, seed: int,
-           per_lane: int = 4, offset: float = 0.0, range_bias: float = 0.0,
+           per_lane: int | tuple[int, ...] = 4, offset: float = 0.0, range_bias: float = 0.0,
            lane_shift: tuple[int, float] | None = None, lateral_sd: float = 0.1):
     """Tracks in C = T_true^-1 L of vehicles on the lanes (each with its own lateral offset
     from the lane centre), their detections in C, the sensor in C and the target lines in L
-    (lane centres, shifted ``offset`` m towards the sensor; each lane one lanelet).
+    (lane centres, shifted ``offset`` m towards the sensor; each lane one lanelet);
+    ``per_lane`` vehicles on each lane (a tuple: per lane, in :func:`_lanes`' order).
     ``range_bias`` (m per 100 m): every vehicle, its states and its detections, lies that far
     per 100 m of its range towards the sensor's side of its lane (a tracker's range-growing
     bias). ``lane_shift`` (lane index, m): that lane's line moved along its left normal.
@@ -66,13 +67,15 @@ def _scene(crossing: bool, T_true: np.ndarray, sensor_l: np.ndarray, seed: int,
     yaw_c = se2_params(Tinv)[2]
     radii = rectangle_radius(contour_angles(), LENGTH, WIDTH)
     det, tracks, xy_l, nrm_l = [], [], [], []
-    for start, heading in _lanes(crossing):
+    lanes = _lanes(crossing)
+    counts = per_lane if isinstance(per_lane, tuple) else (per_lane,) * len(lanes)
+    for (start, heading), count in zip(lanes, counts, strict=True):
         d = np.array([np.cos(heading), np.sin(heading)])
         left = np.array([-d[1], d[0]])
         u = np.arange(0.0, 80.0, 0.25)
         xy_l.append(start + u[:, None] * d)
         nrm_l.append(np.tile(left, (len(u), 1)))
-        for _ in range(per_lane):
+        for _ in range(count):
             lateral = rng.normal(0.0, lateral_sd)
             s0 = rng.uniform(2.0, 30.0)
             n = 16                                   # 5 Hz, 3.2 s, 10 m/s
@@ -258,6 +261,58 @@ def test_considered_lane_biases_are_the_pose_shifts_real_lane_biases_cause(senso
     assert np.all(np.abs(extra - expected) <= 0.1 * scale + 1e-12), (extra, expected)
 
 
+@pytest.mark.parametrize("sensor", [(12.0, -12.0), (0.5, -12.0)])
+def test_estimated_lane_biases_weigh_each_lane_alike(sensor):
+    """``lane_bias_sigma``: one lateral bias per lane, estimated. The east-west road's two
+    lanes carry 8 and 2 vehicles; moving either lane's line 0.4 m (every vehicle of that lane
+    off its line alike) moves the plain estimate across that road in proportion to the lane's
+    vehicles (the busy lane at least twice as far as the quiet one), the estimate with the
+    biases (the generalized least-squares one) about equally (ratio 0.7-1.4), and the
+    estimated biases of that road's two lanes take up the shift (each at least 0.1 m, the
+    other road's under a third of that). Each error stays within 2.5 std. devs. of the
+    covariance that holds the biases."""
+    T_true = se2(0.3, -0.2, np.deg2rad(0.4))
+    counts = (8, 2, 4, 4)
+    base = _scene(True, T_true, np.array(sensor), 3, per_lane=counts)
+    moved = {}
+    for lb in (0.0, 0.2):
+        cfg = _cfg(lane_bias_sigma=lb)
+        y0 = se2_params(joint_refine(*base, np.eye(3), cfg).T)[1]
+        for lane in (0, 1):
+            scene = _scene(True, T_true, np.array(sensor), 3, per_lane=counts,
+                           lane_shift=(lane, 0.4))
+            res = joint_refine(*scene, np.eye(3), cfg)
+            moved[lb, lane] = abs(se2_params(res.T)[1] - y0)
+            err = np.array(se2_params(res.T)[:2]) - se2_params(T_true)[:2]
+            if lb > 0:
+                assert np.all(np.abs(err) < 2.5 * np.sqrt(np.diag(res.covariance)[:2]))
+                bias = res.history[-1]["lane_bias_m"]
+                road = np.abs([bias["0"], bias["1"]])
+                assert road.min() > 0.1, bias
+                assert max(abs(bias["2"]), abs(bias["3"])) < road.min() / 3, bias
+    assert moved[0.0, 0] > 2.0 * moved[0.0, 1], moved
+    assert 0.7 < moved[0.2, 0] / moved[0.2, 1] < 1.4, moved
+
+
+def test_estimated_lane_biases_replace_the_considered_ones():
+    """With ``lane_bias_sigma`` the lane biases are parameters of the graph: its marginal
+    covariance holds them, and ``consider_lane_bias_sigma`` adds nothing on top (the same
+    result whatever it is); without biases in the data the estimate stays within 0.05 m of
+    the plain one, and the estimated biases' std. dev. widens the covariance: a larger
+    ``lane_bias_sigma`` gives a larger one."""
+    T_true = se2(0.3, -0.2, np.deg2rad(0.4))
+    scene = _scene(True, T_true, np.array([12.0, -12.0]), 6)
+    runs = {(lb, c): joint_refine(*scene, np.eye(3), _cfg(lane_bias_sigma=lb,
+                                                         consider_lane_bias_sigma=c))
+            for lb, c in [(0.0, 0.0), (0.1, 0.0), (0.1, 0.3), (0.3, 0.0)]}
+    assert np.allclose(runs[0.1, 0.0].covariance, runs[0.1, 0.3].covariance, rtol=1e-9)
+    assert np.allclose(se2_params(runs[0.1, 0.0].T), se2_params(runs[0.1, 0.3].T), atol=1e-12)
+    assert np.hypot(*(np.array(se2_params(runs[0.1, 0.0].T)[:2])
+                      - se2_params(runs[0.0, 0.0].T)[:2])) < 0.05
+    var = {k: np.trace(r.covariance[:2, :2]) for k, r in runs.items()}
+    assert var[0.0, 0.0] < var[0.1, 0.0] < var[0.3, 0.0], var
+
+
 def test_tracks_too_short_for_the_graph_are_a_localization_error():
     """No track long enough for ``[joint] min_track_steps``: the data do not support the
     joint graph (exit 2 from the CLI), with the longest track's length in the message."""
@@ -275,7 +330,7 @@ def test_config_fields_are_checked():
                          ("along_weight", 2.0),
                          ("label_weight_other", -0.1), ("max_rounds", 0),
                          ("consider_side_bias_sigma", -0.1),
-                         ("consider_lane_bias_sigma", -0.1)]:
+                         ("consider_lane_bias_sigma", -0.1), ("lane_bias_sigma", -0.1)]:
         with pytest.raises(ValueError, match=field):
             check_joint_config(dataclasses.replace(JointConfig(), **{field: value}))
 

@@ -102,6 +102,7 @@ from fgloc.registration.joint_solver import (
     linearize,
     solve_arrow,
 )
+from fgloc.registration.lane_bias import LaneBiases
 from fgloc.registration.lane_evidence import decided_lane_model
 from fgloc.registration.sicp import _degeneracy, track_robust_covariance
 from fgloc.result import LocalizationResult, json_ready
@@ -435,6 +436,15 @@ def centre_shift(lines: LaneLines, index: np.ndarray, normal: np.ndarray) -> np.
     return out
 
 
+def shift_basis(basis: np.ndarray | None, lane_cols: np.ndarray | None) -> np.ndarray | None:
+    """(P, nb + L) the coefficients of every shared shift of the targets: the side biases and
+    centre-line share (``basis`` (P, nb), :func:`side_basis`) then the estimated lane biases
+    (``lane_cols`` (P, L), :class:`~fgloc.registration.lane_bias.LaneBiases`); either may be
+    None. None without any."""
+    parts = [c for c in (basis, lane_cols) if c is not None and c.shape[1]]
+    return np.concatenate(parts, axis=1) if parts else None
+
+
 def _side_columns(target: np.ndarray, normal: np.ndarray, sensor_l: np.ndarray) -> np.ndarray:
     """(P, 2) coefficients of a constant (m) and a range-proportional (m per 100 m) side bias
     of each point (:func:`side_basis`)."""
@@ -456,13 +466,14 @@ def considered_columns(target: np.ndarray, normal: np.ndarray, index: np.ndarray
     """The biases that are considered, not estimated: each point's coefficients (P, C) and
     their std. devs. (C,) m. The constant side bias towards the sensor
     (``consider_side_bias_sigma``, when ``side_bias_sigma`` does not estimate it), then one
-    lateral bias per lanelet that holds matched points (``consider_lane_bias_sigma``; the
-    shift of its points along their normal; needs ``lines.lane``). target, normal (P, 2) in
+    lateral bias per lanelet that holds matched points (``consider_lane_bias_sigma``, when
+    ``lane_bias_sigma`` does not estimate them; the shift of its points along their normal;
+    needs ``lines.lane``). target, normal (P, 2) in
     L, index (P,) the matched line sample (-1 none), sensor_l (2,)."""
     lane = None if lines.lane is None else np.where(index >= 0, lines.lane[index], -1)
     return bias_columns(side_sign(target, normal, sensor_l),
                         jc.consider_side_bias_sigma if jc.side_bias_sigma == 0.0 else 0.0,
-                        lane, jc.consider_lane_bias_sigma)
+                        lane, jc.consider_lane_bias_sigma if jc.lane_bias_sigma == 0.0 else 0.0)
 
 
 def with_considered_biases(pts: PointSet, pri: Priors, glob: np.ndarray, columns: np.ndarray
@@ -483,20 +494,22 @@ def _point_set(fp: FramePoints, pad: tuple[np.ndarray, np.ndarray], index: np.nd
                compat: np.ndarray, target: np.ndarray, normal: np.ndarray, sigma: np.ndarray,
                x: np.ndarray, glob: np.ndarray, b: np.ndarray | None, huber_scale: float,
                gp: ContourGP, jc: JointConfig, sensor_l: np.ndarray,
-               centre: np.ndarray | None = None) -> PointSet:
+               centre: np.ndarray | None = None,
+               lane_cols: np.ndarray | None = None) -> PointSet:
     """The round's matched points, padded per frame (:class:`PointSet`); sigma: (P,) std.
-    dev. (m) of each point across its line; glob: the global parameters (pose, and the side
-    bias with ``side_bias_sigma``); sensor_l (2,): the sensor in L (the side of each line);
-    centre (P,): each point's coefficient of the centre-line share (:func:`centre_shift`).
-    The per-point weights (label compatibility x Huber of the across-line residual at (x,
-    glob, b) in units of ``huber_scale`` m) are fixed for the round (IRLS), so the optimizer
-    sees a smooth objective."""
+    dev. (m) of each point across its line; glob: the global parameters (pose, the shared
+    shifts in use, then the estimated lane biases); sensor_l (2,): the sensor in L (the side
+    of each line); centre (P,): each point's coefficient of the centre-line share
+    (:func:`centre_shift`); lane_cols (P, L): its coefficients of the estimated lane biases
+    (None: none). The per-point weights (label compatibility x Huber of the across-line
+    residual at (x, glob, b) in units of ``huber_scale`` m) are fixed for the round (IRLS), so
+    the optimizer sees a smooth objective."""
     pi, valid = pad
     ok = index >= 0
     sig_t = sigma / np.sqrt(jc.along_weight) if jc.along_weight > 0 else np.inf
     n = np.where(ok[:, None], normal, np.array([1.0, 0.0]))
     info = line_sqrt_info(n, np.where(ok, sigma, 1.0), sig_t)
-    basis = side_basis(target, n, sensor_l, jc, centre)
+    basis = shift_basis(side_basis(target, n, sensor_l, jc, centre), lane_cols)
     side = None if basis is None else basis[pi]
     pts = PointSet(fp.frame_state, fp.frame_track, fp.theta[pi], fp.H[pi], fp.mean[pi],
                    target[pi], n[pi], info[pi], (valid & ok[pi]).astype(float), gp.mu, side)
@@ -723,6 +736,10 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     b = np.zeros(len(dec.tracks)) if offsets else None
     prior_sd = np.array([jc.pose_prior_sigma, jc.pose_prior_sigma,
                          np.deg2rad(jc.pose_prior_sigma_yaw_deg), *bias_sd])
+    n_fixed = len(prior_sd)                     # pose and shared shifts; lane biases after
+    lanes = (LaneBiases(jc.lane_bias_sigma)
+             if jc.lane_bias_sigma > 0.0 and lines.lane is not None else None)
+    lane_cols: np.ndarray | None = None
     _add_time(timing, "build", t0)
 
     fixed = NoiseLevels(jc.sigma_line, jc.sigma_line, 0.0, jc.offset_sigma)
@@ -747,10 +764,14 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                                   _ambiguity(lines, index, jc.centre_ambiguity))
         sensor_l = transform_points(se2(*pose[:3]), sensor_xy[None])[0]
         centre = centre_shift(lines, index, normal)
+        prior_w = 1.0 / prior_sd
+        if lanes is not None:       # this round's lanes' biases follow the fixed parameters
+            lane_cols = lanes.select(np.where(ok, lines.lane[np.maximum(index, 0)], -1))
+            pose = np.concatenate([pose[:n_fixed], lanes.params()])
+            prior_w = np.concatenate([prior_w, lanes.prior_weights()])
         pts = _point_set(fp, pad, index, compat, target, normal, sigma, x, pose, b,
-                         noise.within, gp, jc, sensor_l, centre)
-        pri = Priors(np.zeros(len(pose)), 1.0 / prior_sd,
-                     1.0 / noise.offset if offsets else 0.0)
+                         noise.within, gp, jc, sensor_l, centre, lane_cols)
+        pri = Priors(np.zeros(len(pose)), prior_w, 1.0 / noise.offset if offsets else 0.0)
         _add_time(timing, "associate", t0)
         before = pose.copy()
         cost = joint_cost(tq, pts, pri, x, pose, b)
@@ -775,13 +796,16 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                     break
             else:
                 lam *= 10.0
+        if lanes is not None:
+            lanes.store(pose[n_fixed:])
         step_xy = float(np.hypot(*(pose[:2] - before[:2])))
         step_yaw = float(abs(wrap_angle(pose[2] - before[2])))
         history.append({"round": rounds, "tx": float(pose[0]), "ty": float(pose[1]),
                         "yaw_deg": float(np.rad2deg(pose[2])), "step_m": step_xy,
                         "side_bias_m": pose[3:3 + n_side].tolist(),
-                        "centre_line_share": (float(pose[-1]) if jc.centre_line_sigma > 0
-                                              else None),
+                        "centre_line_share": (float(pose[n_fixed - 1])
+                                              if jc.centre_line_sigma > 0 else None),
+                        "lane_bias_m": None if lanes is None else lanes.summary(),
                         "step_yaw_deg": float(np.rad2deg(step_yaw)), "noise": noise.summary(),
                         "matched": int(ok.sum()), "error": float(cost)})
         if step_xy >= jc.tol_position or step_yaw >= np.deg2rad(jc.tol_yaw_deg):
@@ -790,7 +814,7 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
             converged = True
             break
         # the pose settled: re-estimate the noise levels; done when they settled too
-        basis = side_basis(target, normal, sensor_l, jc, centre)
+        basis = shift_basis(side_basis(target, normal, sensor_l, jc, centre), lane_cols)
         again = noise_levels(fp, states0, se2(*pose[:3]), index, target, normal, gp,
                              len(dec.tracks), jc.min_sigma,
                              None if basis is None else basis @ pose[3:])
@@ -800,7 +824,7 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
             break
 
     # how far each track wanders across its line at the final pose (lane-model evidence)
-    basis = side_basis(target, normal, sensor_l, jc, centre)
+    basis = shift_basis(side_basis(target, normal, sensor_l, jc, centre), lane_cols)
     misfit = track_misfit(fp, frame_residuals(fp, states0, se2(*pose[:3]), index, target, normal,
                                               gp, len(dec.tracks),
                                               None if basis is None else basis @ pose[3:]),

@@ -129,6 +129,13 @@ class JointConfig:
     to one side of that lane, the tracker's bias at that lane's range and aspect. The
     per-track offsets cannot carry it (every vehicle of the lane shares it), so without it the
     covariance trusts one lane as much as its number of vehicles says. 0 = off."""
+    lane_bias_sigma: float = 0.0
+    """Prior standard deviation (m) of one lateral bias per lane, *estimated* (a global
+    parameter per lane line that holds matched points, :mod:`fgloc.registration.lane_bias`)
+    instead of considered: the estimate becomes the generalized least-squares one under
+    that model, a lane weighing at most about one line measurement of this std. dev.
+    however many vehicles it carries; ``consider_lane_bias_sigma`` is then not added (the
+    marginal covariance holds the biases). Needs the lines' lane ids. 0 = off."""
     consider_coarse_tilt: bool = True
     """Add the coarse roll and pitch's uncertainty (``CoarseResult.tilt_covariance``) to the
     sensor's covariance: the joint keeps the coarse tilt, and a tilt error moves the sensor,
@@ -219,6 +226,7 @@ def check_joint_config(cfg: JointConfig) -> None:
         "range_bias_sigma": cfg.range_bias_sigma < 0.0,
         "consider_side_bias_sigma": cfg.consider_side_bias_sigma < 0.0,
         "consider_lane_bias_sigma": cfg.consider_lane_bias_sigma < 0.0,
+        "lane_bias_sigma": cfg.lane_bias_sigma < 0.0,
         "min_sigma": not cfg.min_sigma > 0.0,
         "pose_prior_sigma": not cfg.pose_prior_sigma > 0.0,
         "pose_prior_sigma_yaw_deg": not cfg.pose_prior_sigma_yaw_deg > 0.0,
