@@ -461,19 +461,19 @@ CONSIDERED_PRIOR_W = 1e-3
 
 
 def considered_columns(target: np.ndarray, normal: np.ndarray, index: np.ndarray,
-                       sensor_l: np.ndarray, lines: LaneLines, jc: JointConfig
-                       ) -> tuple[np.ndarray, np.ndarray]:
+                       sensor_l: np.ndarray, lines: LaneLines, jc: JointConfig,
+                       lane_sigma: float) -> tuple[np.ndarray, np.ndarray]:
     """The biases that are considered, not estimated: each point's coefficients (P, C) and
     their std. devs. (C,) m. The constant side bias towards the sensor
     (``consider_side_bias_sigma``, when ``side_bias_sigma`` does not estimate it), then one
-    lateral bias per lanelet that holds matched points (``consider_lane_bias_sigma``, when
-    ``lane_bias_sigma`` does not estimate them; the shift of its points along their normal;
-    needs ``lines.lane``). target, normal (P, 2) in
+    lateral bias per lanelet that holds matched points (std. dev. ``lane_sigma``:
+    ``consider_lane_bias_sigma``, or what of it the estimated lane biases' std. dev. leaves;
+    the shift of its points along their normal; needs ``lines.lane``). target, normal (P, 2) in
     L, index (P,) the matched line sample (-1 none), sensor_l (2,)."""
     lane = None if lines.lane is None else np.where(index >= 0, lines.lane[index], -1)
     return bias_columns(side_sign(target, normal, sensor_l),
                         jc.consider_side_bias_sigma if jc.side_bias_sigma == 0.0 else 0.0,
-                        lane, jc.consider_lane_bias_sigma if jc.lane_bias_sigma == 0.0 else 0.0)
+                        lane, lane_sigma)
 
 
 def with_considered_biases(pts: PointSet, pri: Priors, glob: np.ndarray, columns: np.ndarray
@@ -806,6 +806,7 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                         "centre_line_share": (float(pose[n_fixed - 1])
                                               if jc.centre_line_sigma > 0 else None),
                         "lane_bias_m": None if lanes is None else lanes.summary(),
+                        "lane_bias_sigma_m": None if lanes is None else lanes.sigma,
                         "step_yaw_deg": float(np.rad2deg(step_yaw)), "noise": noise.summary(),
                         "matched": int(ok.sum()), "error": float(cost)})
         if step_xy >= jc.tol_position or step_yaw >= np.deg2rad(jc.tol_yaw_deg):
@@ -819,6 +820,10 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                              len(dec.tracks), jc.min_sigma,
                              None if basis is None else basis @ pose[3:])
         settled, noise = again.settled(noise), again
+        if lanes is not None:          # and the lanes' bias std. dev. (one EM step)
+            info = solve_arrow(linearize(tq, pts, pri, len(dec.tracks), x, pose, b), layout,
+                               owner, offsets).pose_information
+            settled &= lanes.reestimate_sigma(info, pose, n_fixed)
         if settled:
             converged = True
             break
@@ -831,7 +836,11 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                           len(dec.tracks), cfg.coarse.mode_cost_scale)
     t0 = time.perf_counter()
     # the final information, with the considered biases as more (last) global parameters
-    columns, consider_sd = considered_columns(target, normal, index, sensor_l, lines, jc)
+    # estimated lane biases: consider what of consider_lane_bias_sigma their std. dev. leaves
+    lane_sigma = (jc.consider_lane_bias_sigma if lanes is None else
+                  float(np.sqrt(max(jc.consider_lane_bias_sigma**2 - lanes.sigma**2, 0.0))))
+    columns, consider_sd = considered_columns(target, normal, index, sensor_l, lines, jc,
+                                              lane_sigma)
     G = pts.n_global
     final_pts, final_pri, final_glob = pts, pri, pose
     if len(consider_sd):
