@@ -853,7 +853,8 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     if np.linalg.cond(info) < 1e12:
         cov_model = np.linalg.inv(info)
         cov = cov_model if jc.covariance == "model" else track_robust_covariance(
-            info, arrow_final.gp_track[:, :G], pri.pose_w**2)
+            info, arrow_final.gp_track[:, :G], pri.pose_w**2,
+            None if lanes is None else n_fixed + lanes.free_params(info, n_fixed))
         if len(consider_sd):
             extra = consider_covariance(info_all, consider_sd)
             cov, cov_model = cov + extra, cov_model + extra

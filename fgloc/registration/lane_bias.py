@@ -91,6 +91,14 @@ class LaneBiases:
         self.sigma = sigma
         return settled
 
+    def free_params(self, info: np.ndarray, first: int) -> float:
+        """How many parameters the round's lane biases count as in a small-sample correction:
+        ``sum_j (1 - v_j / sigma^2)`` (0 for a bias its prior holds, 1 for one the data fix),
+        ``v_j`` its variance from ``info`` (G, G), the reduced information of the global
+        parameters whose ``[first:]`` are the biases."""
+        var = np.diag(np.linalg.inv(info))[first:]
+        return float(np.sum(np.clip(1.0 - var / self.sigma**2, 0.0, 1.0)))
+
     def summary(self) -> dict[str, float]:
         """JSON-ready lane id -> estimated bias (m) of every lane estimated so far."""
         return {str(i): round(v, 4) for i, v in sorted(self.values.items())}

@@ -643,7 +643,8 @@ def clipped_below(cov: np.ndarray, floor: np.ndarray) -> np.ndarray:
 
 
 def track_robust_covariance(info: np.ndarray, scores: np.ndarray,
-                            prior_info: np.ndarray) -> np.ndarray:
+                            prior_info: np.ndarray, n_params: float | None = None
+                            ) -> np.ndarray:
     """Covariance (G, G) of the global parameters robust to errors shared within a track.
 
     info (G, G): their reduced information at the solution (``S``, the model covariance is
@@ -653,8 +654,10 @@ def track_robust_covariance(info: np.ndarray, scores: np.ndarray,
     information. The cluster-robust sandwich ``S^-1 (c/(c-G) sum_t g_t g_t^T + P) S^-1`` over
     the c tracks with points counts how far the tracks actually disagree, whatever their
     points' noise and correlation; it is clipped from below at the model covariance
-    (:func:`clipped_below`), so it never claims more than the factors' noise model."""
-    G = len(info)
+    (:func:`clipped_below`), so it never claims more than the factors' noise model.
+    ``n_params``: the number of parameters the small-sample factor ``c/(c-G)`` counts
+    (None: G; fewer where some are held mostly by their prior)."""
+    G = len(info) if n_params is None else n_params
     model = np.linalg.inv(0.5 * (info + info.T))
     used = scores[np.any(scores != 0.0, axis=1)]
     c = len(used)
