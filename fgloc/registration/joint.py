@@ -806,7 +806,6 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                         "centre_line_share": (float(pose[n_fixed - 1])
                                               if jc.centre_line_sigma > 0 else None),
                         "lane_bias_m": None if lanes is None else lanes.summary(),
-                        "lane_bias_sigma_m": None if lanes is None else lanes.sigma,
                         "step_yaw_deg": float(np.rad2deg(step_yaw)), "noise": noise.summary(),
                         "matched": int(ok.sum()), "error": float(cost)})
         if step_xy >= jc.tol_position or step_yaw >= np.deg2rad(jc.tol_yaw_deg):
@@ -820,10 +819,6 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                              len(dec.tracks), jc.min_sigma,
                              None if basis is None else basis @ pose[3:])
         settled, noise = again.settled(noise), again
-        if lanes is not None:          # and the lanes' bias std. dev. (one EM step)
-            info = solve_arrow(linearize(tq, pts, pri, len(dec.tracks), x, pose, b), layout,
-                               owner, offsets).pose_information
-            settled &= lanes.reestimate_sigma(info, pose, n_fixed)
         if settled:
             converged = True
             break

@@ -134,11 +134,9 @@ class JointConfig:
     parameter per lane line that holds matched points, :mod:`fgloc.registration.lane_bias`)
     instead of considered: the estimate becomes the generalized least-squares one under
     that model, a lane weighing at most about one line measurement of this std. dev.
-    however many vehicles it carries; ``consider_lane_bias_sigma`` is then not added (the
-    marginal covariance holds the biases). With ``estimate_noise`` this is the start value
-    and the std. dev. is re-estimated with the noise levels (an EM step on the lanes'
-    estimated biases and their variances, at least 0.01 m), so lanes that agree are trusted
-    as their points say. Needs the lines' lane ids. 0 = off."""
+    however many vehicles it carries; of ``consider_lane_bias_sigma`` only what it exceeds
+    this by is considered on top (the marginal covariance holds the biases). Needs the
+    lines' lane ids. 0 = off."""
     consider_coarse_tilt: bool = True
     """Add the coarse roll and pitch's uncertainty (``CoarseResult.tilt_covariance``) to the
     sensor's covariance: the joint keeps the coarse tilt, and a tilt error moves the sensor,

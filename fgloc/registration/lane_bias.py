@@ -23,19 +23,13 @@ import numpy as np
 
 from fgloc.registration.considered import lane_columns
 
-#: Smallest std. dev. (m) the re-estimated lane-bias prior takes (keeps its weight finite).
-MIN_SIGMA = 0.01
-#: Most EM steps of one re-estimation of the lane-bias std. dev.
-EM_STEPS = 200
-
 
 @dataclass
 class LaneBiases:
     """The lanes' estimated lateral biases (m) across the rounds of the joint: ``values``
     keeps each lane's last estimate (lane id -> m), ``ids`` (L,) are the lanes of the current
     round (those that hold matched points, ascending), whose biases are the last L global
-    parameters of its problem; ``sigma`` (m) is their prior std. dev. (re-estimated from the
-    data with the noise levels, :meth:`reestimate_sigma`)."""
+    parameters of its problem; ``sigma`` (m) is their prior std. dev."""
 
     sigma: float
     values: dict[int, float] = field(default_factory=dict)
@@ -59,37 +53,6 @@ class LaneBiases:
     def store(self, params: np.ndarray) -> None:
         """Keep the round's estimates ``params`` (L,) m for the next rounds."""
         self.values.update({int(i): float(v) for i, v in zip(self.ids, params)})
-
-    def reestimate_sigma(self, info: np.ndarray, glob: np.ndarray, first: int,
-                         floor: float = MIN_SIGMA, tol: float = 0.1) -> bool:
-        """Re-estimate ``sigma`` by EM on the round's linearized problem: ``info`` (G, G) the
-        reduced information of the global parameters at their estimate ``glob`` (G,), whose
-        lane biases ``glob[first:]`` (m) had the prior ``N(0, sigma^2)``. Each step moves
-        that prior to the current value, solves the quadratic model for the biases'
-        posterior means ``b_j`` and variances ``v_j`` and sets ``sigma^2 = mean(b_j^2 + v_j)``
-        (the variance component of the lanes' random effects; a lane the data hardly see
-        gives back about the prior), at least ``floor`` m, until it moves by less than 1e-4
-        (relative; at most :data:`EM_STEPS` steps). True when ``sigma`` moved by less than
-        ``tol`` (relative) from its value before."""
-        if len(glob) == first:
-            return True
-        w0, sigma = 1.0 / self.sigma**2, self.sigma
-        for _ in range(EM_STEPS):
-            dw = np.zeros(len(glob))
-            dw[first:] = 1.0 / sigma**2 - w0
-            try:
-                cov = np.linalg.inv(info + np.diag(dw))
-            except np.linalg.LinAlgError:
-                return True
-            b = (glob - cov @ (dw * glob))[first:]
-            new = max(float(np.sqrt(np.mean(b**2 + np.diag(cov)[first:]))), floor)
-            done = abs(new / sigma - 1.0) < 1e-4
-            sigma = new
-            if done:
-                break
-        settled = abs(sigma / self.sigma - 1.0) < tol
-        self.sigma = sigma
-        return settled
 
     def free_params(self, info: np.ndarray, first: int) -> float:
         """How many parameters the round's lane biases count as in a small-sample correction:
