@@ -12,4 +12,5 @@ def test_free_params_count_the_biases_the_data_fix():
     (1/m^2) under a 0.1 m prior count about 1."""
     prior = 1.0 / 0.1**2
     info = np.diag([50.0, 1e6 + prior, 1e-6 + prior])
-    assert LaneBiases(0.1).free_params(info, 1) == pytest.approx(1.0, abs=1e-3)
+    variance = np.diag(np.linalg.inv(info))[1:]
+    assert LaneBiases(0.1).free_params(variance) == pytest.approx(1.0, abs=1e-3)

@@ -460,6 +460,14 @@ def _side_columns(target: np.ndarray, normal: np.ndarray, sensor_l: np.ndarray) 
 CONSIDERED_PRIOR_W = 1e-3
 
 
+def matched_lane(lines: LaneLines, index: np.ndarray) -> np.ndarray | None:
+    """(P,) the lane id of each point's matched line sample (``index``, -1 none: -1); None
+    when the lines have no lane ids."""
+    if lines.lane is None:
+        return None
+    return np.where(index >= 0, lines.lane[np.maximum(index, 0)], -1)
+
+
 def considered_columns(target: np.ndarray, normal: np.ndarray, index: np.ndarray,
                        sensor_l: np.ndarray, lines: LaneLines, jc: JointConfig,
                        lane_sigma: float) -> tuple[np.ndarray, np.ndarray]:
@@ -470,10 +478,9 @@ def considered_columns(target: np.ndarray, normal: np.ndarray, index: np.ndarray
     ``consider_lane_bias_sigma``, or what of it the estimated lane biases' std. dev. leaves;
     the shift of its points along their normal; needs ``lines.lane``). target, normal (P, 2) in
     L, index (P,) the matched line sample (-1 none), sensor_l (2,)."""
-    lane = None if lines.lane is None else np.where(index >= 0, lines.lane[index], -1)
     return bias_columns(side_sign(target, normal, sensor_l),
                         jc.consider_side_bias_sigma if jc.side_bias_sigma == 0.0 else 0.0,
-                        lane, lane_sigma)
+                        matched_lane(lines, index), lane_sigma)
 
 
 def with_considered_biases(pts: PointSet, pri: Priors, glob: np.ndarray, columns: np.ndarray
@@ -766,7 +773,7 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
         centre = centre_shift(lines, index, normal)
         prior_w = 1.0 / prior_sd
         if lanes is not None:       # this round's lanes' biases follow the fixed parameters
-            lane_cols = lanes.select(np.where(ok, lines.lane[np.maximum(index, 0)], -1))
+            lane_cols = lanes.select(matched_lane(lines, index))
             pose = np.concatenate([pose[:n_fixed], lanes.params()])
             prior_w = np.concatenate([prior_w, lanes.prior_weights()])
         pts = _point_set(fp, pad, index, compat, target, normal, sigma, x, pose, b,
@@ -849,7 +856,7 @@ def joint_refine(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
         cov_model = np.linalg.inv(info)
         cov = cov_model if jc.covariance == "model" else track_robust_covariance(
             info, arrow_final.gp_track[:, :G], pri.pose_w**2,
-            None if lanes is None else n_fixed + lanes.free_params(info, n_fixed))
+            None if lanes is None else n_fixed + lanes.free_params(np.diag(cov_model)[n_fixed:]))
         if len(consider_sd):
             extra = consider_covariance(info_all, consider_sd)
             cov, cov_model = cov + extra, cov_model + extra

@@ -54,13 +54,11 @@ class LaneBiases:
         """Keep the round's estimates ``params`` (L,) m for the next rounds."""
         self.values.update({int(i): float(v) for i, v in zip(self.ids, params)})
 
-    def free_params(self, info: np.ndarray, first: int) -> float:
+    def free_params(self, variance: np.ndarray) -> float:
         """How many parameters the round's lane biases count as in a small-sample correction:
         ``sum_j (1 - v_j / sigma^2)`` (0 for a bias its prior holds, 1 for one the data fix),
-        ``v_j`` its variance from ``info`` (G, G), the reduced information of the global
-        parameters whose ``[first:]`` are the biases."""
-        var = np.diag(np.linalg.inv(info))[first:]
-        return float(np.sum(np.clip(1.0 - var / self.sigma**2, 0.0, 1.0)))
+        ``variance`` (L,) m^2 their marginal variances ``v_j``."""
+        return float(np.sum(np.clip(1.0 - np.asarray(variance) / self.sigma**2, 0.0, 1.0)))
 
     def summary(self) -> dict[str, float]:
         """JSON-ready lane id -> estimated bias (m) of every lane estimated so far."""
