@@ -33,7 +33,9 @@ At a junction ``site`` (lat, lon) of a Lanelet2 map it draws, from one seed:
 * a 20 Hz radar (120 x 30 deg field of view, 150 m): per vehicle and frame a Poisson number of
   returns (mean 12 within 30 m, falling as 1 / range, at least 2) on the faces of its box that
   face the sensor at 0.2-0.9 of its height, one in ten on its roof; rigid-body Doppler plus
-  0.1 m/s noise; range, azimuth and elevation noise 0.15 m, 0.4 deg, 0.6 deg; no occlusion;
+  0.1 m/s noise; range, azimuth and elevation noise 0.15 m, 0.4 deg, 0.6 deg; no occlusion
+  unless asked (``occlusion``: a return whose sight line passes through another vehicle's
+  box below its roof is dropped);
 * clutter, ``clutter``: "static" (default) 40 kerb scatterers 0.1-0.2 m above the ground on
   the lanelet bounds in view that only one drivable lanelet uses (the road's edges; inside a
   junction also the bounds of the lanelets crossing it) and 15 poles 0-3 m high, 10-140 m away
@@ -55,7 +57,7 @@ looks down); a vehicle's frame V has x along its heading, y to its left, z up fr
 below its centre.
 
     python -m bench.independent_gen --map MAP --site LAT,LON --seed N --out DIR \\
-        [--vehicles-per-minute R] [--duration S] [--clutter static|none|uniform]
+        [--vehicles-per-minute R] [--duration S] [--clutter static|none|uniform] [--occlusion]
 """
 
 from __future__ import annotations
@@ -777,6 +779,48 @@ def vehicle_returns(vehicles: list[Vehicle], sensor: Sensor, terrain: Terrain,
                    boxes.vid[i], roof, np.full(len(i), 10.0))
 
 
+def occluded(ret: Returns, boxes: BoxSamples, sensor: Sensor, terrain: Terrain
+             ) -> np.ndarray:
+    """(n,) bool: the line of sight from the sensor to each true return point passes through
+    the box of another vehicle of the same frame below its roof (the box from the ground to its
+    height; the vehicle's own box never hides its returns). Each return is tested against
+    every box of its frame: the sight line's parameter interval inside the box's footprint
+    (slabs along its length and width), and the line's height where it leaves the footprint
+    or enters it, whichever is lower."""
+    n = len(ret.frame)
+    order = np.argsort(boxes.frame, kind="stable")
+    frames = boxes.frame[order]
+    lo = np.searchsorted(frames, ret.frame, "left")
+    cnt = np.searchsorted(frames, ret.frame, "right") - lo
+    ri = np.repeat(np.arange(n), cnt)
+    bi = order[np.repeat(lo - np.cumsum(cnt) + cnt, cnt) + np.arange(int(cnt.sum()))]
+    other = ret.label[ri] != boxes.vid[bi]
+    ri, bi = ri[other], bi[other]
+    _, x, y, yaw = boxes.states[bi, :4].T
+    c, s = np.cos(yaw), np.sin(yaw)
+    a = np.column_stack([sensor.position[0] - x, sensor.position[1] - y])
+    b = ret.p_w[ri, :2] - np.column_stack([x, y])
+    # sight line in the box's frame: start (the sensor) a_l, direction d_l, t in [0, 1]
+    a_l = np.column_stack([c * a[:, 0] + s * a[:, 1], -s * a[:, 0] + c * a[:, 1]])
+    d_l = np.column_stack([c * b[:, 0] + s * b[:, 1], -s * b[:, 0] + c * b[:, 1]]) - a_l
+    half = boxes.size[bi, :2] / 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t1, t2 = (-half - a_l) / d_l, (half - a_l) / d_l
+    parallel = np.abs(d_l) < 1e-12
+    inside = np.abs(a_l) <= half
+    t_lo = np.where(parallel, np.where(inside, -np.inf, np.inf), np.minimum(t1, t2))
+    t_hi = np.where(parallel, np.where(inside, np.inf, -np.inf), np.maximum(t1, t2))
+    enter = np.maximum(t_lo.max(axis=1), 0.0)
+    leave = np.minimum(t_hi.min(axis=1), 1.0)
+    crosses = enter < leave
+    z0, z1 = sensor.position[2], ret.p_w[ri, 2]
+    low = np.minimum(z0 + enter * (z1 - z0), z0 + leave * (z1 - z0))
+    hidden = crosses & (low < terrain(x, y) + boxes.size[bi, 2])
+    out = np.zeros(n, bool)
+    out[ri[hidden]] = True
+    return out
+
+
 @dataclass
 class Scatterers:
     """The static scatterers in W: kerbs (k, 3) and poles (m, 3)."""
@@ -966,11 +1010,13 @@ def write_ground_truth(out: Path, sensor: Sensor, vehicles: list[Vehicle]) -> No
 # ------------------------------------------------------------------------------ generate
 def generate(map_path: str | Path, site: tuple[float, float], seed: int, out: str | Path,
              vehicles_per_minute: float = 12.0, duration: float = 60.0,
-             clutter: str = "static") -> Path:
+             clutter: str = "static", occlusion: bool = False) -> Path:
     """Write a scenario directory ``out`` at the junction ``site`` (lat, lon, deg) of the
     Lanelet2 map ``map_path``: ``duration`` s of traffic at ``vehicles_per_minute``,
-    ``clutter`` "static", "uniform" or "none" (the module's docstring says what each draws).
-    Deterministic in (``seed``, ``site``). Returns ``out``."""
+    ``clutter`` "static", "uniform" or "none" (the module's docstring says what each draws);
+    ``occlusion``: vehicles hide the returns behind them (:func:`occluded`; false alarms
+    excepted), the same draws otherwise. Deterministic in (``seed``, ``site``). Returns
+    ``out``."""
     if clutter not in ("static", "none", "uniform"):
         raise ValueError(f"clutter {clutter!r}: expected static, none or uniform")
     map_path, out = Path(map_path), Path(out)
@@ -994,6 +1040,13 @@ def generate(map_path: str | Path, site: tuple[float, float], seed: int, out: st
         parts.append(static_returns(scat, n_frames, rng))
     elif clutter == "uniform":
         parts.append(uniform_returns(sensor, terrain, n_frames, rng))
+    n_hidden = 0
+    if occlusion:
+        boxes = BoxSamples.of(vehicles)
+        hidden = [occluded(p, boxes, sensor, terrain) & (p.label != FALSE_ALARM)
+                  for p in parts]
+        n_hidden = int(sum(h.sum() for h in hidden))
+        parts = [p.take(~h) for p, h in zip(parts, hidden)]
     det = measure(parts, sensor, rng)
     write_radar(out, det)
     write_labels(out, det, scat)
@@ -1002,7 +1055,8 @@ def generate(map_path: str | Path, site: tuple[float, float], seed: int, out: st
     write_sensor_toml(out, sensor, rng)
     write_ground_truth(out, sensor, vehicles)
     meta = {"site": centre.tolist(), "site_latlon": [lat, lon], "seed": seed,
-            "clutter": clutter, "vpm": vehicles_per_minute, "duration": duration,
+            "clutter": clutter, "occlusion": occlusion, "n_hidden": n_hidden,
+            "vpm": vehicles_per_minute, "duration": duration,
             "terrain": {"z0": terrain.z0, "grad": terrain.grad.tolist()}, "mast": sensor.mast,
             "n_routes": len(routes),
             "routes": [[[k, inv] for k, inv in r.lanes] for r in routes],
@@ -1034,10 +1088,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--vehicles-per-minute", type=float, default=12.0)
     ap.add_argument("--duration", type=float, default=60.0, help="s of radar frames")
     ap.add_argument("--clutter", choices=["static", "none", "uniform"], default="static")
+    ap.add_argument("--occlusion", action="store_true",
+                    help="vehicles hide the returns behind them")
     a = ap.parse_args(argv)
     lat, lon = (float(v) for v in a.site.split(","))
     out = generate(a.map, (lat, lon), a.seed, a.out, a.vehicles_per_minute, a.duration,
-                   a.clutter)
+                   a.clutter, a.occlusion)
     print(summary(out))
     return 0
 

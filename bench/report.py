@@ -297,7 +297,9 @@ TABLES: list[Table] = [
           "pairs of boxes still touch, 4 of them for 1-6 s); a 20 "
           "Hz radar on a 5-7 m mast 10-25 m from the junction, pitched 4-12 deg, returns a Poisson "
           "number of points per vehicle and frame on the box faces that face it, at 0.2-0.9 of the "
-          "vehicle's height, one in ten on the roof, with rigid-body Doppler, no occlusion; "
+          "vehicle's height, one in ten on the roof, with rigid-body Doppler, no occlusion ("
+          "occluded: the static setting with the returns whose sight line passes through "
+          "another vehicle's box below its roof dropped: 5-16 % of the returns); "
           "clutter (static): 40 kerb scatterers 0.1-0.2 m high on the lanelet bounds no other "
           "lanelet shares and 15 poles 0-3 m high more than 1 m off the road, each in 30 % of the "
           "frames; none: no clutter; uniform: 15 false alarms a frame anywhere in view, 0-2 m "
@@ -314,6 +316,8 @@ TABLES: list[Table] = [
                        "settings": ["none", "3-per-min"]},
                       {"junctions": [1, 2, 3, 4, 5, 6], "seeds": [1],
                        "settings": ["uniform"]},
+                      {"junctions": [1, 2, 3, 4, 5, 6], "seeds": [1, 2],
+                       "settings": ["occluded"]},
                       {"junctions": [7, 8, 9, 10, 11, 12], "seeds": [1, 2],
                        "settings": ["static"]}],
            "duration": 60.0},

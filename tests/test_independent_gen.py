@@ -17,12 +17,18 @@ from matplotlib.path import Path as Polygon
 
 from bench.independent_gen import (
     CONFLICT_BOX,
+    BoxSamples,
     Driver,
+    Returns,
     Route,
+    Sensor,
+    Terrain,
+    Vehicle,
     _obstacle,
     conflict_zones,
     crossing_spans,
     generate,
+    occluded,
 )
 from fgloc.io import load_scenario
 from fgloc.scenario import Scenario
@@ -143,6 +149,31 @@ def test_true_vehicles_do_not_drive_through_each_other(tmp_path):
                     a.id, b.id, x[0])
     assert pairs > 100                       # vehicles came within 20 m of each other
     assert any((tr.states[:, 4] < 0.1).any() for tr in tracks)   # some waited
+
+
+def test_a_vehicle_hides_the_returns_behind_it_below_its_roof():
+    """Closed form: the sensor 6 m over flat ground at the origin, a truck (10 x 2.5 x 3.5 m,
+    id 1) centred 10 m out on the x axis in frame 0. A return 0.3 m high at (19, 0) sees
+    the truck's far end at x = 15 at 6 - 5.7 x 15/19 = 1.5 m: hidden. At (19, 3) the sight line
+    leaves the truck's side (y = 1.25) at x = 7.9, 3.63 m high: seen over it. At (19, 5) it
+    passes beside the truck, a roof return 1.5 m high at (60, 0) passes over it (4.9 m at
+    x = 15); the truck's own return and a return of frame 1 (no truck there) are not hidden."""
+    truck = Vehicle(1, "truck", 10.0, 2.5, 3.5, 0, np.array([[0, 10.0, 0, 0, 0, 0]]),
+                    np.array([0]))
+    sensor = Sensor(np.array([0.0, 0.0, 6.0]), 0.0, 10.0, 0.0, 6.0)
+    flat = Terrain(np.zeros(2), 0.0, np.zeros(2))
+    p_w = np.array([[19, 0, 0.3], [19, 3, 0.3], [19, 5, 0.3], [60, 0, 1.5], [14, 0, 1.0],
+                    [19, 0, 0.3]])
+    n = len(p_w)
+    ret = Returns(np.array([0, 0, 0, 0, 0, 1]), p_w, np.zeros(n), np.zeros(n),
+                  np.array([2, 2, 2, 2, 1, 2]), np.zeros(n, bool), np.zeros(n))
+    hidden = occluded(ret, BoxSamples.of([truck]), sensor, flat)
+    assert hidden.tolist() == [True, False, False, False, False, False]
+    # the truck turned across the axis (10 m wide now): all three sight lines to (19, y)
+    # leave it at x = 11.25, 2.6 m high, hidden; the roof return's at 5.2 m still passes
+    truck.states[0, 3] = np.pi / 2
+    assert occluded(ret, BoxSamples.of([truck]), sensor, flat).tolist() == [
+        True, True, True, False, False, False]
 
 
 def straight_route(start: tuple[float, float], heading_deg: float, length: float = 100.0
