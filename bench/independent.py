@@ -16,7 +16,8 @@ and method the table :func:`table`.
 The settings (:data:`SETTINGS`): "static" the generator's defaults (static clutter: kerbs and
 poles, 12 vehicles per minute), "none" no clutter, "uniform" uniform false alarms instead,
 "3-per-min" the defaults at 3 vehicles per minute, "occluded" the defaults with vehicles
-hiding the returns behind them.
+hiding the returns behind them, "ghosts" the defaults with multipath ghosts of facades beside
+the road.
 
     OMP_NUM_THREADS=1 python -m bench.independent                    # the report's full set
     OMP_NUM_THREADS=1 python -m bench.independent --junctions 1 --seeds 1 --settings static
@@ -55,7 +56,8 @@ HELD_OUT = "held-out junctions"
 #: setting name -> the generator's keyword arguments (:func:`bench.independent_gen.generate`)
 SETTINGS: dict[str, dict[str, object]] = {
     "static": {}, "none": {"clutter": "none"}, "uniform": {"clutter": "uniform"},
-    "3-per-min": {"vehicles_per_minute": 3.0}, "occluded": {"occlusion": True}}
+    "3-per-min": {"vehicles_per_minute": 3.0}, "occluded": {"occlusion": True},
+    "ghosts": {"ghosts": True}}
 
 #: one run's figures (see :func:`rows_of`)
 Row = dict[str, object]

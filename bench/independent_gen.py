@@ -35,7 +35,9 @@ At a junction ``site`` (lat, lon) of a Lanelet2 map it draws, from one seed:
   face the sensor at 0.2-0.9 of its height, one in ten on its roof; rigid-body Doppler plus
   0.1 m/s noise; range, azimuth and elevation noise 0.15 m, 0.4 deg, 0.6 deg; no occlusion
   unless asked (``occlusion``: a return whose sight line passes through another vehicle's
-  box below its roof is dropped);
+  box below its roof is dropped); multipath ghosts if asked (``ghosts``: up to 3 facades
+  30-60 m long, 8 m high, 2-5 m beyond a road edge in view, each mirroring a quarter of the
+  vehicles' returns it can: a ghost at the return's mirror image, moving mirrored);
 * clutter, ``clutter``: "static" (default) 40 kerb scatterers 0.1-0.2 m above the ground on
   the lanelet bounds in view that only one drivable lanelet uses (the road's edges; inside a
   junction also the bounds of the lanelets crossing it) and 15 poles 0-3 m high, 10-140 m away
@@ -58,6 +60,7 @@ below its centre.
 
     python -m bench.independent_gen --map MAP --site LAT,LON --seed N --out DIR \\
         [--vehicles-per-minute R] [--duration S] [--clutter static|none|uniform] [--occlusion]
+        [--ghosts]
 """
 
 from __future__ import annotations
@@ -119,6 +122,10 @@ N_KERBS, N_POLES, STATIC_DETECTION_PROB = 40, 15, 0.3
 UNIFORM_PER_FRAME = 15
 #: label of a uniform false alarm in labels.npz (vehicles: their id; static scatterer k: -1-k)
 FALSE_ALARM = -1000
+#: multipath: facades drawn, their length range (m), offset beyond the road's edge (m) and
+#: height (m), the share of a vehicle's returns a facade mirrors, and a ghost's label
+N_WALLS, WALL_LENGTH, WALL_OFFSET, WALL_HEIGHT = 3, (30.0, 60.0), (2.0, 5.0), 8.0
+GHOST_PROB, GHOST = 0.25, -2000
 #: half the side (m) of the square ALS tile around the site, and its grid step (m)
 ALS_HALF_SIDE, ALS_STEP = 200.0, 1.0
 ROAD, GROUND = 11, 2
@@ -756,6 +763,17 @@ def box_face_points(rng: np.random.Generator, sensor_v: np.ndarray, size: np.nda
     return np.column_stack([x, y, np.where(roof, height, z)]), roof
 
 
+def rigid_velocity(states: np.ndarray, rx: np.ndarray, ry: np.ndarray, terrain: Terrain
+                   ) -> np.ndarray:
+    """(n, 3) velocity (m/s, W) of the points ``(rx, ry)`` (m, W axes) from the centres of
+    vehicles in the states (n, 6) [t, x, y, yaw, v, yaw rate]: moving along the ground plane,
+    turning at the yaw rate."""
+    _, _, _, yaw, v, w = states.T
+    vx, vy = v * np.cos(yaw), v * np.sin(yaw)
+    return np.column_stack([vx - w * ry, vy + w * rx,
+                            terrain.grad[0] * vx + terrain.grad[1] * vy])
+
+
 def vehicle_returns(vehicles: list[Vehicle], sensor: Sensor, terrain: Terrain,
                     rng: np.random.Generator) -> Returns:
     """The vehicles' returns (:func:`returns_per_box`, :func:`box_face_points`) with their
@@ -763,15 +781,14 @@ def vehicle_returns(vehicles: list[Vehicle], sensor: Sensor, terrain: Terrain,
     plus :data:`SIGMA_DOPPLER` noise; RCS 10 dBsm."""
     boxes = BoxSamples.of(vehicles)
     i = np.repeat(np.arange(len(boxes.frame)), returns_per_box(boxes, sensor, terrain, rng))
-    _, x, y, yaw, v, w = boxes.states[i].T
+    _, x, y, yaw = boxes.states[i, :4].T
     c, s = np.cos(yaw), np.sin(yaw)
     dx, dy = sensor.position[0] - x, sensor.position[1] - y
     local, roof = box_face_points(rng, np.column_stack([c * dx + s * dy, -s * dx + c * dy]),
                                   boxes.size[i])
     rx, ry = c * local[:, 0] - s * local[:, 1], s * local[:, 0] + c * local[:, 1]
     p_w = np.column_stack([x + rx, y + ry, terrain(x, y) + local[:, 2]])
-    vx, vy = v * c, v * s
-    vel = np.column_stack([vx - w * ry, vy + w * rx, terrain.grad[0] * vx + terrain.grad[1] * vy])
+    vel = rigid_velocity(boxes.states[i], rx, ry, terrain)
     ray = p_w - sensor.position
     ray /= np.linalg.norm(ray, axis=1, keepdims=True)
     doppler = vel[:, 0] * ray[:, 0] + vel[:, 1] * ray[:, 1] + vel[:, 2] * ray[:, 2]
@@ -838,6 +855,16 @@ def in_view(sensor: Sensor, q: np.ndarray) -> np.ndarray:
     return (r <= MAX_RANGE - 5) & (r >= 10) & (np.abs(az) <= HFOV_DEG / 2 - 2.0)
 
 
+def edges_in_view(road: RoadMap, sensor: Sensor) -> np.ndarray:
+    """(k, 2, 2) segments of the road's edges in view (:func:`in_view`): the bounds only one
+    drivable lanelet uses (:attr:`RoadMap.outer`), any lanelet edge when none of those is."""
+    segs = np.concatenate([np.stack([b[:-1], b[1:]], 1) for b in road.outer if len(b) > 1])
+    segs = segs[in_view(sensor, segs.mean(axis=1))]
+    if len(segs) == 0:
+        segs = road.edges[in_view(sensor, road.edges.mean(axis=1))]
+    return segs
+
+
 def draw_scatterers(road: RoadMap, sensor: Sensor, terrain: Terrain,
                     rng: np.random.Generator) -> Scatterers:
     """:data:`N_KERBS` kerb points 0.1-0.2 m above the ground, uniform by length along the
@@ -845,10 +872,7 @@ def draw_scatterers(road: RoadMap, sensor: Sensor, terrain: Terrain,
     edge in view when none of those is),
     and :data:`N_POLES` pole points 0-3 m above the ground, 10-140 m away within +-55 deg of
     the boresight and more than 1 m off the drivable lanelets."""
-    segs = np.concatenate([np.stack([b[:-1], b[1:]], 1) for b in road.outer if len(b) > 1])
-    segs = segs[in_view(sensor, segs.mean(axis=1))]
-    if len(segs) == 0:
-        segs = road.edges[in_view(sensor, road.edges.mean(axis=1))]
+    segs = edges_in_view(road, sensor)
     seg_len = np.hypot(*(segs[:, 1] - segs[:, 0]).T)
     k = rng.choice(len(segs), N_KERBS, p=seg_len / seg_len.sum())
     kxy = segs[k, 0] + rng.random(N_KERBS)[:, None] * (segs[k, 1] - segs[k, 0])
@@ -887,6 +911,98 @@ def uniform_returns(sensor: Sensor, terrain: Terrain, n_frames: int,
     return Returns.static(np.repeat(np.arange(n_frames), UNIFORM_PER_FRAME),
                           np.column_stack([qx, qy, qz]), rng.uniform(-15, 15, m),
                           np.full(m, np.nan), np.full(m, FALSE_ALARM), noisy=False)
+
+
+@dataclass
+class Walls:
+    """Vertical reflecting facades: ``start`` and unit ``direction`` (k, 2) in W, ``length``
+    (k,) m, ``top`` (k,) height of the top in W (m)."""
+
+    start: np.ndarray
+    direction: np.ndarray
+    length: np.ndarray
+    top: np.ndarray
+
+
+def draw_walls(road: RoadMap, sensor: Sensor, terrain: Terrain, rng: np.random.Generator
+               ) -> Walls:
+    """Up to :data:`N_WALLS` facades (a building front, a noise barrier): each along a road
+    edge in view (:func:`edges_in_view`, chosen by length), :data:`WALL_OFFSET` m beyond it
+    off the road, :data:`WALL_LENGTH` m long, :data:`WALL_HEIGHT` m high; only where none of
+    it lies on a drivable lanelet, the sensor is on the road's side and at least 30 m away
+    (a facade beside the mast would hide the road) and no facade drawn before is within 10 m
+    of its ends or middle."""
+    segs = edges_in_view(road, sensor)
+    seg_len = np.hypot(*(segs[:, 1] - segs[:, 0]).T)
+    sensor_xy = sensor.position[:2]
+    walls: list[tuple[np.ndarray, np.ndarray, float]] = []
+    for _ in range(200):
+        if len(walls) == N_WALLS:
+            break
+        a, b = segs[rng.choice(len(segs), p=seg_len / seg_len.sum())]
+        u = (b - a) / max(float(np.hypot(*(b - a))), 1e-9)
+        n = np.array([-u[1], u[0]])
+        mid = a + rng.random() * (b - a)
+        if road.inside(mid + n)[0]:
+            n = -n
+        centre = mid + rng.uniform(*WALL_OFFSET) * n
+        length = rng.uniform(*WALL_LENGTH)
+        start = centre - u * length / 2
+        line = start + np.linspace(0, length, 25)[:, None] * u
+        if (road.inside(line).any() or np.dot(sensor_xy - centre, n) >= 0
+                or segment_distance(sensor_xy[None], start[None], line[-1][None])[0] < 30.0
+                or (walls and segment_distance(line[[0, 12, -1]], np.array([w[0] for w in walls]),
+                                               np.array([w[0] + w[2] * w[1] for w in walls])
+                                               ).min() < 10.0)):
+            continue
+        walls.append((start, u, length))
+    start = np.array([w[0] for w in walls]).reshape(-1, 2)
+    return Walls(start, np.array([w[1] for w in walls]).reshape(-1, 2),
+                 np.array([w[2] for w in walls]),
+                 terrain(start[:, 0], start[:, 1]) + WALL_HEIGHT)
+
+
+def ghost_returns(vret: Returns, boxes: BoxSamples, walls: Walls, sensor: Sensor,
+                  terrain: Terrain, rng: np.random.Generator) -> Returns:
+    """Multipath ghosts of the vehicles' returns ``vret`` in the facades ``walls``: the path
+    sensor - facade - vehicle - facade - sensor appears at the point's mirror image in the
+    facade, moving with the mirrored velocity (its Doppler the image's radial speed, plus
+    :data:`SIGMA_DOPPLER` noise). Per return and facade with probability :data:`GHOST_PROB`,
+    where the point lies on the sensor's side and the sight line to the image meets the
+    facade within its length and below its top. RCS 0 dBsm, label :data:`GHOST`."""
+    key = boxes.vid.astype(np.int64) * (int(boxes.frame.max(initial=0)) + 1) + boxes.frame
+    order = np.argsort(key)
+    row = order[np.searchsorted(key[order], vret.label.astype(np.int64)
+                                * (int(boxes.frame.max(initial=0)) + 1) + vret.frame)]
+    states = boxes.states[row]
+    vel = rigid_velocity(states, vret.p_w[:, 0] - states[:, 1], vret.p_w[:, 1] - states[:, 2],
+                         terrain)
+    s_xy, parts = sensor.position[:2], []
+    for a, u, length, top in zip(walls.start, walls.direction, walls.length, walls.top):
+        n = np.array([-u[1], u[0]])
+        side = np.sign(np.dot(s_xy - a, n))
+        d = vret.p_w[:, :2] - a
+        image = a + 2 * (d @ u)[:, None] * u - d
+        to = image - s_xy
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.dot(a - s_xy, n) / (to @ n)
+        along = (s_xy + t[:, None] * to - a) @ u
+        ray_z = sensor.position[2] + t * (vret.p_w[:, 2] - sensor.position[2])
+        seen = ((np.sign(d @ n) == side) & (t > 0) & (t < 1) & (along >= 0)
+                & (along <= length) & (ray_z <= top) & (rng.random(len(t)) < GHOST_PROB))
+        if not seen.any():
+            continue
+        p_w = np.column_stack([image[seen], vret.p_w[seen, 2]])
+        v = vel[seen]
+        v_xy = 2 * (v[:, :2] @ u)[:, None] * u - v[:, :2]
+        ray = p_w - sensor.position
+        ray /= np.linalg.norm(ray, axis=1, keepdims=True)
+        doppler = v_xy[:, 0] * ray[:, 0] + v_xy[:, 1] * ray[:, 1] + v[:, 2] * ray[:, 2]
+        m = len(p_w)
+        parts.append(Returns(vret.frame[seen], p_w,
+                             doppler + rng.normal(0, SIGMA_DOPPLER, m), doppler,
+                             np.full(m, GHOST), np.zeros(m, bool), np.zeros(m)))
+    return Returns.concat(parts) if parts else vret.take(np.zeros(0, dtype=int))
 
 
 @dataclass
@@ -1010,19 +1126,21 @@ def write_ground_truth(out: Path, sensor: Sensor, vehicles: list[Vehicle]) -> No
 # ------------------------------------------------------------------------------ generate
 def generate(map_path: str | Path, site: tuple[float, float], seed: int, out: str | Path,
              vehicles_per_minute: float = 12.0, duration: float = 60.0,
-             clutter: str = "static", occlusion: bool = False) -> Path:
+             clutter: str = "static", occlusion: bool = False, ghosts: bool = False) -> Path:
     """Write a scenario directory ``out`` at the junction ``site`` (lat, lon, deg) of the
     Lanelet2 map ``map_path``: ``duration`` s of traffic at ``vehicles_per_minute``,
     ``clutter`` "static", "uniform" or "none" (the module's docstring says what each draws);
     ``occlusion``: vehicles hide the returns behind them (:func:`occluded`; false alarms
-    excepted), the same draws otherwise. Deterministic in (``seed``, ``site``). Returns
-    ``out``."""
+    excepted), the same draws otherwise; ``ghosts``: facades (:func:`draw_walls`) mirror the
+    vehicles' returns (:func:`ghost_returns`; drawn from a generator of their own, the other
+    draws the same). Deterministic in (``seed``, ``site``). Returns ``out``."""
     if clutter not in ("static", "none", "uniform"):
         raise ValueError(f"clutter {clutter!r}: expected static, none or uniform")
     map_path, out = Path(map_path), Path(out)
     lat, lon = site
     # the site enters the seed: different sites with the same seed are not correlated
-    rng = np.random.default_rng([seed, int(round(lat * 1e5)), int(round(lon * 1e5))])
+    key = [seed, int(round(lat * 1e5)), int(round(lon * 1e5))]
+    rng = np.random.default_rng(key)
     (out / "als").mkdir(parents=True, exist_ok=True)
     (out / "_gen").mkdir(exist_ok=True)
     road = RoadMap(map_path, (lat, lon))
@@ -1040,6 +1158,12 @@ def generate(map_path: str | Path, site: tuple[float, float], seed: int, out: st
         parts.append(static_returns(scat, n_frames, rng))
     elif clutter == "uniform":
         parts.append(uniform_returns(sensor, terrain, n_frames, rng))
+    walls = None
+    if ghosts:
+        ghost_rng = np.random.default_rng([*key, 1])
+        walls = draw_walls(road, sensor, terrain, ghost_rng)
+        parts.append(ghost_returns(parts[0], BoxSamples.of(vehicles), walls, sensor, terrain,
+                                   ghost_rng))
     n_hidden = 0
     if occlusion:
         boxes = BoxSamples.of(vehicles)
@@ -1056,6 +1180,10 @@ def generate(map_path: str | Path, site: tuple[float, float], seed: int, out: st
     write_ground_truth(out, sensor, vehicles)
     meta = {"site": centre.tolist(), "site_latlon": [lat, lon], "seed": seed,
             "clutter": clutter, "occlusion": occlusion, "n_hidden": n_hidden,
+            "walls": None if walls is None else [
+                [*a.tolist(), *(a + w * u).tolist()]
+                for a, u, w in zip(walls.start, walls.direction, walls.length)],
+            "n_ghost": int((det.returns.label == GHOST).sum()),
             "vpm": vehicles_per_minute, "duration": duration,
             "terrain": {"z0": terrain.z0, "grad": terrain.grad.tolist()}, "mast": sensor.mast,
             "n_routes": len(routes),
@@ -1090,10 +1218,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--clutter", choices=["static", "none", "uniform"], default="static")
     ap.add_argument("--occlusion", action="store_true",
                     help="vehicles hide the returns behind them")
+    ap.add_argument("--ghosts", action="store_true",
+                    help="facades beside the road mirror the vehicles' returns (multipath)")
     a = ap.parse_args(argv)
     lat, lon = (float(v) for v in a.site.split(","))
     out = generate(a.map, (lat, lon), a.seed, a.out, a.vehicles_per_minute, a.duration,
-                   a.clutter, a.occlusion)
+                   a.clutter, a.occlusion, a.ghosts)
     print(summary(out))
     return 0
 

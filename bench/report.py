@@ -299,7 +299,11 @@ TABLES: list[Table] = [
           "number of points per vehicle and frame on the box faces that face it, at 0.2-0.9 of the "
           "vehicle's height, one in ten on the roof, with rigid-body Doppler, no occlusion ("
           "occluded: the static setting with the returns whose sight line passes through "
-          "another vehicle's box below its roof dropped: 5-16 % of the returns); "
+          "another vehicle's box below its roof dropped: 5-16 % of the returns; ghosts: "
+          "the static setting plus multipath ghosts: up to 3 facades 30-60 m long, 8 m high, "
+          "2-5 m beyond a road edge in view, each mirroring a quarter of the vehicles' "
+          "returns it can, at the return's mirror image, moving mirrored (seeds 1: 2-13 % "
+          "as many as the vehicles' returns); "
           "clutter (static): 40 kerb scatterers 0.1-0.2 m high on the lanelet bounds no other "
           "lanelet shares and 15 poles 0-3 m high more than 1 m off the road, each in 30 % of the "
           "frames; none: no clutter; uniform: 15 false alarms a frame anywhere in view, 0-2 m "
@@ -317,7 +321,7 @@ TABLES: list[Table] = [
                       {"junctions": [1, 2, 3, 4, 5, 6], "seeds": [1],
                        "settings": ["uniform"]},
                       {"junctions": [1, 2, 3, 4, 5, 6], "seeds": [1, 2],
-                       "settings": ["occluded"]},
+                       "settings": ["occluded", "ghosts"]},
                       {"junctions": [7, 8, 9, 10, 11, 12], "seeds": [1, 2],
                        "settings": ["static"]}],
            "duration": 60.0},

@@ -24,10 +24,12 @@ from bench.independent_gen import (
     Sensor,
     Terrain,
     Vehicle,
+    Walls,
     _obstacle,
     conflict_zones,
     crossing_spans,
     generate,
+    ghost_returns,
     occluded,
 )
 from fgloc.io import load_scenario
@@ -174,6 +176,32 @@ def test_a_vehicle_hides_the_returns_behind_it_below_its_roof():
     truck.states[0, 3] = np.pi / 2
     assert occluded(ret, BoxSamples.of([truck]), sensor, flat).tolist() == [
         True, True, True, False, False, False]
+
+
+def test_a_facade_mirrors_a_vehicle_return_into_a_ghost_moving_mirrored(monkeypatch):
+    """Closed form: a facade along y = -10 from x = 0 to 100 (8 m high), the sensor 6 m over
+    the origin. A return at (50, 0, 1) of a vehicle driving (10, 2) m/s appears at its mirror
+    image (50, -20, 1), moving (10, -2), its Doppler that velocity along the sight line. No
+    ghost of a return behind the facade (y = -15), nor of one whose image is seen past the
+    facade's end (at (250, 0) the sight line meets y = -10 at x = 125)."""
+    monkeypatch.setattr("bench.independent_gen.GHOST_PROB", 1.0)
+    v = np.array([10.0, 2.0])
+    states = np.array([[0, 50, 0, np.arctan2(v[1], v[0]), np.hypot(*v), 0],
+                       [0, 50, -15, 0, 10, 0], [0, 250, 0, 0, 10, 0]])
+    boxes = BoxSamples(np.zeros(3, int), np.array([1, 2, 3]), states,
+                       np.tile([4.5, 1.8, 1.5], (3, 1)))
+    p_w = np.array([[50.0, 0, 1], [50, -15, 1], [250, 0, 1]])
+    vret = Returns(np.zeros(3, int), p_w, np.zeros(3), np.zeros(3), np.array([1, 2, 3]),
+                   np.zeros(3, bool), np.zeros(3))
+    sensor = Sensor(np.array([0.0, 0.0, 6.0]), 0.0, 10.0, 0.0, 6.0)
+    walls = Walls(np.array([[0.0, -10]]), np.array([[1.0, 0]]), np.array([100.0]),
+                  np.array([8.0]))
+    g = ghost_returns(vret, boxes, walls, sensor, Terrain(np.zeros(2), 0.0, np.zeros(2)),
+                      np.random.default_rng(0))
+    assert len(g.frame) == 1
+    np.testing.assert_allclose(g.p_w[0], [50, -20, 1])
+    ray = (g.p_w[0] - sensor.position) / np.linalg.norm(g.p_w[0] - sensor.position)
+    assert g.doppler_true[0] == pytest.approx(10 * ray[0] - 2 * ray[1])
 
 
 def straight_route(start: tuple[float, float], heading_deg: float, length: float = 100.0
