@@ -302,7 +302,7 @@ TABLES: list[Table] = [
           "another vehicle's box below its roof dropped: 5-16 % of the returns; ghosts: "
           "the static setting plus multipath ghosts: up to 3 facades 30-60 m long, 8 m high, "
           "2-5 m beyond a road edge in view, each mirroring a quarter of the vehicles' "
-          "returns it can, at the return's mirror image, moving mirrored (seeds 1: 2-13 % "
+          "returns it can, at the return's mirror image, moving mirrored (seed 1: 2-13 % "
           "as many as the vehicles' returns); "
           "clutter (static): 40 kerb scatterers 0.1-0.2 m high on the lanelet bounds no other "
           "lanelet shares and 15 poles 0-3 m high more than 1 m off the road, each in 30 % of the "

@@ -434,6 +434,11 @@ def _search(
     """Hypothesis search + road ICP of the best distinct ones for source points (N, 2).
 
     Returns the refined (score, pose) pairs best first, the searched yaws and their scores.
+    Each correspondence range of the road ICP (``icp_ranges``) is a stage of its own, kept
+    only when it does not lower the robust score (:func:`robust_score` at the last range)
+    the peaks are ranked by: at a wide range, points that lie off the road at the true pose
+    (multipath ghosts behind a facade) find road to match and can pull every peak into one
+    worse fit (docs/experiments.md, issue 22).
     """
     yaws = _yaw_candidates(yaw_guess_deg, cfg)
     r = cfg.position_search_radius
@@ -443,12 +448,18 @@ def _search(
         scores, yaws, offs, cfg.search_candidates, 3.5 * np.deg2rad(cfg.yaw_search_step_deg),
         3.5 * cfg.position_search_step,
     )
+    def score(pose: np.ndarray) -> float:
+        return robust_score(road.distance(apply_planar(sub, pose)), cfg.icp_ranges[-1])
+
     refined = []
     for _, yaw, dx, dy in peaks:
-        pose0 = np.array([centre[0] + dx, centre[1] + dy, yaw])
-        pose = icp_planar(sub, road.planar, pose0, cfg.icp_ranges, cfg.icp_iterations).pose
-        d = road.distance(apply_planar(sub, pose))
-        refined.append((robust_score(d, cfg.icp_ranges[-1]), pose))
+        pose = np.array([centre[0] + dx, centre[1] + dy, yaw])
+        best = score(pose)
+        for rng in cfg.icp_ranges:
+            moved = icp_planar(sub, road.planar, pose, [rng], cfg.icp_iterations).pose
+            if (moved_score := score(moved)) >= best:
+                pose, best = moved, moved_score
+        refined.append((best, pose))
     refined.sort(key=lambda item: -item[0])
     return refined, yaws, scores
 
