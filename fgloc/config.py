@@ -127,9 +127,10 @@ class CoarseConfig:
     min_points: int = 200
     """Fewer dynamic points after filtering than this is an error."""
     icp_ranges: list[float] = field(default_factory=lambda: [20.0, 10.0, 5.0, 2.5, 1.5])
-    """Shrinking maximum correspondence distances (m), one ICP stage each of the hypothesis
-    search's road ICP (a stage that lowers the robust score at the last range is not taken);
-    the last one also defines fitness and inlier RMSE."""
+    """Shrinking maximum correspondence distances (m), one ICP stage each (the hypothesis
+    search's road ICP, when it ends below its start's robust score at the last range, is run
+    again stage by stage, each kept only where it does not lower that score); the last one
+    also defines fitness and inlier RMSE."""
     icp_iterations: int = 50
     """Iterations per ICP stage."""
     yaw_search_step_deg: float = 1.0

@@ -434,11 +434,12 @@ def _search(
     """Hypothesis search + road ICP of the best distinct ones for source points (N, 2).
 
     Returns the refined (score, pose) pairs best first, the searched yaws and their scores.
-    Each correspondence range of the road ICP (``icp_ranges``) is a stage of its own, kept
-    only when it does not lower the robust score (:func:`robust_score` at the last range)
-    the peaks are ranked by: at a wide range, points that lie off the road at the true pose
-    (multipath ghosts behind a facade) find road to match and can pull every peak into one
-    worse fit (docs/experiments.md, issue 22).
+    A road ICP (``icp_ranges``) that ends with a lower robust score (:func:`robust_score` at
+    the last range, the score the peaks are ranked by) than its peak started with is run
+    again from the peak one correspondence range at a time, each stage kept only where it
+    does not lower that score: at a wide range, points that lie off the road at the true
+    pose (multipath ghosts behind a facade) find road to match and can pull every peak into
+    one worse fit (docs/experiments.md, issue 22).
     """
     yaws = _yaw_candidates(yaw_guess_deg, cfg)
     r = cfg.position_search_radius
@@ -453,12 +454,14 @@ def _search(
 
     refined = []
     for _, yaw, dx, dy in peaks:
-        pose = np.array([centre[0] + dx, centre[1] + dy, yaw])
-        best = score(pose)
-        for rng in cfg.icp_ranges:
-            moved = icp_planar(sub, road.planar, pose, [rng], cfg.icp_iterations).pose
-            if (moved_score := score(moved)) >= best:
-                pose, best = moved, moved_score
+        start = np.array([centre[0] + dx, centre[1] + dy, yaw])
+        pose = icp_planar(sub, road.planar, start, cfg.icp_ranges, cfg.icp_iterations).pose
+        if (best := score(pose)) < (start_score := score(start)):
+            pose, best = start, start_score
+            for rng in cfg.icp_ranges:
+                moved = icp_planar(sub, road.planar, pose, [rng], cfg.icp_iterations).pose
+                if (moved_score := score(moved)) >= best:
+                    pose, best = moved, moved_score
         refined.append((best, pose))
     refined.sort(key=lambda item: -item[0])
     return refined, yaws, scores
