@@ -774,12 +774,11 @@ def rigid_velocity(states: np.ndarray, rx: np.ndarray, ry: np.ndarray, terrain: 
                             terrain.grad[0] * vx + terrain.grad[1] * vy])
 
 
-def vehicle_returns(vehicles: list[Vehicle], sensor: Sensor, terrain: Terrain,
+def vehicle_returns(boxes: BoxSamples, sensor: Sensor, terrain: Terrain,
                     rng: np.random.Generator) -> Returns:
     """The vehicles' returns (:func:`returns_per_box`, :func:`box_face_points`) with their
     rigid-body Doppler (the vehicle moving along the ground plane, turning at its yaw rate)
-    plus :data:`SIGMA_DOPPLER` noise; RCS 10 dBsm."""
-    boxes = BoxSamples.of(vehicles)
+    plus :data:`SIGMA_DOPPLER` noise; RCS 10 dBsm. ``boxes``: every (vehicle, frame)."""
     i = np.repeat(np.arange(len(boxes.frame)), returns_per_box(boxes, sensor, terrain, rng))
     _, x, y, yaw = boxes.states[i, :4].T
     c, s = np.cos(yaw), np.sin(yaw)
@@ -970,10 +969,10 @@ def ghost_returns(vret: Returns, boxes: BoxSamples, walls: Walls, sensor: Sensor
     :data:`SIGMA_DOPPLER` noise). Per return and facade with probability :data:`GHOST_PROB`,
     where the point lies on the sensor's side and the sight line to the image meets the
     facade within its length and below its top. RCS 0 dBsm, label :data:`GHOST`."""
-    key = boxes.vid.astype(np.int64) * (int(boxes.frame.max(initial=0)) + 1) + boxes.frame
+    stride = int(boxes.frame.max(initial=0)) + 1        # (vehicle, frame) -> one key
+    key = boxes.vid.astype(np.int64) * stride + boxes.frame
     order = np.argsort(key)
-    row = order[np.searchsorted(key[order], vret.label.astype(np.int64)
-                                * (int(boxes.frame.max(initial=0)) + 1) + vret.frame)]
+    row = order[np.searchsorted(key[order], vret.label.astype(np.int64) * stride + vret.frame)]
     states = boxes.states[row]
     vel = rigid_velocity(states, vret.p_w[:, 0] - states[:, 1], vret.p_w[:, 1] - states[:, 2],
                          terrain)
@@ -1151,7 +1150,8 @@ def generate(map_path: str | Path, site: tuple[float, float], seed: int, out: st
     vehicles = drive(routes, rng, duration, vehicles_per_minute)
     if not vehicles:
         warnings.warn(f"{out}: no vehicle in the {duration:g} s", stacklevel=2)
-    parts = [vehicle_returns(vehicles, sensor, terrain, rng)]
+    boxes = BoxSamples.of(vehicles)
+    parts = [vehicle_returns(boxes, sensor, terrain, rng)]
     n_frames = int(round(duration * FRAME_RATE))
     scat = draw_scatterers(road, sensor, terrain, rng) if clutter == "static" else None
     if scat is not None:
@@ -1162,11 +1162,9 @@ def generate(map_path: str | Path, site: tuple[float, float], seed: int, out: st
     if ghosts:
         ghost_rng = np.random.default_rng([*key, 1])
         walls = draw_walls(road, sensor, terrain, ghost_rng)
-        parts.append(ghost_returns(parts[0], BoxSamples.of(vehicles), walls, sensor, terrain,
-                                   ghost_rng))
+        parts.append(ghost_returns(parts[0], boxes, walls, sensor, terrain, ghost_rng))
     n_hidden = 0
     if occlusion:
-        boxes = BoxSamples.of(vehicles)
         hidden = [occluded(p, boxes, sensor, terrain) & (p.label != FALSE_ALARM)
                   for p in parts]
         n_hidden = int(sum(h.sum() for h in hidden))
