@@ -87,12 +87,14 @@ class TrackSet:
     def left_out(self) -> tuple[int, str]:
         """How many tracks the tracker left out as other road users (its diagnostics'
         ``not_motor_vehicles``) and why, as "(a smaller or slower than a motor vehicle, b off
-        the drivable lanelets on the map's other ways)" (``off_lane``;
-        :mod:`fgloc.tracking.road_users`)."""
+        the drivable lanelets on the map's other ways, c off every drivable lanelet)"
+        (``off_lane``, ``off_road``; :mod:`fgloc.tracking.road_users`)."""
         others = len(self.diagnostics.get("not_motor_vehicles", []))
         off_lane = len(self.diagnostics.get("off_lane", []))
-        return others, (f"({others - off_lane} smaller or slower than a motor vehicle, "
-                        f"{off_lane} off the drivable lanelets on the map's other ways)")
+        off_road = len(self.diagnostics.get("off_road", []))
+        return others, (f"({others - off_lane - off_road} smaller or slower than a motor "
+                        f"vehicle, {off_lane} off the drivable lanelets on the map's other "
+                        f"ways, {off_road} off every drivable lanelet)")
 
     def in_local(self) -> TrackSet:
         """The same tracks expressed in L (applies ``T_frame_to_L``; a no-op copy for L).

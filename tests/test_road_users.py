@@ -11,12 +11,19 @@ from scipy.spatial import cKDTree
 
 from factors.gp import rectangle_radius
 from fgloc.config import Config, from_dict
+from fgloc.io import load_scenario
 from fgloc.pipeline import track
 from fgloc.scenario import Lanelet, LaneletMap
 from fgloc.sim import SimConfig, simulate_detailed
 from fgloc.sim.real_map import simulate_on_map
 from fgloc.tracking.config import TrackingConfig
-from fgloc.tracking.road_users import MapWays, area_samples, is_motor_vehicle, split_road_users
+from fgloc.tracking.road_users import (
+    DOUBT_SHARE,
+    MapWays,
+    area_samples,
+    is_motor_vehicle,
+    split_road_users,
+)
 from fgloc.tracks import N_KIN, N_STATE, YAW, Track, V, X, Y, contour_angles
 
 CROP = Path(__file__).parent / "data" / "lanelet2_example_crop.osm"
@@ -130,7 +137,8 @@ def test_pedestrians_tracks_are_dropped_by_their_speed() -> None:
                           duration=40.0, crop_radius=150.0, config=sim_cfg).result
     with_speed = track(res.scenario, Config(), oracle_pose=True).tracks.tracks
     size_only = track(res.scenario, Config(tracking=TrackingConfig(
-        walking_speed=0.0, off_lane_margin=np.inf)), oracle_pose=True).tracks.tracks
+        walking_speed=0.0, off_lane_margin=np.inf, off_road_margin=np.inf)),
+        oracle_pose=True).tracks.tracks
 
     def walkers(tracks: list[Track]) -> list[int]:
         ids = []
@@ -181,10 +189,15 @@ def test_a_track_on_the_rail_bed_beside_the_road_is_not_a_motor_vehicle() -> Non
         2.75, abs=0.36)
     # inf keeps every track; a map without other ways leaves the rule idle
     assert split_road_users([tram], TrackingConfig(off_lane_margin=np.inf), ways).others == []
-    assert MapWays.of(LaneletMap(lmap.lanelets)) is None
-    # only the lanelets within reach count: from 300 m away along y the rail is out of reach
+    no_rail = MapWays.of(LaneletMap(lmap.lanelets))
+    assert no_rail is not None and no_rail.other is None
+    assert split_road_users([tram], cfg, no_rail).others == []
+    # only the lanelets within reach count: from 300 m away along y the rail (290.5 m) and the
+    # road (294.75 m) are out of reach; with only the rail in reach there is no drivable area
+    # to tell a way by (None)
     assert MapWays.of(lmap, np.array([50.0, 300.0]), 250.0) is None
-    assert MapWays.of(lmap, np.array([50.0, 300.0]), 295.0) is not None
+    assert MapWays.of(lmap, np.array([50.0, 300.0]), 292.0) is None
+    assert MapWays.of(lmap, np.array([50.0, 300.0]), 295.0).other is not None
     # a cyclist rule still applies first: a bike on the bicycle lane goes for its size
     bike = _box_track(6, 1.8, 0.6, y=-2.6, detections=10)
     users = split_road_users([bike, *trucks], cfg, ways)
@@ -225,6 +238,38 @@ def test_the_off_lane_rule_doubts_a_placement_that_drops_most_detections() -> No
     assert [t.id for t in users.vehicles] == [3] and users.off_lane == [1]
 
 
+def test_a_track_far_off_every_drivable_lanelet_is_dropped() -> None:
+    """A road y in [-1.75, 5.25] and nothing else: a multipath ghost mirrored 10 m behind a
+    facade beside it (any heading) is off the road, a car on it, on its edge or 2.5 m beside
+    it (a coarse pose a lane off) is not; the median over the steps decides; ``inf`` keeps
+    every track; both rules count towards the doubt guard."""
+    lmap = LaneletMap([_strip(1, -1.75, 1.75, "road"), _strip(2, 1.75, 5.25, "road")])
+    ways = MapWays.of(lmap)
+    cfg = TrackingConfig()
+    ghosts = [_box_track(1, 4.5, 1.8, y=15.0, detections=10),
+              _box_track(2, 4.5, 1.8, y=-12.0, heading_deg=70.0, detections=10)]
+    cars = [_box_track(k, 4.5, 1.8, y=y, detections=40)
+            for k, y in ((3, 0.0), (4, 5.2), (5, -1.75 - 2.5))]
+    users = split_road_users([*ghosts, *cars], cfg, ways)
+    assert users.off_road == [1, 2] and users.off_lane == [] and users.doubted == []
+    assert [t.id for t in users.vehicles] == [3, 4, 5]
+    # the distance it goes by: 15 - 5.25 m from the road's edge (up to the samples' spacing)
+    assert np.median(ways.off_road(ghosts[0].states[:, [X, Y]])) == pytest.approx(
+        9.75, abs=0.36)
+    assert split_road_users(ghosts, TrackingConfig(off_road_margin=np.inf), ways).others == []
+    # a car crossing a verge for 2 of its 5 steps stays; for 3 of them it goes
+    verge = _box_track(6, 4.5, 1.8, y=0.0, detections=10)
+    verge.states[:2, Y] = 20.0
+    assert split_road_users([verge, *cars], cfg, ways).off_road == []
+    verge.states[:3, Y] = 20.0
+    assert split_road_users([verge, *cars], cfg, ways).off_road == [6]
+    # the doubt guard: more than DOUBT_SHARE of the detections off the road keeps them all
+    heavy = [_box_track(k, 4.5, 1.8, y=15.0, detections=100) for k in (7, 8)]
+    users = split_road_users([*heavy, *cars], cfg, ways)
+    assert 200 > DOUBT_SHARE * (200 + 120)
+    assert users.doubted == [7, 8] and users.off_road == [] and len(users.vehicles) == 5
+
+
 def test_trams_tracks_off_the_roads_are_dropped_and_every_vehicle_kept() -> None:
     """On the example crop with trams on its rails: the trams' tracks are long, wide and fast
     (size and speed keep them); those on the rails' own bed go by the map, those crossing the
@@ -234,7 +279,8 @@ def test_trams_tracks_off_the_roads_are_dropped_and_every_vehicle_kept() -> None
     sim_cfg.real_map.trams_per_minute = 4.0
     res = simulate_on_map(CROP, 1, duration=40.0, crop_radius=150.0, config=sim_cfg).result
     ruled = track(res.scenario, Config(), oracle_pose=True).tracks
-    unruled = track(res.scenario, Config(tracking=TrackingConfig(off_lane_margin=np.inf)),
+    unruled = track(res.scenario, Config(tracking=TrackingConfig(
+        off_lane_margin=np.inf, off_road_margin=np.inf)),
                     oracle_pose=True).tracks.tracks
     tram_ids = [i for i, c in enumerate(res.vehicle_class) if c == "tram"]
 
@@ -250,3 +296,22 @@ def test_trams_tracks_off_the_roads_are_dropped_and_every_vehicle_kept() -> None
     tram_returns = sum(on_tram(t).sum() for t in unruled)
     assert sum(on_tram(t).sum() for t in ruled.tracks) < 2 / 3 * tram_returns
     assert {t.id for t in unruled} - dropped == {t.id for t in ruled.tracks}
+
+
+def test_multipath_ghost_tracks_are_dropped_and_every_vehicle_kept(tmp_path) -> None:
+    """The independent generator's multipath ghosts (facades beside the road mirror the
+    vehicles' returns, labelled in its _gen/labels.npz) on the example crop: the tracker makes
+    tracks of them; the off-road rule drops those and no other."""
+    from bench.independent_gen import GHOST, generate
+
+    out = generate(CROP, (49.00519, 8.41563), 4, tmp_path / "ghosts", vehicles_per_minute=30.0,
+                   duration=20.0, ghosts=True)
+    scn = load_scenario(out)
+    label = np.load(out / "_gen" / "labels.npz")["label"]
+    ruled = track(scn, Config(), oracle_pose=True).tracks
+    unruled = track(scn, Config(tracking=TrackingConfig(off_road_margin=np.inf)),
+                    oracle_pose=True).tracks.tracks
+    ghosts = {t.id for t in unruled if (label[t.det_index] == GHOST).mean() > 0.5}
+    assert len(ghosts) >= 1
+    assert set(ruled.diagnostics["off_road"]) == ghosts
+    assert {t.id for t in unruled} - ghosts == {t.id for t in ruled.tracks}

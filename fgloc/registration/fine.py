@@ -359,9 +359,10 @@ def register_tracks(
     warnings = [*target.warnings, *coarse.warnings, *res.warnings, *choice.warnings(method)]
     doubted = tracks.diagnostics.get("off_lane_doubted") or []
     if doubted:
-        warnings.append(f"tracking: {len(doubted)} tracks ran off every drivable lanelet along "
-                        "the map's other ways (rails, walkways, bicycle lanes), more than half "
-                        "the detections: kept as vehicles, the coarse pose may be a lane off")
+        warnings.append(f"tracking: {len(doubted)} tracks ran off every drivable lanelet "
+                        "(along the map's other ways: rails, walkways, bicycle lanes; or off "
+                        "the roads), more than half the detections: kept as vehicles, the "
+                        "coarse pose may be a lane off")
     if res.stop_reason == "max_iterations":
         warnings.append(f"SICP stopped on its iteration limit ({scfg.max_iterations}) before "
                         f"the RMSE settled: not converged")

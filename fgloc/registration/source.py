@@ -123,7 +123,7 @@ def require_tracks(tracks: TrackSet, method: str) -> None:
     else:
         found = f"the tracker left out all {others} of its tracks as other road users {why}"
         change = ("record longer or with more traffic, or loosen [tracking] walking_speed, "
-                  "min_vehicle_length, min_vehicle_width or off_lane_margin")
+                  "min_vehicle_length, min_vehicle_width, off_lane_margin or off_road_margin")
     raise LocalizationError(f"{method}: no vehicle track to register: {found}; {change} "
                             "(icp needs no tracks)")
 

@@ -138,6 +138,13 @@ class TrackingConfig:
     area of a lanelet no motor vehicle may drive (a rail, a bicycle lane, a walkway) than any
     drivable lanelet's is not a motor vehicle (a tram on its own track bed); ``inf`` keeps
     every track. Inactive on maps without such lanelets."""
+    off_road_margin: float = 3.0
+    """A track whose centre keeps more than this (m; the median over its steps) from every
+    drivable lanelet's area, whatever its direction, is no vehicle on the map's roads: a
+    multipath ghost mirrored behind a facade or a barrier (on the independent generator with
+    ghosts 7.6-42 m off with the true pose; vehicles' tracks within 1.0 m), or a vehicle on a
+    road the map lacks, which has no lane to register to. Above the coarse pose's usual error;
+    ``inf`` keeps every track."""
     long_trigger_width: float = 2.8
     """Long-vehicle hypothesis: a track whose contour is at least this wide (m) less half the std.
     dev. of its width (cars and vans are narrower, trucks and buses about 2.5 m; above 2.5 m

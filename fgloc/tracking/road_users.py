@@ -37,6 +37,14 @@ tracks are in the coarse frame: a coarse pose a lane off would put a lane's vehi
 sidewalk or the rail bed beside it; when the rule would take more than :data:`DOUBT_SHARE` of
 the detections of the tracks it judges, it doubts the placement and drops none (a warning says
 so).
+
+Nor is a track that keeps more than ``off_road_margin`` m from every drivable lanelet's area,
+whatever the direction (the median over its steps of its centre's distance): a multipath
+ghost, which a roadside radar sees mirrored behind a facade or a barrier beside the road (on
+the independent generator's ghosts setting, junctions 1-6 seeds 1-2, every ghost track lay
+7.6-42 m off the drivable area with the true pose and every vehicle's track within 1.0 m), or
+a vehicle on a road the map lacks (a car park, a driveway), which has no lane to register to.
+The doubt guard above counts both rules' detections together.
 """
 
 from __future__ import annotations
@@ -108,8 +116,9 @@ class DirectedAreas:
     trees: tuple[cKDTree | None, ...]
 
     @classmethod
-    def of(cls, lanelets: list[Lanelet]) -> DirectedAreas:
-        xy, axis = area_samples(lanelets)
+    def of(cls, xy: np.ndarray, axis: np.ndarray) -> DirectedAreas:
+        """The sector trees of area samples ``xy`` (n, 2) with their axes ``axis`` (n,) rad
+        (:func:`area_samples`)."""
         sector = np.deg2rad(SECTOR_DEG)
         reach = np.deg2rad(ALONG_DEG) + sector / 2
         trees = []
@@ -136,33 +145,44 @@ class DirectedAreas:
 
 @dataclass(frozen=True)
 class MapWays:
-    """The areas of the lanelets a motor vehicle may drive and of the other ways of the map
+    """The areas of the lanelets a motor vehicle may drive, by direction and whatever the
+    direction, and of the other ways of the map, by direction (None on a map without any)
     (frame L)."""
 
     drivable: DirectedAreas
-    other: DirectedAreas
+    road: cKDTree
+    other: DirectedAreas | None
 
     @classmethod
     def of(cls, lanelet_map: LaneletMap, centre: np.ndarray | None = None,
            reach: float = np.inf) -> MapWays | None:
         """The ways of ``lanelet_map``: its drivable lanelets and its ``ignored`` ones whose
         bounding box comes within ``reach`` m of ``centre`` (2,) in L (every lanelet without
-        ``centre``); None when no ignored lanelet does (nothing to tell a track's way by)."""
+        ``centre``); None when no drivable lanelet does (nothing to tell a track's way by)."""
         def near(lanelets: list[Lanelet]) -> list[Lanelet]:
             return lanelets if centre is None else lanelets_near(lanelets, centre, reach)
-        other = near(lanelet_map.ignored)
-        if not other:
+        drivable, other = near(lanelet_map.lanelets), near(lanelet_map.ignored)
+        if not drivable:
             return None
-        return cls(DirectedAreas.of(near(lanelet_map.lanelets)), DirectedAreas.of(other))
+        xy, axis = area_samples(drivable)
+        return cls(DirectedAreas.of(xy, axis), cKDTree(xy),
+                   DirectedAreas.of(*area_samples(other)) if other else None)
 
     def nearer_other(self, xy: np.ndarray, heading: np.ndarray) -> np.ndarray:
         """(n,) how much nearer (m) each point (n, 2) heading ``heading`` (n,) rad lies to
         another way's area than to the drivable area, both along the heading: the distance to
         the drivable area minus that to the other ways' (-inf where no other way runs along
         the heading, +inf where only other ways do)."""
+        if self.other is None:
+            return np.full(len(xy), -np.inf)
         other = self.other.distance(xy, heading)
         return np.where(np.isfinite(other), self.drivable.distance(xy, heading) - other,
                         -np.inf)
+
+    def off_road(self, xy: np.ndarray) -> np.ndarray:
+        """(n,) distance (m) of each point (n, 2) from the drivable area, whatever its
+        direction (0 inside, up to the samples' half diagonal, 0.35 m)."""
+        return self.road.query(xy)[0]
 
 
 def is_off_lane(track: Track, ways: MapWays, cfg: TrackingConfig) -> bool:
@@ -173,38 +193,52 @@ def is_off_lane(track: Track, ways: MapWays, cfg: TrackingConfig) -> bool:
     return bool(np.median(nearer) >= cfg.off_lane_margin)
 
 
+def is_off_road(track: Track, ways: MapWays, cfg: TrackingConfig) -> bool:
+    """Whether ``track``'s centre keeps more than ``cfg.off_road_margin`` m from every drivable
+    lanelet's area (median over its steps; its centres in the frame of ``ways``)."""
+    return bool(np.median(ways.off_road(track.states[:, [X, Y]])) > cfg.off_road_margin)
+
+
 @dataclass
 class RoadUsers:
     """Tracks split by :func:`split_road_users`, each list in input order.
 
     vehicles: the motor vehicles'; others: the rest; off_lane: ids among ``others`` that the
-    map's ways told (:func:`is_off_lane`); doubted: ids the map's ways would have told but
+    map's other ways told (:func:`is_off_lane`); off_road: those off every drivable lanelet
+    (:func:`is_off_road`, and not off lane); doubted: ids the map's ways would have told but
     that were kept, the placement doubted (:data:`DOUBT_SHARE`)."""
 
     vehicles: list[Track]
     others: list[Track]
     off_lane: list[int] = field(default_factory=list)
+    off_road: list[int] = field(default_factory=list)
     doubted: list[int] = field(default_factory=list)
 
 
 def split_road_users(tracks: list[Track], cfg: TrackingConfig,
                      ways: MapWays | None = None) -> RoadUsers:
     """The motor vehicles' tracks and the others: by size and speed (:func:`is_motor_vehicle`),
-    then, with ``ways``, by where they run (:func:`is_off_lane`, unless that would drop more
-    than :data:`DOUBT_SHARE` of the detections of the tracks left)."""
+    then, with ``ways``, by where they run (:func:`is_off_lane`, :func:`is_off_road`, unless
+    the two would drop more than :data:`DOUBT_SHARE` of the detections of the tracks left)."""
     vehicle = [is_motor_vehicle(tr, cfg) for tr in tracks]
-    off = [v and ways is not None and is_off_lane(tr, ways, cfg)
-           for tr, v in zip(tracks, vehicle)]
+    lane = [v and ways is not None and is_off_lane(tr, ways, cfg)
+            for tr, v in zip(tracks, vehicle)]
+    road = [v and not o and ways is not None and is_off_road(tr, ways, cfg)
+            for tr, v, o in zip(tracks, vehicle, lane)]
+    off = [a or b for a, b in zip(lane, road)]
     judged = sum(len(tr.det_index) for tr, v in zip(tracks, vehicle) if v)
     off_dets = sum(len(tr.det_index) for tr, o in zip(tracks, off) if o)
     off_ids = [tr.id for tr, o in zip(tracks, off) if o]
     doubted = off_dets > DOUBT_SHARE * judged
     if doubted:
         log.warning("%d of %d motor-vehicle tracks (%d of %d detections) run off every "
-                    "drivable lanelet and on the map's other ways (rails, bicycle lanes, "
-                    "walkways): the coarse placement is doubted and they are kept",
+                    "drivable lanelet: the coarse placement is doubted and they are kept",
                     len(off_ids), sum(vehicle), off_dets, judged)
     keep = [v and (doubted or not o) for v, o in zip(vehicle, off)]
+
+    def ids(told: list[bool]) -> list[int]:
+        return [] if doubted else [tr.id for tr, t in zip(tracks, told) if t]
     return RoadUsers([tr for tr, k in zip(tracks, keep) if k],
                      [tr for tr, k in zip(tracks, keep) if not k],
-                     off_lane=[] if doubted else off_ids, doubted=off_ids if doubted else [])
+                     off_lane=ids(lane), off_road=ids(road),
+                     doubted=off_ids if doubted else [])

@@ -1146,8 +1146,9 @@ def track_scenario(scn: Scenario, T_coarse: np.ndarray, cfg: TrackingConfig | No
     motor vehicles in frame "C" with T_frame_to_L = identity (fine registration fills it
     later); those of other road users (:mod:`fgloc.tracking.road_users`: by size, speed and,
     on maps with lanelets no motor vehicle may drive, where they run) are dropped, their ids in
-    the diagnostics' ``not_motor_vehicles`` (``off_lane``: those the map's ways told;
-    ``off_lane_doubted``: those it would have told, kept with the placement doubted).
+    the diagnostics' ``not_motor_vehicles`` (``off_lane``: those the map's other ways told;
+    ``off_road``: those off every drivable lanelet; ``off_lane_doubted``: those either rule
+    would have told, kept with the placement doubted).
     measurement_model ("sensor-aware" or "plain") overrides cfg.measurement_model.
     """
     t0 = time.perf_counter()
@@ -1176,6 +1177,7 @@ def track_scenario(scn: Scenario, T_coarse: np.ndarray, cfg: TrackingConfig | No
         "tracks": len(tracks),
         "not_motor_vehicles": [tr.id for tr in users.others],
         "off_lane": users.off_lane,
+        "off_road": users.off_road,
         "off_lane_doubted": users.doubted,
         "relinked": [[k.first, k.then] for k in links],
         "birth_zones": np.column_stack([zones.centre, zones.radius,
