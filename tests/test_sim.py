@@ -16,8 +16,17 @@ from fgloc.geo import pose_from_se3, transform_points
 from fgloc.scenario import Scenario, resample_polyline
 from fgloc.sim import CASES, SimConfig, SimResult, simulate, simulate_detailed
 from fgloc.sim.config import AlsSimConfig, RadarSimConfig, RoadSimConfig, TrafficSimConfig
-from fgloc.sim.radar import CLUTTER, FALSE_ALARM
+from fgloc.sim.radar import (
+    CLUTTER,
+    FALSE_ALARM,
+    GHOST,
+    GHOST_LOSS_DB,
+    Points,
+    facing_facades,
+    ghost_points,
+)
 from fgloc.sim.scenery import box_corners
+from fgloc.tracking.road_users import area_samples
 
 GAMMA = 0.01
 #: config variants, so that nothing is tuned to the defaults
@@ -467,3 +476,49 @@ def test_return_height_setting(band: tuple[float, float] | None) -> None:
     assert abs(np.mean(h) - np.mean(0.5 * (lo + hi))) < 0.05
     with pytest.raises(Exception, match="return_height"):
         from_dict(SimConfig, {"radar": {"return_height": [1.5, 0.2]}}, None)
+
+
+def test_a_facade_mirrors_a_vehicle_return_into_a_ghost_moving_mirrored() -> None:
+    """A building x in [0, 20], y in [10, 30] (8 m high), the sensor at the origin 6 m up:
+    its facade y = 10 faces the sensor and mirrors a return at (5, 6, 1) moving (3, 1) m/s
+    to (5, 14, 1) moving (3, -1); a return whose image's sight line passes beside the facade
+    (x = 30) or above its top (through a 2 m high building) has none; the facades facing
+    away mirror nothing."""
+    corners = box_corners(np.array([[10.0, 20.0]]), np.array([0.0]), np.array([20.0]),
+                          np.array([20.0]))
+    sensor = np.array([0.0, 0.0, 6.0])
+    # only y = 10 faces it (x = 0 runs through the sensor's x: edge-on)
+    assert [(a.tolist(), c.tolist(), b) for a, c, b in facing_facades(corners, sensor)] == [
+        ([0.0, 10.0], [20.0, 10.0], 0)]
+    xyz = np.array([[5.0, 6.0, 1.0], [30.0, 6.0, 1.0], [5.0, 6.0, 1.0]])
+    pts = Points(np.zeros(3, dtype=np.int64), xyz, np.array([[3.0, 1.0]] * 3), np.zeros(3),
+                 np.full(3, 10.0), np.array([4, 4, CLUTTER]), np.array([4, 4, -1]))
+    g = ghost_points(np.random.default_rng(0), 1.0, pts, corners, np.array([8.0]), sensor)
+    assert g.xyz.tolist() == [[5.0, 14.0, 1.0]]
+    assert g.vel.tolist() == [[3.0, -1.0]] and g.source.tolist() == [GHOST]
+    assert g.rcs.tolist() == [10.0 - GHOST_LOSS_DB]
+    # the sight line meets the facade at 6 - 5 * 10 / 14 = 2.43 m: a 2 m building is too low
+    low = ghost_points(np.random.default_rng(0), 1.0, pts, corners, np.array([2.0]), sensor)
+    assert len(low.xyz) == 0
+    assert len(ghost_points(np.random.default_rng(0), 0.0, pts, corners, np.array([8.0]),
+                            sensor).xyz) == 0
+
+
+def test_ghosts_are_added_and_every_other_detection_is_the_same() -> None:
+    """ghost_fraction > 0 adds ghosts (source GHOST) behind the facades and changes nothing
+    else: the other detections equal those without ghosts, draw for draw."""
+    base = sim("curve", 3)
+    cfg = dataclasses.replace(VARIANTS["default"], radar=dataclasses.replace(
+        VARIANTS["default"].radar, ghost_fraction=0.3))
+    res = simulate_detailed("curve", 3, 12.0, config=cfg)
+    ghost = res.source == GHOST
+    assert ghost.sum() > 500
+    radar, ref = res.scenario.radar, base.scenario.radar
+    for field in ("t", "xyz", "doppler", "rcs"):
+        assert np.array_equal(getattr(radar, field)[~ghost], getattr(ref, field))
+    # behind facades at least building_clearance (6 m) off the road edge, the ghosts lie off
+    # the road (up to the measurement noise)
+    pose = res.scenario.truth.sensor_pose
+    road = cKDTree(area_samples(res.scenario.lanelets.lanelets)[0])
+    off = road.query(transform_points(pose, radar.xyz[ghost])[:, :2])[0]
+    assert np.mean(off > 5.0) > 0.95

@@ -146,6 +146,11 @@ class RadarSimConfig:
     """Height (m above the road surface) of the curb scatterers along the road edges (a kerb's
     top; fgloc's vertical fit assumes ``[coarse] static_height`` 0.1 +- 0.05 m for static
     ground returns, so other heights test that prior)."""
+    ghost_fraction: float = 0.0
+    """Multipath ghosts: each building facade facing the sensor mirrors each visible vehicle
+    return in front of it with this probability (the double bounce shows at the return's
+    mirror image behind the facade, moving mirrored; :mod:`fgloc.sim.radar`). 0 (default):
+    none."""
     false_alarms_per_frame: float = 10.0
     """Expected uniform false alarms per frame (random position in the FOV, random doppler)."""
     false_alarm_doppler: float = 20.0
@@ -163,6 +168,8 @@ class RadarSimConfig:
         if not 0.0 <= self.corner_fraction + self.wheel_fraction <= 1.0:
             raise ValueError("corner_fraction + wheel_fraction must lie in [0, 1], got "
                              f"{self.corner_fraction} + {self.wheel_fraction}")
+        if not 0.0 <= self.ghost_fraction <= 1.0:
+            raise ValueError(f"ghost_fraction must lie in [0, 1], got {self.ghost_fraction}")
         if not 0.0 <= self.roof_fraction <= 1.0:
             raise ValueError(f"roof_fraction must lie in [0, 1], got {self.roof_fraction}")
         if self.wheel_radius < 0.0:

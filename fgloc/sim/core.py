@@ -30,7 +30,8 @@ _STAGES = ("road", "sensor", "site", "scenery", "als", "traffic", "radar")
 @dataclass
 class SimResult:
     """A scenario plus simulator-only knowledge: per-detection source (track id >= 0,
-    -1 static clutter, -2 false alarm) and each track's vehicle class name."""
+    -1 static clutter, -2 false alarm, -3 multipath ghost) and each track's vehicle class
+    name."""
 
     scenario: Scenario
     source: np.ndarray

@@ -15,10 +15,17 @@ Per frame (vectorized over all frames at once):
   each detected per frame with a probability scaled to ``clutter_per_frame``.
 * occlusion: a point is dropped when its line of sight passes through another vehicle's or a
   building's box below the box's roof height.
+* multipath ghosts (``ghost_fraction`` > 0, default off): a building facade facing the sensor
+  mirrors the vehicle returns in front of it; the double bounce shows at the return's mirror
+  image behind the facade, moving mirrored, where the sight line to the image meets the
+  facade below its top. Each visible vehicle return is mirrored by each facade with
+  probability ``ghost_fraction``, ``GHOST_LOSS_DB`` weaker. The ghosts and their noise come
+  from a random generator of their own, so every other detection is the same as without
+  them.
 * noise in range, azimuth, elevation and doppler; points outside the FOV or max range after
   noise are dropped. False alarms are uniform in the FOV with random doppler.
 
-Sources: track id (>= 0) for vehicle detections, CLUTTER and FALSE_ALARM otherwise.
+Sources: track id (>= 0) for vehicle detections, CLUTTER, FALSE_ALARM and GHOST otherwise.
 """
 
 from __future__ import annotations
@@ -37,6 +44,9 @@ from fgloc.sim.traffic import VEHICLE_CLASSES
 
 CLUTTER = -1
 FALSE_ALARM = -2
+GHOST = -3
+#: how much weaker (dB) a multipath ghost returns than the vehicle return it mirrors
+GHOST_LOSS_DB = 6.0
 #: occluder key of "no box" / padding
 NO_BOX = -1
 #: points per chunk in the occlusion test (memory bound)
@@ -275,6 +285,53 @@ def vehicle_boxes(rows: VehicleRows, n_frames: int, terrain: Terrain) -> Boxes:
 # --------------------------------------------------------------------------------------------
 # static clutter
 # --------------------------------------------------------------------------------------------
+def facing_facades(corners: np.ndarray, sensor: np.ndarray
+                   ) -> list[tuple[np.ndarray, np.ndarray, int]]:
+    """The facades of buildings ``corners`` (B, 4, 2) CCW in L that face the sensor at
+    ``sensor`` (2+,): (first corner (2,), second corner (2,), building index) each, the
+    sensor on the outer side of the edge (the right of a CCW edge)."""
+    out = []
+    for b, box in enumerate(corners):
+        for a, c in zip(box, np.roll(box, -1, axis=0)):
+            outward = np.array([c[1] - a[1], a[0] - c[0]])
+            if np.dot(outward, sensor[:2] - 0.5 * (a + c)) > 0:
+                out.append((a, c, b))
+    return out
+
+
+def ghost_points(rng: np.random.Generator, fraction: float, pts: Points,
+                 corners: np.ndarray, top: np.ndarray, sensor: np.ndarray) -> Points:
+    """Multipath ghosts (module docstring) of the vehicle points among ``pts`` (source >= 0):
+    each facade of buildings ``corners`` (B, 4, 2) CCW with tops ``top`` (B,) m in L facing
+    ``sensor`` (3,) mirrors each point in front of it with probability ``fraction``, where the
+    sight line from the sensor to the mirror image crosses the facade below its top. The
+    image moves with the mirrored velocity; source GHOST, no own box, rcs GHOST_LOSS_DB
+    lower."""
+    veh = pts.take(np.flatnonzero(pts.source >= 0))
+    parts = [veh.take(np.zeros(0, dtype=np.int64))]
+    for a, c, b in facing_facades(corners, sensor):
+        along = c - a
+        n = np.array([along[1], -along[0]]) / np.linalg.norm(along)      # outward unit normal
+        pick = np.flatnonzero(rng.random(len(veh.xyz)) < fraction)
+        cand = veh.take(pick)
+        depth = (cand.xyz[:, :2] - a) @ n                                 # > 0: in front
+        image = cand.xyz.copy()
+        image[:, :2] -= 2.0 * depth[:, None] * n
+        d_sensor = float((sensor[:2] - a) @ n)
+        t = d_sensor / (d_sensor + depth)                    # sight line meets the facade
+        hit = sensor + t[:, None] * (image - sensor)
+        share = ((hit[:, :2] - a) @ along) / (along @ along)
+        ok = (depth > 0.0) & (share >= 0.0) & (share <= 1.0) & (hit[:, 2] <= top[b])
+        g = cand.take(np.flatnonzero(ok))
+        g.xyz = image[ok]
+        g.vel = g.vel - 2.0 * (g.vel @ n)[:, None] * n
+        g.rcs = g.rcs - GHOST_LOSS_DB
+        g.source = np.full(len(g.xyz), GHOST)
+        g.own = np.full(len(g.xyz), NO_BOX)
+        parts.append(g)
+    return Points.concat(parts)
+
+
 def static_scatterers(net: RoadNetwork, scn: Scenery, terrain: Terrain, sensor: np.ndarray,
                       curb_height: float) -> tuple[Points, np.ndarray]:
     """Persistent scatterers (frame -1): curbs (``curb_height`` m above the road), poles,
@@ -286,17 +343,13 @@ def static_scatterers(net: RoadNetwork, scn: Scenery, terrain: Terrain, sensor: 
     for xy, h in zip(scn.pole_xy, scn.pole_height):
         zs = terrain.ground(xy[None]) + np.arange(0.5, h, 1.0)
         parts.append((np.column_stack([np.tile(xy, (len(zs), 1)), zs]), 1.0, 10.0, NO_BOX))
-    for b, (corners, h) in enumerate(zip(scn.building_corners(), scn.building_height)):
-        for a, c in zip(corners, np.roll(corners, -1, axis=0)):
-            out = np.array([c[1] - a[1], a[0] - c[0]])
-            if np.dot(out, sensor[:2] - 0.5 * (a + c)) <= 0:
-                continue
-            f = np.linspace(0.0, 1.0, max(2, int(np.linalg.norm(c - a) / 1.5)))
-            xy = a + f[:, None] * (c - a)
-            zs = np.arange(1.0, min(h, 12.0), 2.0)
-            grid = np.repeat(xy, len(zs), axis=0)
-            z = terrain.ground(grid) + np.tile(zs, len(xy))
-            parts.append((np.column_stack([grid, z]), 0.4, 15.0, -2 - b))
+    for a, c, b in facing_facades(scn.building_corners(), sensor):
+        f = np.linspace(0.0, 1.0, max(2, int(np.linalg.norm(c - a) / 1.5)))
+        xy = a + f[:, None] * (c - a)
+        zs = np.arange(1.0, min(scn.building_height[b], 12.0), 2.0)
+        grid = np.repeat(xy, len(zs), axis=0)
+        z = terrain.ground(grid) + np.tile(zs, len(xy))
+        parts.append((np.column_stack([grid, z]), 0.4, 15.0, -2 - b))
     for xy in scn.tree_centre:
         zs = terrain.ground(xy[None]) + np.array([0.8, 1.8])
         parts.append((np.column_stack([np.tile(xy, (2, 1)), zs]), 0.6, 5.0, NO_BOX))
@@ -431,11 +484,19 @@ def simulate_radar(rng: np.random.Generator, cfg: RadarSimConfig, pose: np.ndarr
                          clutter_points(rng, cfg, scat.take(seen), weight[seen], sensor,
                                         n_frames)])
     pts = pts.take(np.flatnonzero(_pre_fov(pts, pose, cfg)))
+    building_top = terrain.ground(scn.building_centre) + scn.building_height
     boxes = vehicle_boxes(rows, n_frames, terrain).with_static(
-        scn.building_corners(), terrain.ground(scn.building_centre) + scn.building_height,
-        -2 - np.arange(len(scn.building_height)))
+        scn.building_corners(), building_top, -2 - np.arange(len(scn.building_height)))
     pts = pts.take(np.flatnonzero(~occluded(pts, sensor, boxes)))
     xyz, doppler, keep = measure(rng, cfg, pose, pts)
+    if cfg.ghost_fraction > 0.0:
+        own_rng = rng.spawn(1)[0]                     # the main stream's draws unchanged
+        ghosts = ghost_points(own_rng, cfg.ghost_fraction, pts, scn.building_corners(),
+                              building_top, sensor)
+        g_xyz, g_doppler, g_keep = measure(own_rng, cfg, pose, ghosts)
+        pts = Points.concat([pts, ghosts])
+        xyz, doppler = np.vstack([xyz, g_xyz]), np.concatenate([doppler, g_doppler])
+        keep = np.concatenate([keep, g_keep])
     fa_frame, fa_xyz, fa_dop, fa_rcs = false_alarms(rng, cfg, n_frames)
     frame = np.concatenate([pts.frame[keep], fa_frame])
     rcs = np.concatenate([pts.rcs[keep] + rng.normal(0.0, cfg.rcs_sigma, int(keep.sum())),
