@@ -141,8 +141,8 @@ class TrackingConfig:
     off_road_margin: float = 3.0
     """A track whose centre keeps more than this (m; the median over its steps) from every
     drivable lanelet's area, whatever its direction, is no vehicle on the map's roads: a
-    multipath ghost mirrored behind a facade or a barrier (on the independent generator with
-    ghosts 7.6-42 m off with the true pose; vehicles' tracks within 1.0 m), or a vehicle on a
+    multipath ghost mirrored behind a facade or a barrier (on the independent generator most
+    ghost tracks lay 7.6-42 m off with the true pose, vehicles' within 1.0 m), or a vehicle on a
     road the map lacks, which has no lane to register to. Above the coarse pose's usual error;
     ``inf`` keeps every track."""
     long_trigger_width: float = 2.8
