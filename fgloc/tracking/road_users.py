@@ -146,12 +146,13 @@ class DirectedAreas:
 
 @dataclass(frozen=True)
 class MapWays:
-    """The areas of the lanelets a motor vehicle may drive, by direction and whatever the
-    direction, and of the other ways of the map, by direction (None on a map without any)
-    (frame L)."""
+    """The area of the lanelets a motor vehicle may drive, whatever the direction (``road``),
+    and by direction, with the other ways of the map by direction (``drivable``, ``other``:
+    None both on a map without other ways, where only :func:`is_off_road` has a use) (frame
+    L)."""
 
-    drivable: DirectedAreas
     road: cKDTree
+    drivable: DirectedAreas | None
     other: DirectedAreas | None
 
     @classmethod
@@ -166,15 +167,16 @@ class MapWays:
         if not drivable:
             return None
         xy, axis = area_samples(drivable)
-        return cls(DirectedAreas.of(xy, axis), cKDTree(xy),
-                   DirectedAreas.of(*area_samples(other)) if other else None)
+        if not other:
+            return cls(cKDTree(xy), None, None)
+        return cls(cKDTree(xy), DirectedAreas.of(xy, axis), DirectedAreas.of(*area_samples(other)))
 
     def nearer_other(self, xy: np.ndarray, heading: np.ndarray) -> np.ndarray:
         """(n,) how much nearer (m) each point (n, 2) heading ``heading`` (n,) rad lies to
         another way's area than to the drivable area, both along the heading: the distance to
         the drivable area minus that to the other ways' (-inf where no other way runs along
         the heading, +inf where only other ways do)."""
-        if self.other is None:
+        if self.drivable is None or self.other is None:
             return np.full(len(xy), -np.inf)
         other = self.other.distance(xy, heading)
         return np.where(np.isfinite(other), self.drivable.distance(xy, heading) - other,
