@@ -484,14 +484,15 @@ def simulate_radar(rng: np.random.Generator, cfg: RadarSimConfig, pose: np.ndarr
                          clutter_points(rng, cfg, scat.take(seen), weight[seen], sensor,
                                         n_frames)])
     pts = pts.take(np.flatnonzero(_pre_fov(pts, pose, cfg)))
+    building_corners = scn.building_corners()
     building_top = terrain.ground(scn.building_centre) + scn.building_height
     boxes = vehicle_boxes(rows, n_frames, terrain).with_static(
-        scn.building_corners(), building_top, -2 - np.arange(len(scn.building_height)))
+        building_corners, building_top, -2 - np.arange(len(scn.building_height)))
     pts = pts.take(np.flatnonzero(~occluded(pts, sensor, boxes)))
     xyz, doppler, keep = measure(rng, cfg, pose, pts)
     if cfg.ghost_fraction > 0.0:
         own_rng = rng.spawn(1)[0]                     # the main stream's draws unchanged
-        ghosts = ghost_points(own_rng, cfg.ghost_fraction, pts, scn.building_corners(),
+        ghosts = ghost_points(own_rng, cfg.ghost_fraction, pts, building_corners,
                               building_top, sensor)
         g_xyz, g_doppler, g_keep = measure(own_rng, cfg, pose, ghosts)
         pts = Points.concat([pts, ghosts])
