@@ -197,6 +197,18 @@ class CoarseConfig:
     """The static returns where the traffic passes count as ground only when their median
     height above the road lies within this (m) of the other static returns' (at least
     ``static_min_points`` of them): kerbs beside a lane do, standing vehicles lie higher."""
+    static_beside_radius: float = 2.5
+    """The moving detections within this horizontal radius (m, in S) of a static return (its
+    nearest 32) are the traffic beside it. The static returns with at least
+    ``static_beside_min`` of them count as ground only when, by the median over them, their
+    neighbours (within ``static_repeat_radius``) lie lower than the traffic's median height
+    by at least half the gap the priors put between vehicle returns and ground returns
+    (``(reflection_height - static_height) / 2``): a kerb beside a lane lies lower than the
+    bodies passing it, a vehicle standing in a queue returns from its body as the moving ones
+    do. Heights levelled in S: neither the sensor height nor the ALS enters."""
+    static_beside_min: int = 5
+    """See ``static_beside_radius`` (a static return with fewer moving detections beside it
+    is not part of that test)."""
     static_consistency: float = 3.0
     """The vertical fit drops the static ground returns when the sensor height they give
     differs from the moving returns' own by more than this many std. devs. of the difference."""

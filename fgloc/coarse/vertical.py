@@ -13,6 +13,9 @@ from fgloc.coarse.icp import RoadModel, apply_planar
 from fgloc.config import CoarseConfig
 from fgloc.scenario import RadarData
 
+#: how many nearest moving detections, and nearest static ones, a static return's height is
+#: compared by (:meth:`TrafficBeside.below_traffic`)
+NEAR_MOVING, NEAR_STATIC = 32, 16
 #: ASPRS classes that are never an obstacle above the road: ground, noise, water, road surface,
 #: ignored ground
 _GROUND_LIKE = np.array([2, 7, 9, 11, 20])
@@ -27,7 +30,8 @@ class StaticGround:
     within ``static_repeat_radius``; horizontal, in S). busy: (M,) True where the traffic
     passes (more than ``static_traffic_max`` moving detections within
     ``static_traffic_radius``, horizontal in S): a kerb beside a lane, or a vehicle standing
-    in a queue (:meth:`rows` tells them by their height); None: none. high: 2D KD-tree over
+    in a queue (:meth:`rows` tells them by their height); None: none. beside: the moving
+    detections beside each (:class:`TrafficBeside`); None: no test. high: 2D KD-tree over
     the ALS points outside the road classes (buildings, vegetation, poles) and their heights
     ``high_z`` (M',) in L. lanes: a KD-tree over the lane centre samples (a return within
     ``static_lane_clearance`` of a lane centre may be a vehicle that stands or crosses the
@@ -39,6 +43,7 @@ class StaticGround:
     high_z: np.ndarray
     lanes: cKDTree
     busy: np.ndarray | None = None
+    beside: TrafficBeside | None = None
 
     @classmethod
     def build(cls, radar: RadarData, als_xyz: np.ndarray, als_class: np.ndarray,
@@ -52,16 +57,21 @@ class StaticGround:
         st = xyz[np.abs(radar.doppler) <= cfg.static_doppler_max]
         st = st[:: max(1, len(st) // cfg.static_points)] if len(st) else np.zeros((0, 3))
         st = st[repeated(st[:, :2], cfg.static_repeat_radius, cfg.static_repeats)]
-        moving = xyz[np.abs(radar.doppler) >= cfg.doppler_min, :2]
-        busy = None
+        moving = xyz[np.abs(radar.doppler) >= cfg.doppler_min]
+        busy = beside = None
         if len(moving) and len(st):
-            busy = cKDTree(moving).query_ball_point(
-                st[:, :2], r=cfg.static_traffic_radius, return_length=True
-            ) > cfg.static_traffic_max
+            tree = cKDTree(moving[:, :2])
+            busy = tree.query_ball_point(st[:, :2], r=cfg.static_traffic_radius,
+                                         return_length=True) > cfg.static_traffic_max
+            beside = TrafficBeside(
+                moving, tree.query(st[:, :2], k=NEAR_MOVING,
+                                   distance_upper_bound=cfg.static_beside_radius)[1],
+                cKDTree(st[:, :2]).query(st[:, :2], k=NEAR_STATIC,
+                                         distance_upper_bound=cfg.static_repeat_radius)[1])
         near = np.hypot(*(als_xyz[:, :2] - centre).T) <= reach
         off = near & ~np.isin(als_class, _GROUND_LIKE)
         high = cKDTree(als_xyz[off, :2]) if off.any() else None
-        return cls(st, high, als_xyz[off, 2].astype(float), cKDTree(lane_xy), busy)
+        return cls(st, high, als_xyz[off, 2].astype(float), cKDTree(lane_xy), busy, beside)
 
     def rows(self, r_tilt: np.ndarray, pose2d: np.ndarray, road: RoadModel,
              cfg: CoarseConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -73,7 +83,9 @@ class StaticGround:
         Those where the traffic passes (``busy``) qualify only when at least
         ``static_min_points`` others do and the two groups' median heights above the road
         agree within ``static_traffic_tolerance`` m (kerbs beside a lane are as high as the
-        others; a standing vehicle's returns lie higher)."""
+        others; a standing vehicle's returns lie higher). Those beside the traffic qualify only
+        when, as a group, they lie lower than it (``static_beside_radius``;
+        :meth:`TrafficBeside.below_traffic`)."""
         lev = self.src @ r_tilt.T
         xy = apply_planar(lev[:, :2], pose2d)
         zr, dn = road.road_height(xy)
@@ -91,7 +103,51 @@ class StaticGround:
             if clear.sum() < cfg.static_min_points or abs(
                     np.median(h[busy]) - np.median(h[clear])) > cfg.static_traffic_tolerance:
                 ok = clear
+        if self.beside is not None:
+            beside, lower = self.beside.below_traffic(lev[:, 2], r_tilt, cfg)
+            if (ok & beside).any() and np.median(lower[ok & beside]) < 0.5 * (
+                    cfg.reflection_height - cfg.static_height):
+                ok &= ~beside
         return lev[ok], zr[ok]
+
+
+@dataclass
+class TrafficBeside:
+    """The moving detections beside each static return of a :class:`StaticGround`.
+
+    moving: (N, 3) the moving detections in S (``|doppler| >= doppler_min``). near_moving:
+    (M, 32) indices into ``moving`` of each static return's nearest within
+    ``static_beside_radius`` (``N`` where fewer). near_static: (M, 16) indices into the static
+    returns of each one's nearest within ``static_repeat_radius`` (itself included; ``M``
+    where fewer). Horizontal neighbours in S: the tilt moves them little over a few metres.
+    """
+
+    moving: np.ndarray
+    near_moving: np.ndarray
+    near_static: np.ndarray
+
+    def below_traffic(self, lev_z: np.ndarray, r_tilt: np.ndarray, cfg: CoarseConfig
+                      ) -> tuple[np.ndarray, np.ndarray]:
+        """Which static returns have the traffic beside them (at least ``static_beside_min``
+        moving detections within ``static_beside_radius``), and how far (m) their
+        neighbours' median height lies below that traffic's median height (NaN where none),
+        from the static returns' levelled heights ``lev_z`` (M,) (m, sensor-centred) and the
+        moving detections levelled by ``r_tilt``."""
+        traffic, n = _median_of(self.moving @ r_tilt[2], self.near_moving)
+        own, _ = _median_of(lev_z, self.near_static)
+        return n >= cfg.static_beside_min, traffic - own
+
+
+def _median_of(z: np.ndarray, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per row of ``idx`` (M, k) indices into ``z`` (``len(z)`` = none), the median of those
+    values (NaN without any) and how many there are."""
+    found = idx < len(z)
+    v = np.full(idx.shape, np.nan)
+    v[found] = z[idx[found]]
+    n = found.sum(axis=1)
+    med = np.full(len(idx), np.nan)
+    med[n > 0] = np.nanmedian(v[n > 0], axis=1)
+    return med, n
 
 
 def repeated(xy: np.ndarray, radius: float, repeats: int) -> np.ndarray:
