@@ -9,11 +9,14 @@ above the road); far and sparse returns (25 per vehicle and frame at 20 m fallin
 the heading: "wheel-doppler"); 4 cyclists per minute riding 1.4 m right of the lane centres
 besides the motor vehicles ("cyclists": the tracking figures count the motor vehicles only, a
 cyclist's track that fgloc keeps is a false track); a tenth of the returns on the roofs,
-inside the footprints ("roof-returns"; the independent generator's share); pairs of vehicles
-side by side in adjacent lanes, 0-0.5 s apart, on roads of two 3 m lanes per direction
-("abreast"); and all of these but the micro-Doppler, the cyclists, the roof returns and the
-pairs abreast at once ("combined", with returns at every visible corner and at the wheels
-and more clutter). Seeds: odd ones simulate an intersection, even ones a T-junction.
+inside the footprints ("roof-returns"; the independent generator's share); multipath ghosts
+(16 buildings 2 m or more from the road edge, each facade that faces the sensor mirroring 30 %
+of the vehicles' returns it can: "ghosts", 1-37 % as many ghosts as vehicle returns over the
+first four seeds, the intersections most); pairs of vehicles side by side in adjacent lanes,
+0-0.5 s apart, on roads of two 3 m lanes per direction ("abreast"); and all of these but the
+micro-Doppler, the cyclists, the roof returns, the ghosts and the pairs abreast at once
+("combined", with returns at every visible corner and at the wheels and more clutter).
+Seeds: odd ones simulate an intersection, even ones a T-junction.
 
 Per run: tracks per eligible true vehicle (all tracks, false ones included), tracks covering
 two vehicles (a track whose contour covers at least half of the footprints of two true
@@ -79,6 +82,8 @@ SETTINGS: dict[str, dict] = {
     "wheel-doppler": {"radar": {"wheel_fraction": 0.3, "wheel_radius": 0.35}},
     "cyclists": {"traffic": {"cyclists_per_minute": 4.0}},
     "roof-returns": {"radar": {"roof_fraction": 0.1}},
+    "ghosts": {"radar": {"ghost_fraction": 0.3},
+               "als": {"buildings": 16, "building_clearance": 2.0}},
     "abreast": {"road": {"lane_width": 3.0, "lanes_per_direction": [2]},
                 "traffic": {"platoon_size": [2, 2], "platoon_headway": [0.0, 0.5],
                             "platoon_abreast": True}},
