@@ -87,14 +87,14 @@ class TrackSet:
     def left_out(self) -> tuple[int, str]:
         """How many tracks the tracker left out as other road users (its diagnostics'
         ``not_motor_vehicles``) and why, as "(a smaller or slower than a motor vehicle, b off
-        the drivable lanelets on the map's other ways, c off every drivable lanelet)"
-        (``off_lane``, ``off_road``; :mod:`fgloc.tracking.road_users`)."""
+        the drivable lanelets on the map's other ways, c off every drivable lanelet, d behind
+        buildings)" (``off_lane``, ``off_road``, ``hidden``; :mod:`fgloc.tracking.road_users`)."""
         others = len(self.diagnostics.get("not_motor_vehicles", []))
-        off_lane = len(self.diagnostics.get("off_lane", []))
-        off_road = len(self.diagnostics.get("off_road", []))
-        return others, (f"({others - off_lane - off_road} smaller or slower than a motor "
-                        f"vehicle, {off_lane} off the drivable lanelets on the map's other "
-                        f"ways, {off_road} off every drivable lanelet)")
+        told = {k: len(self.diagnostics.get(k, [])) for k in ("off_lane", "off_road", "hidden")}
+        return others, (f"({others - sum(told.values())} smaller or slower than a motor "
+                        f"vehicle, {told['off_lane']} off the drivable lanelets on the map's "
+                        f"other ways, {told['off_road']} off every drivable lanelet, "
+                        f"{told['hidden']} behind buildings)")
 
     def in_local(self) -> TrackSet:
         """The same tracks expressed in L (applies ``T_frame_to_L``; a no-op copy for L).

@@ -13,17 +13,20 @@ from factors.gp import rectangle_radius
 from fgloc.config import Config, from_dict
 from fgloc.io import load_scenario
 from fgloc.pipeline import track
-from fgloc.scenario import Lanelet, LaneletMap
+from fgloc.scenario import AlsCloud, Lanelet, LaneletMap
 from fgloc.sim import SimConfig, simulate_detailed
+from fgloc.sim.radar import GHOST as SIM_GHOST
 from fgloc.sim.real_map import simulate_on_map
 from fgloc.tracking.config import TrackingConfig
 from fgloc.tracking.road_users import (
     DOUBT_SHARE,
     MapWays,
+    Sight,
     area_samples,
     is_motor_vehicle,
     split_road_users,
 )
+from fgloc.tracking.sightlines import BUILDING, Buildings
 from fgloc.tracks import N_KIN, N_STATE, YAW, Track, V, X, Y, contour_angles
 
 CROP = Path(__file__).parent / "data" / "lanelet2_example_crop.osm"
@@ -315,3 +318,75 @@ def test_multipath_ghost_tracks_are_dropped_and_every_vehicle_kept(tmp_path) -> 
     assert len(ghosts) >= 1
     assert set(ruled.diagnostics["off_road"]) == ghosts
     assert {t.id for t in unruled} - ghosts == {t.id for t in ruled.tracks}
+
+
+def _als(boxes: list[tuple[float, float, float, float, float]]) -> AlsCloud:
+    """Flat ground (z = 0, class 2) on a 1 m grid over [-10, 80] x [-40, 40] and buildings
+    (x0, x1, y0, y1, top): their roofs every 0.5 m at the top, class 6."""
+    gx, gy = np.meshgrid(np.arange(-10.0, 80.0), np.arange(-40.0, 40.0))
+    parts = [np.column_stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)])]
+    cls = [np.full(gx.size, 2)]
+    for x0, x1, y0, y1, top in boxes:
+        bx, by = np.meshgrid(np.arange(x0, x1, 0.5), np.arange(y0, y1, 0.5))
+        parts.append(np.column_stack([bx.ravel(), by.ravel(), np.full(bx.size, top)]))
+        cls.append(np.full(bx.size, BUILDING))
+    return AlsCloud(np.vstack(parts).astype(np.float32), np.concatenate(cls).astype(np.uint8))
+
+
+SENSOR = np.array([0.0, 0.0, 6.0])
+
+
+def test_points_behind_a_building_are_hidden_and_the_rest_seen() -> None:
+    """A 10 m building across x = 20-30, |y| < 5, and a 1 m wall across x = 10-11, |y| < 20,
+    seen from 6 m: behind the building (also 1.5 m behind its back wall) is hidden; beside it,
+    in front of it and behind the low wall (the sight line passes 3 m over it) is seen."""
+    b = Buildings.of(_als([(20, 30, -5, 5, 10.0), (10, 11, -20, 20, 1.0)]), np.zeros(2), 100.0)
+    assert b is not None
+    xy = np.array([[40.0, 0.0], [31.5, 0.0], [60.0, 3.0],      # behind the building
+                   [40.0, 20.0], [15.0, 0.0], [40.0, -12.0]])  # beside, in front, beside
+    np.testing.assert_array_equal(b.hidden(SENSOR, xy), [True, True, True, False, False, False])
+    # a sensor higher than the building sees over it to far points
+    assert not b.hidden(np.array([0.0, 0.0, 30.0]), np.array([[70.0, 0.0]]))[0]
+
+
+def test_no_buildings_no_rule() -> None:
+    assert Buildings.of(_als([]), np.zeros(2), 100.0) is None
+
+
+def _car(track_id: int, y: float) -> Track:
+    """A car driving along +x at 10 m/s from x = 35 m at ``y`` m, 20 steps, 200 detections."""
+    return _box_track(track_id, 4.5, 1.8, steps=20, y=y, detections=200, x=35.0)
+
+
+def test_tracks_behind_a_building_are_dropped_unless_most_are() -> None:
+    """One track behind the building, two in the open: the hidden one is dropped and named;
+    with ``hidden_share = 1`` every track stays; when the hidden ones carry most of the
+    detections the placement is doubted and none is dropped."""
+    sight = Sight(SENSOR, Buildings.of(_als([(20, 30, -5, 5, 10.0)]), np.zeros(2), 100.0))
+    cfg = TrackingConfig()
+    ghost, cars = _car(1, 0.0), [_car(2, 15.0), _car(3, -15.0)]
+    users = split_road_users([ghost, *cars], cfg, None, sight)
+    assert users.hidden == [1] and [t.id for t in users.vehicles] == [2, 3]
+    kept = split_road_users([ghost, *cars], TrackingConfig(hidden_share=1.0), None, sight)
+    assert kept.hidden == [] and len(kept.vehicles) == 3
+    doubted = split_road_users([ghost, _car(4, 1.0), cars[0]], cfg, None, sight)
+    assert doubted.doubted == [1, 4] and len(doubted.vehicles) == 3
+
+
+def test_simulated_ghosts_on_the_road_behind_facades_are_dropped() -> None:
+    """fgloc's simulator with 16 buildings 2 m from the road mirroring 30 % of the returns
+    (the robustness matrix's ghosts setting), intersection seed 3, the true pose: tracks made
+    mostly of ghosts are dropped (off the road or behind a building), among them some that
+    the off-road rule keeps (a facade at the junction mirrors one arm onto another); no track
+    made mostly of vehicle returns is."""
+    cfg = from_dict(SimConfig, {"radar": {"ghost_fraction": 0.3},
+                                "als": {"buildings": 16, "building_clearance": 2.0}}, None)
+    det = simulate_detailed("intersection", 3, duration=40.0, config=cfg)
+    ruled = track(det.scenario, Config(), oracle_pose=True).tracks
+    unruled = track(det.scenario, Config(tracking=TrackingConfig(
+        off_road_margin=np.inf, hidden_share=1.0)), oracle_pose=True).tracks.tracks
+    ghosts = {t.id for t in unruled if (det.source[t.det_index] == SIM_GHOST).mean() > 0.5}
+    hidden = set(ruled.diagnostics["hidden"])
+    assert len(hidden & ghosts) >= 3
+    assert set(ruled.diagnostics["off_road"]) | hidden <= ghosts
+    assert ghosts <= set(ruled.diagnostics["not_motor_vehicles"])

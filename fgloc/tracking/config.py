@@ -145,6 +145,11 @@ class TrackingConfig:
     ghost tracks lay 7.6-42 m off with the true pose, vehicles' within 1.0 m), or a vehicle on a
     road the map lacks, which has no lane to register to. Above the coarse pose's usual error;
     ``inf`` keeps every track."""
+    hidden_share: float = 0.5
+    """A track whose centre lies behind a building of the ALS (class 6), as seen from the
+    sensor, at more than this share of its steps is a multipath ghost: the radar has no line
+    of sight there (:mod:`fgloc.tracking.sightlines`; this catches the ghosts a facade mirrors
+    onto another road, which the off-road rule cannot). 1 keeps every track."""
     long_trigger_width: float = 2.8
     """Long-vehicle hypothesis: a track whose contour is at least this wide (m) less half the std.
     dev. of its width (cars and vans are narrower, trucks and buses about 2.5 m; above 2.5 m

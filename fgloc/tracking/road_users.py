@@ -45,7 +45,11 @@ the independent generator's ghosts setting, junctions 1-6 seeds 1-2, 33 of the 3
 tracks lay 7.6-42 m off the drivable area, the other 6 on or beside a road, and every
 vehicle's track within 1.0 m with the true pose), or a vehicle on a road the map lacks (a car
 park, a driveway), which has no lane to register to.
-The doubt guard above counts both rules' detections together.
+Nor is a track whose centre lies behind a building of the ALS, as seen from the sensor, at
+more than ``hidden_share`` of its steps (:mod:`fgloc.tracking.sightlines`): the radar has no
+line of sight there, so its returns bounced off a facade; this catches the ghosts a facade
+mirrors onto another road, which lie on the road.
+The doubt guard above counts the three rules' detections together.
 """
 
 from __future__ import annotations
@@ -59,6 +63,7 @@ from scipy.spatial import cKDTree
 from fgloc.geo import wrap_angle
 from fgloc.scenario import Lanelet, LaneletMap, lanelets_near
 from fgloc.tracking.config import TrackingConfig
+from fgloc.tracking.sightlines import Buildings
 from fgloc.tracks import YAW, Track, V, X, Y, contour_length_width
 
 log = logging.getLogger(__name__)
@@ -202,40 +207,68 @@ def is_off_road(track: Track, ways: MapWays, cfg: TrackingConfig) -> bool:
     return bool(np.median(ways.off_road(track.states[:, [X, Y]])) > cfg.off_road_margin)
 
 
+#: at most this many steps of a track are tested for a line of sight (evenly spaced)
+SIGHT_STEPS = 25
+
+
+def is_hidden(track: Track, sight: Sight, cfg: TrackingConfig) -> bool:
+    """Whether ``track``'s centre lies behind a building, as seen from the sensor, at more
+    than ``cfg.hidden_share`` of its steps (at most :data:`SIGHT_STEPS` of them tested;
+    centres in the frame of ``sight``)."""
+    k = np.unique(np.linspace(0, len(track.states) - 1, SIGHT_STEPS).round().astype(int))
+    hidden = sight.buildings.hidden(sight.sensor, track.states[k][:, [X, Y]])
+    return bool(hidden.mean() > cfg.hidden_share)
+
+
+@dataclass
+class Sight:
+    """The sensor's position ``sensor`` (3,) m and the buildings that block its view, in the
+    frame the tracks are placed in (L as the placement puts it)."""
+
+    sensor: np.ndarray
+    buildings: Buildings
+
+
 @dataclass
 class RoadUsers:
     """Tracks split by :func:`split_road_users`, each list in input order.
 
     vehicles: the motor vehicles'; others: the rest; off_lane: ids among ``others`` that the
     map's other ways told (:func:`is_off_lane`); off_road: those off every drivable lanelet
-    (:func:`is_off_road`, and not off lane); doubted: ids the map's ways would have told but
-    that were kept, the placement doubted (:data:`DOUBT_SHARE`)."""
+    (:func:`is_off_road`, and not off lane); hidden: those behind a building (:func:`is_hidden`,
+    and neither of the others); doubted: ids the three rules would have told but that were
+    kept, the placement doubted (:data:`DOUBT_SHARE`)."""
 
     vehicles: list[Track]
     others: list[Track]
     off_lane: list[int] = field(default_factory=list)
     off_road: list[int] = field(default_factory=list)
+    hidden: list[int] = field(default_factory=list)
     doubted: list[int] = field(default_factory=list)
 
 
 def split_road_users(tracks: list[Track], cfg: TrackingConfig,
-                     ways: MapWays | None = None) -> RoadUsers:
+                     ways: MapWays | None = None, sight: Sight | None = None) -> RoadUsers:
     """The motor vehicles' tracks and the others: by size and speed (:func:`is_motor_vehicle`),
-    then, with ``ways``, by where they run (:func:`is_off_lane`, :func:`is_off_road`, unless
-    the two would drop more than :data:`DOUBT_SHARE` of the detections of the tracks left)."""
+    then, with ``ways``, by where they run (:func:`is_off_lane`, :func:`is_off_road`) and, with
+    ``sight``, whether the sensor can see them (:func:`is_hidden`), unless the three would drop
+    more than :data:`DOUBT_SHARE` of the detections of the tracks left."""
     vehicle = [is_motor_vehicle(tr, cfg) for tr in tracks]
     lane = [v and ways is not None and is_off_lane(tr, ways, cfg)
             for tr, v in zip(tracks, vehicle)]
     road = [v and not o and ways is not None and is_off_road(tr, ways, cfg)
             for tr, v, o in zip(tracks, vehicle, lane)]
-    off = [a or b for a, b in zip(lane, road)]
+    hidden = [v and not o and not r and sight is not None and is_hidden(tr, sight, cfg)
+              for tr, v, o, r in zip(tracks, vehicle, lane, road)]
+    off = [a or b or c for a, b, c in zip(lane, road, hidden)]
     judged = sum(len(tr.det_index) for tr, v in zip(tracks, vehicle) if v)
     off_dets = sum(len(tr.det_index) for tr, o in zip(tracks, off) if o)
     off_ids = [tr.id for tr, o in zip(tracks, off) if o]
     doubted = off_dets > DOUBT_SHARE * judged
     if doubted:
         log.warning("%d of %d motor-vehicle tracks (%d of %d detections) run off every "
-                    "drivable lanelet: the coarse placement is doubted and they are kept",
+                    "drivable lanelet or behind buildings: the coarse placement is doubted "
+                    "and they are kept",
                     len(off_ids), sum(vehicle), off_dets, judged)
     keep = [v and (doubted or not o) for v, o in zip(vehicle, off)]
 
@@ -243,5 +276,5 @@ def split_road_users(tracks: list[Track], cfg: TrackingConfig,
         return [] if doubted else [tr.id for tr, t in zip(tracks, told) if t]
     return RoadUsers([tr for tr, k in zip(tracks, keep) if k],
                      [tr for tr, k in zip(tracks, keep) if not k],
-                     off_lane=ids(lane), off_road=ids(road),
+                     off_lane=ids(lane), off_road=ids(road), hidden=ids(hidden),
                      doubted=off_ids if doubted else [])

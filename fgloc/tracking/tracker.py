@@ -56,7 +56,8 @@ from fgloc.tracking.measure import (
 )
 from fgloc.tracking.relink import relink
 from fgloc.tracking.retrodict import length_variance, retrodict_length
-from fgloc.tracking.road_users import MapWays, split_road_users
+from fgloc.tracking.road_users import MapWays, Sight, split_road_users
+from fgloc.tracking.sightlines import Buildings
 from fgloc.tracks import (
     N_KIN,
     N_STATE,
@@ -1147,8 +1148,9 @@ def track_scenario(scn: Scenario, T_coarse: np.ndarray, cfg: TrackingConfig | No
     later); those of other road users (:mod:`fgloc.tracking.road_users`: by size, speed and,
     on maps with lanelets no motor vehicle may drive, where they run) are dropped, their ids in
     the diagnostics' ``not_motor_vehicles`` (``off_lane``: those the map's other ways told;
-    ``off_road``: those off every drivable lanelet; ``off_lane_doubted``: those either rule
-    would have told, kept with the placement doubted).
+    ``off_road``: those off every drivable lanelet; ``hidden``: those behind the ALS's
+    buildings, seen from the sensor; ``off_lane_doubted``: those any of the three rules would
+    have told, kept with the placement doubted).
     measurement_model ("sensor-aware" or "plain") overrides cfg.measurement_model.
     """
     t0 = time.perf_counter()
@@ -1169,7 +1171,9 @@ def track_scenario(scn: Scenario, T_coarse: np.ndarray, cfg: TrackingConfig | No
         tracker.step(float(t), det)
     tracks, links = relink(tracker.finish(), tracker.lost, times, cfg)
     ways = MapWays.of(scn.lanelets, T[:2, 3], scn.sensor.max_range + WAYS_MARGIN)
-    users = split_road_users(tracks, cfg, ways)
+    buildings = Buildings.of(scn.als, T[:2, 3], scn.sensor.max_range + WAYS_MARGIN)
+    users = split_road_users(tracks, cfg, ways,
+                             None if buildings is None else Sight(T[:3, 3], buildings))
     tracks = users.vehicles
     diag = {
         "measurement_model": cfg.measurement_model,
@@ -1178,6 +1182,7 @@ def track_scenario(scn: Scenario, T_coarse: np.ndarray, cfg: TrackingConfig | No
         "not_motor_vehicles": [tr.id for tr in users.others],
         "off_lane": users.off_lane,
         "off_road": users.off_road,
+        "hidden": users.hidden,
         "off_lane_doubted": users.doubted,
         "relinked": [[k.first, k.then] for k in links],
         "birth_zones": np.column_stack([zones.centre, zones.radius,
