@@ -37,6 +37,8 @@ TOP_MARGIN = 0.5
 #: the sight line ends this high (m) above the ground under a track's centre: a vehicle is
 #: seen while any of it up to a van's roof is
 TARGET_HEIGHT = 2.0
+#: sight lines tested at once (bounds the memory: CHUNK x range / STEP samples)
+CHUNK = 1024
 #: ground points (a regular subsample of at most this many) give the ground height under a
 #: track
 GROUND_POINTS = 200_000
@@ -79,14 +81,18 @@ class Buildings:
         """(n,) mask of the points ``xy`` (n, 2) m in L that the sensor at ``sensor`` (3,) m in
         L cannot see: the sight line from it to ``TARGET_HEIGHT`` m above the ground there
         passes more than ``TOP_MARGIN`` m below a building's top (samples every ``STEP`` m,
-        ``END_CLEARANCE`` m from either end left out)."""
+        ``END_CLEARANCE`` m from either end left out; :data:`CHUNK` points at a time)."""
         xy = np.asarray(xy, dtype=float).reshape(-1, 2)
-        out = np.zeros(len(xy), dtype=bool)
+        return np.concatenate([self._hidden(sensor, xy[k:k + CHUNK])
+                               for k in range(0, len(xy), CHUNK)] or [np.zeros(0, dtype=bool)])
+
+    def _hidden(self, sensor: np.ndarray, xy: np.ndarray) -> np.ndarray:
+        """:meth:`hidden` of one chunk of points."""
         z_t = self.ground_z[self.ground.query(xy)[1]] + TARGET_HEIGHT
         length = np.hypot(*(xy - sensor[:2]).T)
-        n = int(np.ceil(max(float(length.max(initial=0.0)), 0.0) / STEP))
+        n = int(np.ceil(float(length.max()) / STEP))
         if n == 0:
-            return out
+            return np.zeros(len(xy), dtype=bool)
         s = np.arange(1, n) * STEP                                   # (k,) m from the sensor
         frac = s[None, :] / np.maximum(length[:, None], 1e-9)        # (n, k)
         inside = (s[None, :] >= END_CLEARANCE) & (s[None, :] <= length[:, None] - END_CLEARANCE)
