@@ -1171,7 +1171,9 @@ def track_scenario(scn: Scenario, T_coarse: np.ndarray, cfg: TrackingConfig | No
         tracker.step(float(t), det)
     tracks, links = relink(tracker.finish(), tracker.lost, times, cfg)
     ways = MapWays.of(scn.lanelets, T[:2, 3], scn.sensor.max_range + WAYS_MARGIN)
-    buildings = Buildings.of(scn.als, T[:2, 3], scn.sensor.max_range + WAYS_MARGIN)
+    # hidden_share >= 1 drops no track: the buildings' grid is not needed then
+    buildings = (Buildings.of(scn.als, T[:2, 3], scn.sensor.max_range + WAYS_MARGIN)
+                 if cfg.hidden_share < 1.0 else None)
     users = split_road_users(tracks, cfg, ways,
                              None if buildings is None else Sight(T[:3, 3], buildings))
     tracks = users.vehicles
