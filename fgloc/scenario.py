@@ -30,6 +30,8 @@ ASPRS_CLASSES: dict[int, str] = {
     17: "bridge deck",
     20: "ignored ground",
 }
+#: ASPRS classes of the bare ground: 2 ground, 11 road surface.
+GROUND_CLASSES: tuple[int, ...] = (2, 11)
 
 
 @dataclass

@@ -352,6 +352,25 @@ def test_points_behind_a_building_are_hidden_and_the_rest_seen() -> None:
     assert not b.hidden(np.array([0.0, 0.0, 30.0]), np.array([[70.0, 0.0]]))[0]
 
 
+def test_a_tree_over_the_road_does_not_lift_the_sight_line() -> None:
+    """A vehicle 40 m away behind a 10 m building, under a 14 m tree crown (class 5, every
+    0.25 m over 4 x 4 m, denser than the ground): the sight line ends 2 m above the ground
+    (passes 3-4 m high at the building: hidden), not 2 m above the crown (12 m: seen)."""
+    als = _als([(20, 30, -5, 5, 10.0)])
+    cx, cy = np.meshgrid(np.arange(38.0, 42.0, 0.25), np.arange(-2.0, 2.0, 0.25))
+    crown = np.column_stack([cx.ravel() + 0.1, cy.ravel() + 0.1, np.full(cx.size, 14.0)])
+    treed = AlsCloud(np.vstack([als.xyz, crown]).astype(np.float32),
+                     np.concatenate([als.classification, np.full(cx.size, 5)]).astype(np.uint8))
+    b = Buildings.of(treed, np.zeros(2), 100.0)
+    vehicle = np.array([[40.1, 0.1]])             # under a crown point, 0.14 m from the ground's
+    assert b is not None and b.hidden(SENSOR, vehicle)[0]
+    # without ground classes the other points give the ground (here the crown: seen over)
+    unclassified = AlsCloud(treed.xyz, np.where(treed.classification == BUILDING, BUILDING,
+                                                1).astype(np.uint8))
+    b = Buildings.of(unclassified, np.zeros(2), 100.0)
+    assert b is not None and not b.hidden(SENSOR, vehicle)[0]
+
+
 def test_no_buildings_no_rule() -> None:
     assert Buildings.of(_als([]), np.zeros(2), 100.0) is None
 

@@ -21,13 +21,11 @@ from fgloc.errors import InputError
 from fgloc.geo import LocalFrame, parse_crs, same_crs
 from fgloc.io._crs import canonical_world_crs
 from fgloc.io.atomic import atomic_path
-from fgloc.scenario import AlsCloud
+from fgloc.scenario import GROUND_CLASSES, AlsCloud
 
 log = logging.getLogger(__name__)
 
 ALS_SUFFIXES: tuple[str, ...] = (".las", ".laz")
-#: ASPRS classes whose heights define Z0 (2 ground, 11 road surface).
-Z0_CLASSES: tuple[int, ...] = (2, 11)
 #: Radius (m) around the approximate position whose ground/road points define Z0.
 Z0_RADIUS = 100.0
 #: Points per chunk when streaming a tile.
@@ -173,7 +171,7 @@ def read_als(
                     xyz[i : i + m, 2] = z - z_ref
                     cls[i : i + m] = c
                     if z0 is None:
-                        near = np.isin(c, Z0_CLASSES) & (
+                        near = np.isin(c, GROUND_CLASSES) & (
                             (x - approx_position[0]) ** 2 + (y - approx_position[1]) ** 2
                             <= Z0_RADIUS**2
                         )

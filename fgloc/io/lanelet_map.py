@@ -27,7 +27,15 @@ from scipy.spatial import cKDTree
 from fgloc.errors import InputError
 from fgloc.geo import LocalFrame, horizontal_crs, natural_utm_zone, transformer, utm_zone
 from fgloc.io.atomic import write_text_atomic
-from fgloc.scenario import AlsCloud, Lanelet, LaneletMap, MapArea, MapSettings, is_two_way
+from fgloc.scenario import (
+    GROUND_CLASSES,
+    AlsCloud,
+    Lanelet,
+    LaneletMap,
+    MapArea,
+    MapSettings,
+    is_two_way,
+)
 
 log = logging.getLogger(__name__)
 
@@ -161,7 +169,7 @@ def read_lanelet_map(
     return out
 
 
-def als_ground(als: AlsCloud, classes: tuple[int, ...] = (2, 11), k: int = 8) -> GroundFn:
+def als_ground(als: AlsCloud, classes: tuple[int, ...] = GROUND_CLASSES, k: int = 8) -> GroundFn:
     """Ground height callback over an ALS in L: the median height (m, L) of the ``k`` nearest
     points of ``classes`` (ASPRS ground, road surface; all points when it has none) in 2D. The
     KD-tree is built on the first call only, from at most about :data:`GROUND_MAX_POINTS`

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from fgloc.scenario import AlsCloud
+from fgloc.scenario import GROUND_CLASSES, AlsCloud
 
 #: ASPRS class of building points
 BUILDING = 6
@@ -64,8 +64,11 @@ class Buildings:
         building point there or without any other point."""
         xyz = np.asarray(als.xyz, dtype=float)
         near = np.hypot(*(xyz[:, :2] - centre).T) <= reach
-        building = near & (np.asarray(als.classification) == BUILDING)
-        other = near & ~building
+        code = np.asarray(als.classification)
+        building = near & (code == BUILDING)
+        other = near & np.isin(code, GROUND_CLASSES)
+        if not other.any():
+            other = near & ~building
         if not building.any() or not other.any():
             return None
         b = xyz[building]
