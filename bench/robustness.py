@@ -24,7 +24,8 @@ vehicles at once for 10 steps or more), truck length error (|median contour exte
 heading - true length| of the tracks following a truck, m) and centre bias towards the sensor
 (m, > 0: towards it), per-track centre RMS (the paper's average RMS), yaw error and IoU of the
 filter and the batch smoother (:func:`fgloc.evaluation.tracking.evaluate_tracks`, visibility
-from the true pose, the FOV and the ALS's buildings: :func:`visibility`), and the 2D / yaw
+from the true pose, the FOV and the ALS's buildings:
+:func:`fgloc.evaluation.tracking.visible_states`), and the 2D / yaw
 error of filter-sicp and joint (:func:`fgloc.localize_many`), whether each flagged itself
 (ambiguous or a weakly observed direction) and the 2D error of the runs that did not. The
 table gives per setting the mean over the seeds and the worst seed (the number of flagged
@@ -60,13 +61,12 @@ from fgloc.evaluation.tracking import (
     box_intersection_area,
     contour_polygons,
     evaluate_tracks,
-    in_field_of_view,
+    visible_states,
 )
 from fgloc.scenario import Scenario
 from fgloc.sim import simulate_detailed
 from fgloc.sim.config import SimConfig
 from fgloc.smoothing.run import smooth_tracks
-from fgloc.tracking.sightlines import Buildings
 from fgloc.tracks import N_KIN, YAW, TrackSet
 
 _PLATOONS = {"platoon_size": [2, 4], "platoon_headway": [0.8, 1.2], "headway": 0.3}
@@ -205,24 +205,6 @@ def truck_figures(tracks: TrackSet, metrics: TrackingMetrics, scn: Scenario,
             else math.nan)
 
 
-def visibility(scn: Scenario) -> dict[int, np.ndarray]:
-    """Per true vehicle, which of its states the sensor sees: in the field of view
-    (:func:`fgloc.evaluation.tracking.in_field_of_view`, the true pose) and not behind a
-    building of the ALS (:class:`fgloc.tracking.sightlines.Buildings`, the sight line to 2 m
-    above the ground under its centre): a vehicle hidden behind a building is not missed."""
-    assert scn.truth is not None
-    pose = scn.truth.sensor_pose
-    buildings = Buildings.of(scn.als, pose[:2, 3], scn.sensor.max_range)
-    out = {}
-    for gt in scn.truth.tracks:
-        seen = in_field_of_view(gt.states[:, 1:3], pose, scn.sensor.hfov_deg,
-                                scn.sensor.max_range)
-        if buildings is not None and seen.any():
-            seen[seen] = ~buildings.hidden(pose[:3, 3], gt.states[seen, 1:3])
-        out[gt.id] = seen
-    return out
-
-
 def tracking_figures(scn: Scenario, cfg: Config) -> dict[str, float]:
     """The tracking figures of the module docstring for ``scn`` (with ground truth): the
     filter with the true pose and the batch smoother on its tracks, config ``cfg``."""
@@ -230,7 +212,7 @@ def tracking_figures(scn: Scenario, cfg: Config) -> dict[str, float]:
     run = track(scn, cfg, oracle_pose=True)
     smoothed = smooth_tracks(scn, run.tracks, run.T_placement, "batch", cfg)
     f: dict[str, float] = {}
-    visible = visibility(scn)
+    visible = visible_states(scn.truth, scn.sensor.hfov_deg, scn.sensor.max_range, scn.als)
     for name, ts in (("filter", run.tracks), ("batch", smoothed)):
         m = evaluate_tracks(ts, scn.truth, eta=cfg.tracking.eta, visible=visible)
         f[f"{name}.rms"] = m.centre_rms_track_mean

@@ -15,10 +15,15 @@ import sys
 import tempfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from fgloc.errors import FglocError
+
+if TYPE_CHECKING:
+    from fgloc.geo import LocalFrame
+    from fgloc.scenario import AlsCloud, SensorConfig
 
 #: exit code of ``fgloc localize`` when the pose is ambiguous (several modes fit alike)
 EXIT_AMBIGUOUS = 3
@@ -234,6 +239,20 @@ def _truth_frame(gt_path: Path):
         return LocalFrame.around(0.0, 0.0)
 
 
+def _scenario_als(scenario_dir: Path, sensor: SensorConfig, frame: LocalFrame
+                  ) -> tuple[AlsCloud | None, LocalFrame]:
+    """(ALS, its frame L) of the scenario directory that holds a ground truth, read as
+    :func:`fgloc.load_scenario` reads it; (None, ``frame``) without ALS tiles there."""
+    from fgloc.io.als import find_als_tiles, read_als
+    from fgloc.io.scenario_dir import ALS_DIR, SENSOR_FILE
+
+    als_dir = scenario_dir / ALS_DIR
+    if not als_dir.is_dir():
+        return None, frame
+    return read_als(find_als_tiles(als_dir), sensor.approx_position, sensor.crs,
+                    config_path=scenario_dir / SENSOR_FILE)
+
+
 def evaluation_inputs(path: Path) -> tuple[Path | None, Path | None]:
     """(result.json, tracks.csv) to evaluate: a file of either kind, or an output directory."""
     if path.is_dir():
@@ -273,7 +292,7 @@ def cmd_track(args: argparse.Namespace) -> int:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     from fgloc.evaluation.pose import pose_error
-    from fgloc.evaluation.tracking import evaluate_tracks
+    from fgloc.evaluation.tracking import evaluate_tracks, visible_states
     from fgloc.geo import same_crs
     from fgloc.io import read_ground_truth, read_sensor_toml, read_tracks_csv
     from fgloc.result import read_result_json
@@ -296,13 +315,12 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if tracks_path is not None:
         toml = gt_path.parent / "sensor.toml"
         sensor = read_sensor_toml(toml) if toml.is_file() else SensorConfig((0.0, 0.0))
+        als, frame = _scenario_als(gt_path.parent, sensor, frame) if toml.is_file() else (
+            None, frame)
+        truth = read_ground_truth(gt_path, frame)
         metrics = evaluate_tracks(
-            read_tracks_csv(tracks_path, frame),
-            truth,
-            sensor_pose=truth.sensor_pose,
-            hfov_deg=sensor.hfov_deg,
-            max_range=sensor.max_range,
-        )
+            read_tracks_csv(tracks_path, frame), truth,
+            visible=visible_states(truth, sensor.hfov_deg, sensor.max_range, als))
         out["tracking"] = metrics.to_json()
         if not args.json:
             print(("\n" if result_path is not None else "") + metrics.table())

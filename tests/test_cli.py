@@ -148,3 +148,34 @@ def test_track_oracle_and_evaluate_tracks(scenario_dir, tmp_path, capsys):
     # the tracker finds most vehicles that stay >= 2 s in view, with sane errors
     assert tracking["tracked_share"] >= 0.6
     assert tracking["yaw_error_deg"] < 10.0 and tracking["iou"] > 0.3
+
+
+def test_evaluate_tracks_counts_no_vehicle_hidden_behind_a_building(scenario_dir, tmp_path,
+                                                                     capsys):
+    """A 40 m high building ring 10-11 m around the mast hides every vehicle: `fgloc evaluate`
+    reads the scenario's ALS beside the ground truth and counts none of them as eligible
+    (missed), where the field of view alone counts them all."""
+    from fgloc.io import load_scenario
+    from fgloc.io.als import find_als_tiles, write_als
+
+    walled = tmp_path / "walled"
+    shutil.copytree(scenario_dir, walled)
+    scn = load_scenario(walled)
+    ang, rad = np.meshgrid(np.radians(np.arange(0.0, 360.0, 0.5)), np.arange(10.0, 11.0, 0.5))
+    sensor = scn.truth.sensor_pose[:3, 3]
+    ring = np.column_stack([sensor[0] + rad.ravel() * np.cos(ang.ravel()),
+                            sensor[1] + rad.ravel() * np.sin(ang.ravel()),
+                            np.full(ang.size, 40.0)])
+    xyz = np.vstack([np.asarray(scn.als.xyz, dtype=float), ring])
+    cls = np.concatenate([scn.als.classification, np.full(len(ring), 6)])
+    for tile in find_als_tiles(walled / "als"):
+        tile.unlink()
+    write_als(walled / "als" / "walled.laz", scn.frame.to_world(xyz), cls, scn.crs)
+    out = tmp_path / "trk"
+    assert main(["-q", "track", str(scenario_dir), "--out", str(out), "--oracle-pose"]) == 0
+    capsys.readouterr()
+    counts = {}
+    for name, d in (("open", scenario_dir), ("walled", walled)):
+        assert main(["evaluate", str(out), str(d / "ground_truth.json"), "--json"]) == 0
+        counts[name] = json.loads(capsys.readouterr().out)["tracking"]
+    assert counts["open"]["n_true"] > 5 and counts["walled"]["n_true"] == 0

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 from fgloc.config import Config
 from fgloc.errors import FglocError
-from fgloc.evaluation.tracking import TrackingMetrics, evaluate_tracks
+from fgloc.evaluation.tracking import TrackingMetrics, evaluate_tracks, visible_states
 from fgloc.pipeline import track
 from fgloc.scenario import Scenario
 from fgloc.smoothing.run import smooth_tracks
@@ -50,7 +50,8 @@ def compare_trackers(scenario: Scenario, config: Config | None = None,
                      oracle_pose: bool = True) -> TrackerComparison:
     """Run the filter, then the fixed-lag and the batch smoother on its tracks, and score all
     three against ``scenario.truth`` with :func:`fgloc.evaluation.tracking.evaluate_tracks`
-    (visibility from the true pose and the sensor's FOV). ``oracle_pose`` places the
+    (visibility from the true pose, the sensor's FOV and the ALS's buildings:
+    :func:`~fgloc.evaluation.tracking.visible_states`). ``oracle_pose`` places the
     detections with the true pose (tracking alone); otherwise with T_coarse, and the tracks
     are scored in frame C as if it were L (the coarse error adds to every metric)."""
     if scenario.truth is None:
@@ -64,9 +65,9 @@ def compare_trackers(scenario: Scenario, config: Config | None = None,
         sets.append(smooth_tracks(scenario, run.tracks, run.T_placement, name, cfg))
         cpu.append(time.process_time() - c0)
     truth, sensor = scenario.truth, scenario.sensor
-    metrics = tuple(evaluate_tracks(ts, truth, eta=cfg.tracking.eta,
-                                    sensor_pose=truth.sensor_pose, hfov_deg=sensor.hfov_deg,
-                                    max_range=sensor.max_range) for ts in sets)
+    visible = visible_states(truth, sensor.hfov_deg, sensor.max_range, scenario.als)
+    metrics = tuple(evaluate_tracks(ts, truth, eta=cfg.tracking.eta, visible=visible)
+                    for ts in sets)
     minutes = sum(float(tr.t[-1] - tr.t[0]) for tr in run.tracks.tracks) / 60.0
     return TrackerComparison(("filter", "fixed-lag", "batch"), metrics, tuple(cpu),
                              scenario.radar.duration, len(scenario.radar), minutes)

@@ -39,7 +39,7 @@ from scipy.optimize import linear_sum_assignment
 
 from fgloc.geo import wrap_angle
 from fgloc.map import labels_from_curvature
-from fgloc.scenario import GroundTruth, TrackTruth
+from fgloc.scenario import AlsCloud, GroundTruth, TrackTruth
 from fgloc.tracks import N_KIN, YAW, Track, TrackSet, contour_angles
 
 #: states per chunk of the vectorized polygon clipping (bounds the temporary memory)
@@ -151,6 +151,26 @@ def in_field_of_view(
     boresight = math.atan2(sensor_pose[1, 0], sensor_pose[0, 0])
     az = wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - boresight)
     return (np.abs(az) <= math.radians(hfov_deg) / 2.0) & (np.hypot(d[:, 0], d[:, 1]) <= max_range)
+
+
+def visible_states(truth: GroundTruth, hfov_deg: float = 360.0, max_range: float = math.inf,
+                   als: AlsCloud | None = None) -> dict[int, np.ndarray]:
+    """Per true vehicle id, (n,) bool over its truth states: which the sensor at the true pose
+    sees. In its field of view (:func:`in_field_of_view`) and, given the ALS ``als`` (in the
+    truth's frame L), not behind one of its buildings
+    (:class:`fgloc.tracking.sightlines.Buildings`: the sight line to 2 m above the ground under
+    the vehicle's centre): a vehicle that stands behind a building is not missed."""
+    from fgloc.tracking.sightlines import Buildings
+
+    pose = truth.sensor_pose
+    buildings = None if als is None else Buildings.of(als, pose[:2, 3], max_range)
+    out = {}
+    for tr in truth.tracks:
+        seen = in_field_of_view(tr.states[:, 1:3], pose, hfov_deg, max_range)
+        if buildings is not None and seen.any():
+            seen[seen] = ~buildings.hidden(pose[:3, 3], tr.states[seen, 1:3])
+        out[tr.id] = seen
+    return out
 
 
 def visible_duration(t: np.ndarray, visible: np.ndarray) -> float:
