@@ -31,3 +31,17 @@ class Timer:
             dt = time.perf_counter() - t0
             self.seconds[name] = self.seconds.get(name, 0.0) + dt
             log.info("%s done in %.2f s", name, dt)
+
+
+@contextmanager
+def quiet(logger_name: str, level: int = logging.CRITICAL) -> Iterator[None]:
+    """Silence the log lines of ``logger_name`` below ``level`` inside the ``with`` block (a
+    library whose failures become one error of ours; a file read again whose warnings were
+    given once)."""
+    logger = logging.getLogger(logger_name)
+    before = logger.level
+    logger.setLevel(level)
+    try:
+        yield
+    finally:
+        logger.setLevel(before)

@@ -290,6 +290,7 @@ def test_broken_lanelet_is_skipped_while_the_map_has_drivable_ones(
     with caplog.at_level(logging.WARNING):
         lmap = read_lanelet_map(path, CRS, site_frame())
     assert f"relation {victim} skipped (not drivable)" in caplog.text
+    assert "while parsing" not in caplog.text     # lanelet2's header line is no error
     assert [ll.id for ll in lmap.lanelets] == [ll.id for ll in ref.lanelets]
     assert victim not in {ll.id for ll in lmap.ignored}
     assert len(lmap.ignored) == len(ref.ignored) - 1
@@ -309,6 +310,27 @@ def test_broken_lanelet_is_skipped_while_the_map_has_drivable_ones(
     assert not ref.skipped and not ref.warnings()
     scn = flat_scenario(lmap, site_frame())
     assert any(f"relation {road}" in w for w in build_target_cloud(scn, MapConfig()).warnings)
+
+
+def test_simulate_warns_once_of_a_broken_lanelet(tmp_path: Path,
+                                                 caplog: pytest.LogCaptureFixture) -> None:
+    """The map simulator reads the map, then its crop: a relation lanelet2 rejects is named
+    once, with the user's file, not again with the crop's temporary one."""
+    from fgloc.sim.real_map import simulate_on_map
+
+    ref = read_lanelet_map(CROP, CRS, site_frame())
+    victim = next(ll.id for ll in ref.ignored if ll.attributes.get("subtype") == "crosswalk")
+    text = CROP.read_text()
+    start = text.index(f'<relation id="{victim}"')
+    end = text.index("</relation>", start)
+    path = tmp_path / "map.osm"
+    path.write_text(text[:start] + text[start:end].replace('role="right"', 'role="rite"')
+                    + text[end:])
+    with caplog.at_level(logging.WARNING):
+        simulate_on_map(path, 1, duration=2.0)
+    named = [r.getMessage() for r in caplog.records if f"relation {victim} skipped" in
+             r.getMessage()]
+    assert len(named) == 1 and named[0].startswith(str(path))
 
 
 def test_lanelet_referencing_an_unknown_regulatory_element_is_read(

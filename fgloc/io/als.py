@@ -9,8 +9,7 @@ exist for one chunk at a time only.
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -21,6 +20,7 @@ from fgloc.errors import InputError
 from fgloc.geo import LocalFrame, parse_crs, same_crs
 from fgloc.io._crs import canonical_world_crs
 from fgloc.io.atomic import atomic_path
+from fgloc.progress import quiet
 from fgloc.scenario import GROUND_CLASSES, AlsCloud
 
 log = logging.getLogger(__name__)
@@ -61,21 +61,9 @@ def find_als_tiles(als_dir: str | Path) -> list[Path]:
     return tiles
 
 
-@contextmanager
-def _quiet_laspy() -> Iterator[None]:
-    """Silence laspy's own ERROR log lines while reading: a failure becomes one InputError."""
-    logger = logging.getLogger("laspy")
-    level = logger.level
-    logger.setLevel(logging.CRITICAL)
-    try:
-        yield
-    finally:
-        logger.setLevel(level)
-
-
 def _open_tile(path: Path) -> _Tile:
     try:
-        with _quiet_laspy(), laspy.open(path) as reader:
+        with quiet("laspy"), laspy.open(path) as reader:
             header = reader.header
             count = int(header.point_count)
             try:
@@ -155,7 +143,7 @@ def read_als(
         end = start + tile.point_count
         i = start
         try:
-            with _quiet_laspy(), laspy.open(tile.path, laz_backend=_LAZ_BACKEND) as reader:
+            with quiet("laspy"), laspy.open(tile.path, laz_backend=_LAZ_BACKEND) as reader:
                 for chunk in reader.chunk_iterator(chunk_points):
                     m = len(chunk)
                     if i + m > end:

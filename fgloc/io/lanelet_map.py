@@ -49,6 +49,8 @@ DEFAULT_LANELET_TAGS: dict[str, str] = {
 #: Distance (m) by which the ALS bounding box is grown before testing overlap with the map.
 OVERLAP_MARGIN = 100.0
 _PRIMITIVE_ID = re.compile(r"primitive (-?\d+)")
+#: the line lanelet2 puts before its list of parse errors (no error itself)
+_ERRORS_HEADER = re.compile(r"errors? oc+ur+ed while parsing", re.IGNORECASE)
 _FAILED_ID = re.compile(r"Failed to get id (-?\d+)")
 
 
@@ -389,7 +391,7 @@ def _load_with_lanelet2(
         m = _PRIMITIVE_ID.search(msg)
         if m and int(m.group(1)) in lanelet_ids:
             broken.setdefault(int(m.group(1)), f"invalid lanelet: {msg.strip()}")
-        else:
+        elif not _ERRORS_HEADER.match(msg.strip()):
             log.warning("%s: lanelet2 (ignored, not a lanelet): %s", path, msg.strip())
     rules, how = _traffic_rules(path, settings)
     lanelets = []

@@ -19,6 +19,7 @@ files found beside the map (``LICENSE*``), to be written next to it.
 from __future__ import annotations
 
 import dataclasses
+import logging
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,6 +29,7 @@ import numpy as np
 from fgloc.geo import LocalFrame, natural_utm_zone, transformer, utm_zone, wrap_angle
 from fgloc.io.lanelet_map import WGS84, crop_lanelet_osm, read_lanelet_map
 from fgloc.map import points_in_polygon
+from fgloc.progress import quiet
 from fgloc.scenario import Lanelet, LaneletMap, Scenario
 from fgloc.sim.als import BUILDING, GROUND, synthesize_als
 from fgloc.sim.config import SimConfig
@@ -124,15 +126,15 @@ def _road_point(lmap: LaneletMap, frame: LocalFrame, site: tuple[float, float] |
                 rng: np.random.Generator) -> tuple[float, float] | None:
     """(lat, lon) of a road site on a map without junction there: the point of the drivable
     lanelets' centre lines nearest to ``site`` (None beyond :data:`SITE_RADIUS`), or without a
-    site the middle of a random drivable lanelet (from ``rng``)."""
+    site a random one of them (from ``rng``; every metre of road alike, so a short lanelet,
+    a stub cut off by its neighbours, is seldom drawn)."""
     to_ll = transformer(frame.crs, WGS84)
+    pts = np.vstack([every_metre(ll.centerline(20)) for ll in lmap.lanelets])
     if site is None:
-        line = every_metre(lmap.lanelets[int(rng.integers(len(lmap.lanelets)))].centerline(20))
-        xy = line[len(line) // 2]
+        xy = pts[int(rng.integers(len(pts)))]
     else:
         e, n = transformer(WGS84, frame.crs).transform(site[1], site[0])
         at = np.array([e, n]) - np.asarray(frame.origin[:2])
-        pts = np.vstack([every_metre(ll.centerline(20)) for ll in lmap.lanelets])
         d = np.hypot(*(pts - at).T)
         if d.min() > SITE_RADIUS:
             return None
@@ -152,7 +154,9 @@ def _first_latlon(text: str) -> tuple[float, float]:
 
 
 def _read_text_map(text: str, crs: str, frame: LocalFrame) -> LaneletMap:
-    with tempfile.TemporaryDirectory() as tmp:
+    """The map of the OSM ``text`` (a crop of the map read before: its warnings, given then,
+    are not repeated)."""
+    with tempfile.TemporaryDirectory() as tmp, quiet("fgloc.io.lanelet_map", logging.ERROR):
         path = Path(tmp) / "map.osm"
         path.write_text(text, encoding="utf-8")
         return read_lanelet_map(path, crs, frame)
@@ -213,7 +217,11 @@ def _place_mast(rng: np.random.Generator, cfg: SimConfig, net: RoadNetwork, area
         if len(places) == MAST_CANDIDATES:
             break
     if not places:
-        raise RuntimeError("no roadside position for the sensor near the site")
+        raise RuntimeError(
+            f"no roadside position for the sensor {s.junction_distance[0]:g}-"
+            f"{s.junction_distance[1]:g} m from the site (a road edge there clear of the "
+            "lanelets and buildings); give --site LAT,LON near another junction or road, or "
+            "another --seed")
     xy, yaw, _ = max(places, key=lambda p: p[2])
     yaw += np.deg2rad(rng.uniform(-1, 1) * s.yaw_jitter_deg)
     return Mounting(xy, float(rng.uniform(*s.mast_height)), float(wrap_angle(yaw)),
@@ -259,8 +267,8 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
     :data:`SITE_RADIUS` m); None: a random one (from ``seed``) of those with the most
     movements. Where the map has no junction (a race track, a campus road), or none within
     :data:`SITE_RADIUS` m of ``site``, the sensor watches a road instead: the point of the
-    drivable lanelets nearest to ``site`` (none within :data:`SITE_RADIUS`: ValueError), or the
-    middle of a random drivable lanelet, whose lanelets there are driven along the routing
+    drivable lanelets nearest to ``site`` (none within :data:`SITE_RADIUS`: ValueError), or a
+    random point of their centre lines, whose lanelets there are driven along the routing
     graph (:func:`fgloc.sim.real_roads.road_site`). The world CRS is ``config.site.crs`` when
     the map lies in its UTM zone, else WGS 84 / UTM of the map's zone. ``crop_radius`` (m): the
     part of the map kept around the junction; ``route_reach`` (m): lead-in and lead-out of every
