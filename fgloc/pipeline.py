@@ -379,5 +379,6 @@ def localize_many(scenario: Scenario, methods: list[str], config: Config | None 
     for method in methods:
         res, read, own = run(method)
         res.timings = {**st.seconds_of(read), **own}
+        res.tilt_std = st.coarse()[1].tilt_std      # every method keeps the coarse tilt
         out[method] = res
     return out

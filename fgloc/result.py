@@ -54,7 +54,9 @@ class LocalizationResult:
     mode). modes: JSON-ready summary of every mode (best first;
     :meth:`fgloc.registration.modes.ModeChoice.summary`). mode_fits: the modes' fits
     (:class:`fgloc.registration.modes.ModeFit`, best first; the joint starts from them).
-    z_std: std. dev. (m) of the sensor height, or None when the method gives none. valley:
+    z_std: std. dev. (m) of the sensor height, or None when the method gives none. tilt_std:
+    std. devs. (rad) of the pitch and the roll (the coarse vertical fit's, which every method
+    keeps; :attr:`fgloc.coarse.CoarseResult.tilt_std`), or None. valley:
     JSON-ready line the tied modes are samples of, along which the data do not fix the pose
     (:meth:`fgloc.registration.modes.ModeChoice.valley_summary`), or None. weak_direction:
     JSON-ready direction in which the only mode left is not pinned to ``coarse.
@@ -78,6 +80,7 @@ class LocalizationResult:
     modes: list[dict[str, Any]] = field(default_factory=list)
     mode_fits: list[ModeFit] = field(default_factory=list)
     z_std: float | None = None
+    tilt_std: tuple[float, float] | None = None
     valley: dict[str, Any] | None = None
     weak_direction: dict[str, Any] | None = None
 
@@ -114,6 +117,8 @@ class LocalizationResult:
             "covariance": None if self.covariance is None else np.asarray(self.covariance).tolist(),
             "covariance_order": ["x_m", "y_m", "yaw_rad"],
             "z_std_m": self.z_std,
+            "pitch_std_deg": None if self.tilt_std is None else math.degrees(self.tilt_std[0]),
+            "roll_std_deg": None if self.tilt_std is None else math.degrees(self.tilt_std[1]),
             "modes": self.modes,
             "valley": self.valley,
             "weak_direction": self.weak_direction,

@@ -76,6 +76,10 @@ def test_localize_icp_and_evaluate(scenario_dir, tmp_path, capsys):
     assert main(["evaluate", str(out / "result.json"), str(gt), "--json"]) == 0
     err = json.loads(capsys.readouterr().out)["pose"]
     assert err["d2d"] < 1.5 and err["dyaw_deg"] < 1.5
+    # the tilt's std. devs. are reported and cover its error
+    assert 0.0 < doc["pitch_std_deg"] < 2.0 and 0.0 < doc["roll_std_deg"] < 2.0
+    assert abs(err["dpitch_deg"]) < 3.0 * doc["pitch_std_deg"]
+    assert abs(err["droll_deg"]) < 3.0 * doc["roll_std_deg"]
     geo = json.loads((out / "sensor.geojson").read_text())
     assert [f["geometry"]["type"] for f in geo["features"]] == ["Point", "Polygon"]
 

@@ -399,3 +399,16 @@ def test_a_road_icp_stage_that_lowers_the_score_is_refused(monkeypatch) -> None:
     refined, _, _ = localize_module._search(src_l, road, truth[:2],
                                             0.37 * cfg.yaw_search_step_deg, cfg)
     np.testing.assert_allclose(refined[0][1], truth, atol=1e-9)
+
+
+def test_tilt_std_is_taken_about_the_levelled_sensor_axes() -> None:
+    """A radar looking north (yaw 90 deg) with tilt variances 4e-6 about L's x axis (east)
+    and 1e-6 about y (north): its boresight is L's y, so the roll (about it) has std. dev.
+    1e-3 rad and the pitch (about east) 2e-3 rad; looking east, the other way round."""
+    cov = np.diag([4e-6, 1e-6])
+    res = localize_module.CoarseResult(np.eye(4), (0.0, 0.0, 0.0, np.pi / 2, 0.0, 0.0), 1.0,
+                                       0.1, 100, 100, True, "", None, tilt_covariance=cov)
+    np.testing.assert_allclose(res.tilt_std, (2e-3, 1e-3))
+    east = dataclasses.replace(res, pose=(0.0, 0.0, 0.0, 0.0, 0.0, 0.0))
+    np.testing.assert_allclose(east.tilt_std, (1e-3, 2e-3))
+    assert dataclasses.replace(res, tilt_covariance=None).tilt_std is None

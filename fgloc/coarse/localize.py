@@ -119,6 +119,18 @@ class CoarseResult:
     tie_covariance: np.ndarray | None = None
     n_points_off_trail: int = 0
 
+    @property
+    def tilt_std(self) -> tuple[float, float] | None:
+        """Std. devs. (rad) of the sensor's pitch and roll: ``tilt_covariance`` turned into the
+        levelled sensor axes (roll about the boresight, pitch about the axis across it);
+        None without a vertical fit."""
+        if self.tilt_covariance is None:
+            return None
+        c, s = np.cos(self.pose[3]), np.sin(self.pose[3])
+        to_l = np.array([[c, -s], [s, c]])
+        lev = to_l.T @ self.tilt_covariance @ to_l
+        return float(np.sqrt(lev[1, 1])), float(np.sqrt(lev[0, 0]))
+
     def mode_starts(self) -> list[np.ndarray]:
         """Per mode, the 3x3 SE(2) start of T_fine (C -> L) that moves the coarse frame C of
         ``T_coarse`` onto that mode's placement (the identity for the first, best mode);
