@@ -333,6 +333,35 @@ def test_simulate_warns_once_of_a_broken_lanelet(tmp_path: Path,
     assert len(named) == 1 and named[0].startswith(str(path))
 
 
+def test_crop_keeps_the_regulatory_elements_its_lanelets_reference(tmp_path: Path) -> None:
+    """A traffic light names only its ways (the light, the stop line); the lanelet it governs
+    references it. The crop keeps it with that lanelet; one no lanelet references is dropped,
+    and the crop reads back with the same drivable lanelets."""
+    from fgloc.io.lanelet_map import crop_lanelet_osm
+
+    ref = read_lanelet_map(CROP, CRS, site_frame())
+    text = CROP.read_text()
+    lid = ref.lanelets[0].id
+    start = text.index(f'<relation id="{lid}"')
+    cut = text.index("<tag", start)
+    text = (text[:cut] + '<member type="relation" ref="99999990" role="regulatory_element"/>'
+            + text[cut:])
+    ways = re.findall(r'<way id="(\d+)"', text)[:2]
+    lights = "".join(
+        f'<relation id="{rid}" visible="true" version="1">'
+        f'<member type="way" ref="{ways[0]}" role="refers"/>'
+        f'<member type="way" ref="{ways[1]}" role="ref_line"/>'
+        '<tag k="type" v="regulatory_element"/><tag k="subtype" v="traffic_light"/>'
+        '</relation>\n' for rid in ("99999990", "99999991"))
+    path = tmp_path / "map.osm"
+    path.write_text(text.replace("</osm>", lights + "</osm>"))
+    crop = crop_lanelet_osm(path, *SITE, 300.0)
+    assert '<relation id="99999990"' in crop and '<relation id="99999991"' not in crop
+    (tmp_path / "crop.osm").write_text(crop)
+    back = read_lanelet_map(tmp_path / "crop.osm", CRS, site_frame())
+    assert [ll.id for ll in back.lanelets] == [ll.id for ll in ref.lanelets]
+
+
 def test_lanelet_referencing_an_unknown_regulatory_element_is_read(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:

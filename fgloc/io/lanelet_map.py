@@ -556,8 +556,9 @@ def crop_lanelet_osm(
     """OSM XML text of the part of a Lanelet2 map around (lat, lon).
 
     Keeps every lanelet and area relation with a node within ``radius`` m (whole, with all its
-    ways and nodes), every regulatory element whose members are all kept, and drops references
-    to the regulatory elements that are not. ``drop_ele`` removes the nodes' ``ele`` tags (when
+    ways and nodes), every regulatory element whose members are all there that a kept lanelet
+    references or that names a kept relation, and drops references to the regulatory elements
+    that are not kept. ``drop_ele`` removes the nodes' ``ele`` tags (when
     the heights are to come from another ALS). Distances use a local equirectangular
     approximation (fine for a few hundred metres).
     """
@@ -594,7 +595,13 @@ def crop_lanelet_osm(
         if any(near(nodes.get(r)) for r in refs) and all(r in nodes for r in refs):
             keep_rel.add(rel.get("id", ""))
             keep_way.update(m.get("ref", "") for m in members)
-    for rel in relations:  # regulatory elements whose members are all kept
+    # regulatory elements whose members are all kept and that a kept lanelet references or
+    # that name one (a traffic light or a speed limit names only its ways; a right of way
+    # names its lanelets)
+    referenced = {m.get("ref") for rel in relations if rel.get("id") in keep_rel
+                  for m in rel.iter("member")
+                  if m.get("type") == "relation" and m.get("role") == "regulatory_element"}
+    for rel in relations:
         tags = {t.get("k"): t.get("v") for t in rel.iter("tag")}
         if tags.get("type") != "regulatory_element":
             continue
@@ -604,7 +611,8 @@ def crop_lanelet_osm(
             or (m.get("type") == "relation" and m.get("ref") in keep_rel)
             or (m.get("type") == "node" and m.get("ref") in nodes)
             for m in members
-        ) and any(m.get("ref") in keep_rel for m in members if m.get("type") == "relation"):
+        ) and (rel.get("id") in referenced or any(
+                m.get("ref") in keep_rel for m in members if m.get("type") == "relation")):
             keep_rel.add(rel.get("id", ""))
             keep_way.update(m.get("ref", "") for m in members if m.get("type") == "way")
     keep_node = {r for wid in keep_way for r in way_nodes(wid)}
