@@ -333,6 +333,41 @@ def test_simulate_warns_once_of_a_broken_lanelet(tmp_path: Path,
     assert len(named) == 1 and named[0].startswith(str(path))
 
 
+def test_a_bound_drawn_as_several_ways_is_joined(tmp_path: Path) -> None:
+    """INTERACTION and rounD maps draw a bound as several ways end to end, which lanelet2
+    rejects ("not exactly one right border"). Split a road lanelet's right bound in two,
+    listed in reverse order, the second piece reversed: the lanelet is read with the same
+    bound as before."""
+    ref = read_lanelet_map(CROP, CRS, site_frame())
+    text = CROP.read_text()
+    ll = max(ref.lanelets, key=lambda x: len(x.right))
+    rel_start = text.index(f'<relation id="{ll.id}"')
+    rel_end = text.index("</relation>", rel_start)
+    rel = text[rel_start:rel_end]
+    way_id = re.search(r'<member type="way" ref="(-?\d+)" role="right"', rel).group(1)
+    w0 = text.index(f'<way id="{way_id}"')
+    w1 = text.index("</way>", w0)
+    refs = re.findall(r'<nd ref="(-?\d+)"', text[w0:w1])
+    k = len(refs) // 2
+    pieces = "".join(
+        f'<way id="{wid}" visible="true" version="1">'
+        + "".join(f'<nd ref="{r}"/>' for r in part)
+        + '<tag k="type" v="line_thin"/><tag k="subtype" v="solid"/></way>\n'
+        for wid, part in (("88888801", refs[:k + 1]), ("88888802", refs[k:][::-1])))
+    rel = re.sub(rf'<member type="way" ref="{way_id}" role="right"\s*/>',
+                 '<member type="way" ref="88888802" role="right"/>'
+                 '<member type="way" ref="88888801" role="right"/>', rel)
+    assert rel != text[rel_start:rel_end]
+    text = text[:rel_start] + rel + text[rel_end:]
+    path = tmp_path / "split.osm"
+    path.write_text(text.replace("</osm>", pieces + "</osm>"))
+    back = read_lanelet_map(path, CRS, site_frame())
+    assert not back.skipped
+    got = {x.id: x for x in back.lanelets}[ll.id]
+    np.testing.assert_allclose(got.right, ll.right)
+    np.testing.assert_allclose(got.left, ll.left)
+
+
 def test_crop_keeps_the_regulatory_elements_its_lanelets_reference(tmp_path: Path) -> None:
     """A traffic light names only its ways (the light, the stop line); the lanelet it governs
     references it. The crop keeps it with that lanelet; one no lanelet references is dropped,

@@ -375,13 +375,19 @@ def _load_with_lanelet2(
     if not len(nodes.ids):
         raise InputError(path, "the map holds no nodes")
     projector = UtmProjector(Origin(*origin))
-    lmap, errors = _load_robust(path, projector)
-    dangling = _regulatory_failures(errors, lanelet_ids)
-    if dangling:
-        with tempfile.TemporaryDirectory() as tmp:
-            patched = Path(tmp) / path.name
-            _drop_regulatory_members(path, patched, dangling)
-            lmap, errors = _load_robust(patched, projector)
+    with tempfile.TemporaryDirectory() as tmp:
+        joined = Path(tmp) / path.name
+        split = _join_split_bounds(path, joined)
+        source = joined if split else path
+        if split:
+            log.info("%s: %d lanelet(s) with a bound drawn as several ways, read with the ways "
+                     "joined (relation %s)", path, len(split), ", ".join(map(str, split)))
+        lmap, errors = _load_robust(source, projector, path)
+        dangling = _regulatory_failures(errors, lanelet_ids)
+        if dangling:
+            patched = Path(tmp) / f"patched-{path.name}"
+            _drop_regulatory_members(source, patched, dangling)
+            lmap, errors = _load_robust(patched, projector, path)
         for lid, refs in sorted(dangling.items()):
             log.warning("%s: relation %d read without its reference(s) to %s: lanelet2 cannot "
                         "build them (fgloc uses no regulatory element)", path, lid,
@@ -391,8 +397,12 @@ def _load_with_lanelet2(
         m = _PRIMITIVE_ID.search(msg)
         if m and int(m.group(1)) in lanelet_ids:
             broken.setdefault(int(m.group(1)), f"invalid lanelet: {msg.strip()}")
+        elif m:
+            log.warning("%s: primitive %s ignored (not a lanelet; fgloc does not need it), "
+                        "lanelet2 says: %s", path, m.group(1),
+                        msg[m.end():].lstrip(": ").strip() or msg.strip())
         elif not _ERRORS_HEADER.match(msg.strip()):
-            log.warning("%s: lanelet2 (ignored, not a lanelet): %s", path, msg.strip())
+            log.warning("%s: lanelet2 (ignored, not about a lanelet): %s", path, msg.strip())
     rules, how = _traffic_rules(path, settings)
     lanelets = []
     for ll in sorted(lmap.laneletLayer, key=lambda x: x.id):
@@ -432,12 +442,76 @@ def _load_with_lanelet2(
                 dict(sorted(regulatory.items())), how, skipped)
 
 
-def _load_robust(path: Path, projector: UtmProjector) -> tuple[object, list[str]]:
-    """lanelet2's map and error messages."""
+def _load_robust(path: Path, projector: UtmProjector, shown: Path) -> tuple[object, list[str]]:
+    """lanelet2's map of the file ``path`` and its error messages (errors name ``shown``, the
+    user's file that ``path`` is a repaired copy of, or ``path`` itself)."""
     try:
         return lanelet2.io.loadRobust(str(path), projector)
     except RuntimeError as exc:
-        raise InputError(path, f"lanelet2 cannot read the map: {exc}") from None
+        raise InputError(shown, f"lanelet2 cannot read the map: {exc}") from None
+
+
+def _join_split_bounds(src: Path, dst: Path) -> list[int]:
+    """Lanelet2 wants one way per bound; hand-made maps (INTERACTION, rounD) draw a bound as
+    several ways end to end, and lanelet2 then rejects the lanelet ("Lanelet has not exactly
+    one left border"). Each such bound whose ways chain (consecutive ways share an end node,
+    in any order and direction) becomes one new way (the first way's tags; a fresh id above
+    every id of the file), written with the rest of ``src`` to ``dst``. Returns the ids of the
+    lanelets so joined; empty (and nothing written) when there are none."""
+    root = ET.parse(src).getroot()
+    ways = {w.get("id"): w for w in root.iter("way")}
+    ids = [int(e.get("id", "0")) for e in root if e.get("id", "").lstrip("-").isdigit()]
+    fresh = max(map(abs, ids), default=0)
+    joined: list[int] = []
+    for rel in root.iter("relation"):
+        if not any(t.get("k") == "type" and t.get("v") == "lanelet" for t in rel.iter("tag")):
+            continue
+        done = False
+        for role in ("left", "right"):
+            members = [m for m in rel.iter("member") if m.get("role") == role
+                       and m.get("type") == "way"]
+            if len(members) < 2 or any(m.get("ref") not in ways for m in members):
+                continue
+            chain = _chain([[nd.get("ref", "") for nd in ways[m.get("ref")].iter("nd")]
+                            for m in members])
+            if chain is None:
+                continue
+            fresh += 1
+            first = ways[members[0].get("ref")]
+            way = ET.SubElement(root, "way", {"id": str(fresh), "visible": "true",
+                                              "version": "1"})
+            way.extend(ET.Element("nd", {"ref": r}) for r in chain)
+            way.extend(ET.Element("tag", dict(t.attrib)) for t in first.iter("tag"))
+            for m in members[1:]:
+                rel.remove(m)
+            members[0].set("ref", str(fresh))
+            done = True
+        if done:
+            joined.append(int(rel.get("id", "0")))
+    if joined:
+        ET.ElementTree(root).write(dst, encoding="utf-8", xml_declaration=True)
+    return joined
+
+
+def _chain(parts: list[list[str]]) -> list[str] | None:
+    """The node ids of the ways ``parts`` joined end to end into one line (each used once,
+    reversed where needed), None when they do not form one."""
+    line, rest = list(parts[0]), [list(p) for p in parts[1:]]
+    while rest:
+        for k, part in enumerate(rest):
+            if len(part) < 2:
+                return None
+            if part[0] == line[-1] or part[-1] == line[-1]:
+                line += (part if part[0] == line[-1] else part[::-1])[1:]
+            elif part[-1] == line[0] or part[0] == line[0]:
+                line = (part if part[-1] == line[0] else part[::-1])[:-1] + line
+            else:
+                continue
+            del rest[k]
+            break
+        else:
+            return None
+    return line
 
 
 def _regulatory_failures(errors: list[str], lanelet_ids: dict[int, dict[str, str]]
