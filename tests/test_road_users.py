@@ -3,6 +3,7 @@ vehicles' and kept out of the registration, against the simulator's truth."""
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -190,6 +191,11 @@ def test_a_track_on_the_rail_bed_beside_the_road_is_not_a_motor_vehicle() -> Non
     # a tram 2.75 m from the road's edge, on the rail bed (up to the samples' spacing)
     assert ways.nearer_other(tram.states[:, [X, Y]], tram.states[:, YAW]) == pytest.approx(
         2.75, abs=0.36)
+    # heading across every way (north): none runs along it, -inf, and no NaN on the way
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        across = ways.nearer_other(np.array([[0.0, 8.0], [0.0, 0.0]]), np.full(2, np.pi / 2))
+    np.testing.assert_array_equal(across, [-np.inf, -np.inf])
     # inf keeps every track; a map without other ways leaves the rule idle
     assert split_road_users([tram], TrackingConfig(off_lane_margin=np.inf), ways).others == []
     no_rail = MapWays.of(LaneletMap(lmap.lanelets))

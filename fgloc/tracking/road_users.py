@@ -183,9 +183,12 @@ class MapWays:
         the heading, +inf where only other ways do)."""
         if self.drivable is None or self.other is None:
             return np.full(len(xy), -np.inf)
+        xy, heading = np.asarray(xy, dtype=float), np.asarray(heading, dtype=float)
         other = self.other.distance(xy, heading)
-        return np.where(np.isfinite(other), self.drivable.distance(xy, heading) - other,
-                        -np.inf)
+        out = np.full(len(xy), -np.inf)
+        near = np.isfinite(other)
+        out[near] = self.drivable.distance(xy[near], heading[near]) - other[near]
+        return out
 
     def off_road(self, xy: np.ndarray) -> np.ndarray:
         """(n,) distance (m) of each point (n, 2) from the drivable area, whatever its
