@@ -102,6 +102,7 @@ def test_modes_sampled_along_a_road_report_the_road_and_cover_the_truth():
     assert e @ np.linalg.solve(cov, e) < 1.0
     assert np.sqrt(cov[0, 0]) > 3.0 and np.sqrt(cov[1, 1]) == pytest.approx(0.5, rel=0.01)
     assert "not determined" in with_valley.warnings("joint")[0]
+    assert "both ends set by the data" in with_valley.warnings("joint")[0]
     # every track costlier between the modes at x = 4 and 6 (at 5 +- 0.6): distinct modes,
     # not samples of one road; no valley, the modes stand
     assert track_valley(choice, lambda f, T: np.ones(n) * (1.0 + (abs(T[0, 2] - 5.0) < 0.6)),

@@ -1022,7 +1022,9 @@ def joint_from_tracks(scn: Scenario, cfg: Config, target: TargetCloud, coarse: C
         dirs = ", ".join(f"{d['std_m']:.2f} m at {d['translation_heading_deg']:.0f} deg"
                          for d in degen["weak_directions"])
         warnings.append(f"joint: weakly observed pose direction(s) (std. dev. > "
-                        f"{cfg.joint.weak_sigma} m): {dirs or 'no covariance'}")
+                        f"{cfg.joint.weak_sigma} m): " + (
+                            dirs or "not analysed, the joint's own fit gives no covariance "
+                            "(fewer than 3 matched track points)"))
     tx, ty, yaw = se2_params(jr.T)
     diag = {
         "start": cfg.joint.start,

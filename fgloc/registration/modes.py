@@ -486,11 +486,12 @@ class ModeChoice:
         if self.valley is not None:
             v = self.valley
             heading = float(np.rad2deg(np.arctan2(v.direction[1], v.direction[0])))
-            ends = " and ".join("the prior" if open_ else "the data"
-                                for open_ in (v.open_lo, v.open_hi))
+            ends = ("both ends set by the prior" if v.open_lo and v.open_hi
+                    else "one end set by the data, the other by the prior"
+                    if v.open_lo or v.open_hi else "both ends set by the data")
             return [f"{method}: ambiguous pose: the position along {heading:.0f} deg (grid) is "
                     f"not determined: every pose over {v.hi - v.lo:.1f} m along it fits the data "
-                    f"alike ({len(self.tied)} tied modes lie on it; its ends set by {ends}); the "
+                    f"alike ({len(self.tied)} tied modes lie on it; {ends}); the "
                     "reported one is where the approximate position puts it, with a covariance "
                     "over that extent"]
         c = self.best.sensor
