@@ -76,6 +76,23 @@ def test_recovers_pose_from_10m_off(case: str, seed: int, yaw_offset: float | No
     assert w @ np.linalg.solve(res.tilt_covariance, w) < 13.8       # chi2(2) 99.9 %
 
 
+def test_a_pose_far_from_the_yaw_guess_is_recovered_and_warned_of() -> None:
+    """sensor.toml's yaw guess 40 deg off (its window is 10): the lanes of the intersection
+    turn the fit back to the truth, and the result says the pose lies far outside the
+    searched region; with the guess 4 deg off, no such warning."""
+    base = scenario("intersection", 1)
+    tru = pose_from_se3(base.truth.sensor_pose)
+    for off, far in ((40.0, True), (4.0, False)):
+        scn = moved(base, 3.0, 0.7, true_yaw_deg(base) + off)
+        res = coarse_localize(scn, build_target_cloud(scn, MapConfig()), CoarseConfig())
+        est = pose_from_se3(res.T_coarse)
+        assert np.hypot(est[0] - tru[0], est[1] - tru[1]) < 1.5
+        assert abs(np.rad2deg(wrap_angle(est[3] - tru[3]))) < 1.5
+        warned = [w for w in res.warnings if "far outside the searched region" in w]
+        assert bool(warned) == far
+        assert not far or "yaw_guess_deg" in warned[0]
+
+
 class _FlatRoad:
     """Road at height 0 everywhere, every point on it (the interface fit_vertical reads)."""
 

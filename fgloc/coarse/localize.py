@@ -181,6 +181,23 @@ def _yaw_candidates(yaw_guess_deg: float | None, cfg: CoarseConfig) -> np.ndarra
     return np.deg2rad(yaw_guess_deg) + np.arange(-w, w + 1e-9, step)
 
 
+def outside_search(pose2d: np.ndarray, centre: np.ndarray, yaw_guess_deg: float | None,
+                   cfg: CoarseConfig) -> str | None:
+    """Why the planar pose (x, y, yaw; m, rad in L) lies outside the searched region grown to
+    twice its size (``position_search_radius`` about ``centre``, sensor.toml's approximate
+    position; ``yaw_guess_window_deg`` about ``yaw_guess_deg`` when given), None inside."""
+    far = float(np.hypot(*(pose2d[:2] - centre)))
+    if far > 2.0 * cfg.position_search_radius:
+        return (f"{far:.1f} m from sensor.toml's approx_position (searched within "
+                f"coarse.position_search_radius = {cfg.position_search_radius:g} m)")
+    if yaw_guess_deg is not None:
+        off = abs(float(np.rad2deg(wrap_angle(pose2d[2] - np.deg2rad(yaw_guess_deg)))))
+        if off > 2.0 * cfg.yaw_guess_window_deg:
+            return (f"yaw {off:.1f} deg from sensor.toml's yaw_guess_deg (searched within "
+                    f"coarse.yaw_guess_window_deg = {cfg.yaw_guess_window_deg:g} deg)")
+    return None
+
+
 def side_offsets(lanes: LaneCentres, sensor_xy: np.ndarray, cfg: CoarseConfig) -> np.ndarray:
     """(K,) m, how far each lane sample is shifted towards the sensor at ``sensor_xy`` (2,):
     ``visible_side_offset`` head-on to ``visible_side_offset_broadside`` broadside, linear in
@@ -617,6 +634,12 @@ def coarse_localize(scn: Scenario, target: TargetCloud, cfg: CoarseConfig,
     tie = lane_tie_covariance(kept, ref, fit, fit_rec, models, cfg) + lane_fit_considered(
         kept[0][1], (fit @ ref.r_tilt.T)[:, :2], fit_rec, models[kept[0][2]], cfg)
     warnings = mode_warning(modes)
+    if (outside := outside_search(ref.pose2d, centre, scn.sensor.yaw_guess_deg, cfg)):
+        warnings.append(f"coarse: the pose ended far outside the searched region, {outside}: "
+                        "either sensor.toml's guess is wrong (the lanes of a junction can turn "
+                        "the fit back to the truth) or the fit settled on other road (little "
+                        "of the road in view, a map without the road the vehicles drive): "
+                        "check the guess and the overview")
     timings["refinement"] = time.perf_counter() - t
 
     T = se3(rot_z(ref.pose2d[2]) @ ref.r_tilt, [ref.pose2d[0], ref.pose2d[1], ref.z])
