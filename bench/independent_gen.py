@@ -210,7 +210,14 @@ class RoadMap:
         self.to_world = pyproj.Transformer.from_crs("EPSG:4326", CRS, always_xy=True)
         self.node = self._project_nodes(path)
         origin = lanelet2.io.Origin(*site)
-        lmap = lanelet2.io.load(str(path), lanelet2.projection.UtmProjector(origin))
+        # robust: a map with a primitive lanelet2 cannot build (a bound drawn as several ways,
+        # an area without one outer ring) is driven on the lanelets it can; the routing graph
+        # over a map that still holds a rejected lanelet (bounds missing) crashes the process
+        lmap, _ = lanelet2.io.loadRobust(str(path), lanelet2.projection.UtmProjector(origin))
+        valid = [ll for ll in lmap.laneletLayer
+                 if len(ll.leftBound) > 1 and len(ll.rightBound) > 1]
+        if len(valid) < len(lmap.laneletLayer):
+            lmap = lanelet2.core.createSubmapFromLanelets(valid)
         rules = lanelet2.traffic_rules.create(lanelet2.traffic_rules.Locations.Germany,
                                               lanelet2.traffic_rules.Participants.Vehicle)
         self.graph = lanelet2.routing.RoutingGraph(lmap, rules)
