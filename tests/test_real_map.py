@@ -366,6 +366,14 @@ def test_a_bound_drawn_as_several_ways_is_joined(tmp_path: Path) -> None:
     got = {x.id: x for x in back.lanelets}[ll.id]
     np.testing.assert_allclose(got.right, ll.right)
     np.testing.assert_allclose(got.left, ll.left)
+    # a relation JOSM marks deleted is left alone, as lanelet2 leaves it
+    from fgloc.io.lanelet_map import _join_split_bounds
+
+    deleted = tmp_path / "deleted.osm"
+    deleted.write_text(path.read_text().replace(f'<relation id="{ll.id}"',
+                                                f'<relation id="{ll.id}" action="delete"'))
+    assert _join_split_bounds(path, tmp_path / "a.osm") == [ll.id]
+    assert _join_split_bounds(deleted, tmp_path / "b.osm") == []
 
 
 def test_crop_keeps_the_regulatory_elements_its_lanelets_reference(tmp_path: Path) -> None:

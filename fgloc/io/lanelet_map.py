@@ -456,15 +456,17 @@ def _join_split_bounds(src: Path, dst: Path) -> list[int]:
     several ways end to end, and lanelet2 then rejects the lanelet ("Lanelet has not exactly
     one left border"). Each such bound whose ways chain (consecutive ways share an end node,
     in any order and direction) becomes one new way (the first way's tags; a fresh id above
-    every id of the file), written with the rest of ``src`` to ``dst``. Returns the ids of the
-    lanelets so joined; empty (and nothing written) when there are none."""
+    every id of the file), written with the rest of ``src`` to ``dst``. Elements JOSM marks
+    ``action="delete"`` are left out, as lanelet2 leaves them. Returns the ids of the lanelets
+    so joined; empty (and nothing written) when there are none."""
     root = ET.parse(src).getroot()
-    ways = {w.get("id"): w for w in root.iter("way")}
+    ways = {w.get("id"): w for w in root.iter("way") if w.get("action") != "delete"}
     ids = [int(e.get("id", "0")) for e in root if e.get("id", "").lstrip("-").isdigit()]
     fresh = max(map(abs, ids), default=0)
     joined: list[int] = []
     for rel in root.iter("relation"):
-        if not any(t.get("k") == "type" and t.get("v") == "lanelet" for t in rel.iter("tag")):
+        if rel.get("action") == "delete" or not any(
+                t.get("k") == "type" and t.get("v") == "lanelet" for t in rel.iter("tag")):
             continue
         done = False
         for role in ("left", "right"):
