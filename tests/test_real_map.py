@@ -630,6 +630,7 @@ def test_simulate_on_a_map_without_junction_watches_a_road(
     path = tmp_path / "map.osm"
     path.write_text(INVERTED)
     sim = simulate_on_map(path, 1, duration=10.0)
+    assert "the original map's copyright and licence apply" in sim.map_osm   # no LICENSE here
     assert sim.site == "road" and len(sim.scenario.truth.tracks) >= 2
     lanes = {ll.id: ll for ll in sim.scenario.lanelets.lanelets}
     heads = []
@@ -668,6 +669,7 @@ def crop_sim(tmp_path_factory: pytest.TempPathFactory):
 
 def test_simulated_scenario_keeps_the_contract_and_the_real_map(crop_sim) -> None:
     sim, out, loaded = crop_sim
+    assert "see the LICENSE files beside this map" in sim.map_osm
     assert (out / "LICENSE-lanelet2_mapping_example").read_text() == (
         DATA / "LICENSE-lanelet2_mapping_example").read_text()
     text = (out / "map.osm").read_text()

@@ -301,9 +301,12 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
         jlat, jlon = (float(v) for v in top[int(rng["junction"].integers(len(top)))].centre)
     else:
         (jlat, jlon), kind = _road_point(whole, whole_frame, None, rng["junction"]), "road"
+    notices = {p.name: p.read_text(encoding="utf-8")
+               for p in sorted(map_path.parent.glob("LICENSE*")) if p.is_file()}
     notice = ("Crop of " + map_path.name + f" ({crop_radius:g} m around lat {jlat:.6f}, lon "
-              f"{jlon:.6f}; ele tags removed) written by the fgloc map simulator; see the LICENSE "
-              "files beside this map for its copyright and licence.")
+              f"{jlon:.6f}; ele tags removed) written by the fgloc map simulator; " + (
+                  "see the LICENSE files beside this map for its copyright and licence."
+                  if notices else "the original map's copyright and licence apply."))
     text = crop_lanelet_osm(map_path, jlat, jlon, crop_radius, drop_ele=True)
     text = text.replace("?>", f"?>\n<!-- {notice} -->", 1)
 
@@ -359,6 +362,4 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
     result = drive_and_observe(rng["traffic"], rng["radar"], site_rng, cfg, net, mount, terrain,
                                scenery, frame, approx_en, als, lmap, duration, vehicles,
                                map_users(lmap, centre, route_reach, cfg))
-    notices = {p.name: p.read_text(encoding="utf-8")
-               for p in sorted(map_path.parent.glob("LICENSE*")) if p.is_file()}
     return MapSimulation(result, text, centre, notices, kind)
