@@ -308,9 +308,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         if not same_crs(truth.crs, saved.crs):
             raise FglocError(f"{gt_path}: CRS {truth.crs} differs from the result's {saved.crs}")
         err = pose_error(frame.pose_to_local(saved.T_utm), truth.sensor_pose)
-        out.update(method=saved.method, converged=saved.converged, pose=err.to_json())
+        out.update(method=saved.method, converged=saved.converged, status=saved.status,
+                   pose=err.to_json())
         if not args.json:
-            print(f"method {saved.method}{'' if saved.converged else ' (NOT CONVERGED)'}")
+            print(f"method {saved.method}: {saved.status}"
+                  f"{'' if saved.converged else ' (NOT CONVERGED)'}")
             print(err.table())
     if tracks_path is not None:
         toml = gt_path.parent / "sensor.toml"

@@ -133,12 +133,14 @@ class LocalizationResult:
 
 @dataclass(frozen=True)
 class SavedPose:
-    """The pose read back from a result.json: 4x4 sensor -> world and the CRS."""
+    """The pose read back from a result.json: 4x4 sensor -> world, the CRS, the method, whether
+    it converged and its status ("resolved" or "ambiguous")."""
 
     crs: str
     T_utm: np.ndarray
     method: str
     converged: bool
+    status: str = "resolved"
 
 
 def read_result_json(path: str | Path) -> SavedPose:
@@ -160,4 +162,5 @@ def read_result_json(path: str | Path) -> SavedPose:
         T_utm=T,
         method=str(doc.get("method", "unknown")),
         converged=bool(doc.get("converged", True)),
+        status=str(doc.get("status", "resolved")),
     )

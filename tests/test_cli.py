@@ -74,7 +74,9 @@ def test_localize_icp_and_evaluate(scenario_dir, tmp_path, capsys):
     capsys.readouterr()
     gt = scenario_dir / "ground_truth.json"
     assert main(["evaluate", str(out / "result.json"), str(gt), "--json"]) == 0
-    err = json.loads(capsys.readouterr().out)["pose"]
+    evaluated = json.loads(capsys.readouterr().out)
+    assert evaluated["status"] == doc["status"] and evaluated["method"] == "icp"
+    err = evaluated["pose"]
     assert err["d2d"] < 1.5 and err["dyaw_deg"] < 1.5
     # the tilt's std. devs. are reported and cover its error
     assert 0.0 < doc["pitch_std_deg"] < 2.0 and 0.0 < doc["roll_std_deg"] < 2.0
