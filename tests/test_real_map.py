@@ -601,6 +601,31 @@ INVERTED = """<?xml version="1.0"?>
 """
 
 
+def test_a_road_site_without_mast_place_is_drawn_again(tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    """A random road site with no mast place (a stub of road) is not the end: another random
+    metre of road is tried (up to ROAD_SITE_ATTEMPTS); a --site that has none is an error."""
+    import fgloc.sim.real_map as real_map
+
+    path = tmp_path / "map.osm"
+    path.write_text(INVERTED)
+    place, calls = real_map._place_mast, []
+
+    def fails_first(*args: object, **kwargs: object) -> object:
+        calls.append(1)
+        if len(calls) == 1:
+            raise RuntimeError("no roadside position for the sensor")
+        return place(*args, **kwargs)
+
+    monkeypatch.setattr(real_map, "_place_mast", fails_first)
+    sim = real_map.simulate_on_map(path, 1, duration=2.0)
+    assert sim.site == "road" and len(calls) == 2
+    calls.clear()
+    with pytest.raises(RuntimeError, match="no roadside position"):
+        real_map.simulate_on_map(path, 1, duration=2.0, site=(49.00003, 8.40025))
+    assert len(calls) == 1
+
+
 def test_inverted_shared_bound(tmp_path: Path) -> None:
     """Two opposite lanes share their middle line (way 11, drawn eastwards): the westbound
     lanelet 21 uses it inverted, and its right bound (way 12) runs westwards."""

@@ -63,6 +63,8 @@ SIDEWALK_RAISE = 0.12
 #: counted as seen
 MAST_CANDIDATES = 12
 VIEW_RANGE_FRACTION = 0.75
+#: random road sites tried (a map without junctions, no --site) before giving up on a mast
+ROAD_SITE_ATTEMPTS = 5
 #: the radar may turn away from the junction until the junction is this far (deg) inside the
 #: field of view's edge ...
 JUNCTION_IN_VIEW_MARGIN_DEG = 15.0
@@ -257,6 +259,60 @@ def _sidewalks_and_roofs(als_xyz: np.ndarray, cls: np.ndarray, lmap: LaneletMap,
             cls[hit] = BUILDING
 
 
+@dataclass
+class _Layout:
+    """Where a simulated site stands (:func:`_site_layout`): the map crop's OSM text, the
+    junction frame (the site's centre at ground height ``centre_h``, m), the site, the road
+    network driven there and the radar's mounting (both in that frame)."""
+
+    text: str
+    frame0: LocalFrame
+    centre_h: float
+    junction: Junction
+    net: RoadNetwork
+    mount: Mounting
+
+
+def _site_layout(map_path: Path, at: tuple[float, float], kind: str, crs: str,
+                 crop_radius: float, route_reach: float, licensed: bool, cfg: SimConfig,
+                 site_rng: np.random.Generator, sensor_rng: np.random.Generator) -> _Layout:
+    """The crop of the map ``crop_radius`` m around ``at`` (lat, lon; its notice names the
+    LICENSE files when ``licensed``), the ``kind`` of site there ("junction" or "road"), its
+    routes (``route_reach`` m before and after), their road network and the mast beside it.
+    Raises RuntimeError when the site falls apart in the crop or has no mast place."""
+    jlat, jlon = at
+    notice = ("Crop of " + map_path.name + f" ({crop_radius:g} m around lat {jlat:.6f}, lon "
+              f"{jlon:.6f}; ele tags removed) written by the fgloc map simulator; " + (
+                  "see the LICENSE files beside this map for its copyright and licence."
+                  if licensed else "the original map's copyright and licence apply."))
+    text = crop_lanelet_osm(map_path, jlat, jlon, crop_radius, drop_ele=True)
+    text = text.replace("?>", f"?>\n<!-- {notice} -->", 1)
+
+    # junction frame: the junction centre at ground height; the final frame follows the mast
+    je, jn = transformer(WGS84, crs).transform(jlon, jlat)
+    centre_h = site_rng.uniform(*cfg.site.ground_height)
+    frame0 = LocalFrame.around(je, jn, centre_h, crs)
+    lmap0 = _read_text_map(text, crs, frame0)
+    directed_all = directed_lanelets(lmap0)
+    directed = directed_all.map
+    centre0 = np.array([je, jn]) - np.asarray(frame0.origin[:2])
+    junction = road_site(directed, centre0) if kind == "road" else next(
+        (j for j in find_junctions(directed) if np.linalg.norm(j.centre - centre0) < 30.0), None)
+    if junction is None:
+        raise RuntimeError(f"the {kind} site at lat {jlat:.6f}, lon {jlon:.6f} fell apart in the "
+                           "crop")
+    by_id = {ll.id: ll for ll in directed.lanelets}
+    routes = [[by_id[i] for i in r] for r in junction_routes(directed, junction, route_reach)]
+    rm = cfg.real_map
+    net = build_map_network(lmap0, routes, junction.centre, cfg.als.extent, rm.two_way_traffic,
+                            PathSmoothing(rm.path_smoothing, rm.path_half_window,
+                                          rm.path_spline_length),
+                            lanelet2_centre_lines(directed_all) if rm.centre_line == "lanelet2"
+                            else None)
+    mount = _place_mast(sensor_rng, cfg, net, RoadArea(net), lmap0, junction.centre)
+    return _Layout(text, frame0, centre_h, junction, net, mount)
+
+
 def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float] | None = None,
                     duration: float = 60.0, vehicles: int | None = None,
                     config: SimConfig | None = None, crop_radius: float = 300.0,
@@ -303,36 +359,20 @@ def simulate_on_map(map_path: str | Path, seed: int, *, site: tuple[float, float
         (jlat, jlon), kind = _road_point(whole, whole_frame, None, rng["junction"]), "road"
     notices = {p.name: p.read_text(encoding="utf-8")
                for p in sorted(map_path.parent.glob("LICENSE*")) if p.is_file()}
-    notice = ("Crop of " + map_path.name + f" ({crop_radius:g} m around lat {jlat:.6f}, lon "
-              f"{jlon:.6f}; ele tags removed) written by the fgloc map simulator; " + (
-                  "see the LICENSE files beside this map for its copyright and licence."
-                  if notices else "the original map's copyright and licence apply."))
-    text = crop_lanelet_osm(map_path, jlat, jlon, crop_radius, drop_ele=True)
-    text = text.replace("?>", f"?>\n<!-- {notice} -->", 1)
-
-    # junction frame: the junction centre at ground height; the final frame follows the mast
-    je, jn = transformer(WGS84, crs).transform(jlon, jlat)
     site_rng = rng["site"]
-    centre_h = site_rng.uniform(*cfg.site.ground_height)
-    frame0 = LocalFrame.around(je, jn, centre_h, crs)
-    lmap0 = _read_text_map(text, crs, frame0)
-    directed_all = directed_lanelets(lmap0)
-    directed = directed_all.map
-    centre0 = np.array([je, jn]) - np.asarray(frame0.origin[:2])
-    junction = road_site(directed, centre0) if kind == "road" else next(
-        (j for j in find_junctions(directed) if np.linalg.norm(j.centre - centre0) < 30.0), None)
-    if junction is None:
-        raise RuntimeError(f"the {kind} site at lat {jlat:.6f}, lon {jlon:.6f} fell apart in the "
-                           "crop")
-    by_id = {ll.id: ll for ll in directed.lanelets}
-    routes = [[by_id[i] for i in r] for r in junction_routes(directed, junction, route_reach)]
-    rm = cfg.real_map
-    net = build_map_network(lmap0, routes, junction.centre, cfg.als.extent, rm.two_way_traffic,
-                            PathSmoothing(rm.path_smoothing, rm.path_half_window,
-                                          rm.path_spline_length),
-                            lanelet2_centre_lines(directed_all) if rm.centre_line == "lanelet2"
-                            else None)
-    mount = _place_mast(rng["sensor"], cfg, net, RoadArea(net), lmap0, junction.centre)
+    attempts = ROAD_SITE_ATTEMPTS if kind == "road" and site is None else 1
+    for attempt in range(attempts):
+        if attempt:       # another random metre of road: the last one had no mast place
+            jlat, jlon = _road_point(whole, whole_frame, None, rng["junction"])
+        try:
+            lay = _site_layout(map_path, (jlat, jlon), kind, crs, crop_radius, route_reach,
+                               bool(notices), cfg, site_rng, rng["sensor"])
+            break
+        except RuntimeError:
+            if attempt == attempts - 1:
+                raise
+    text, frame0, centre_h, junction, net, mount = (
+        lay.text, lay.frame0, lay.centre_h, lay.junction, lay.net, lay.mount)
 
     slope = site_rng.uniform(*cfg.als.slope)
     downhill = site_rng.uniform(-np.pi, np.pi)
