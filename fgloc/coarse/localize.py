@@ -126,8 +126,7 @@ class CoarseResult:
         None without a vertical fit."""
         if self.tilt_covariance is None:
             return None
-        c, s = np.cos(self.pose[3]), np.sin(self.pose[3])
-        to_l = np.array([[c, -s], [s, c]])
+        to_l = rot_z(self.pose[3])[:2, :2]
         lev = to_l.T @ self.tilt_covariance @ to_l
         return float(np.sqrt(lev[1, 1])), float(np.sqrt(lev[0, 0]))
 
