@@ -50,7 +50,9 @@ class Buildings:
 
     origin: (2,) m in L, the grid's lower-left corner; top: (ny, nx) the highest building
     point per ``CELL`` m cell (m in L; -inf where there is none); ground: a KD-tree over the
-    other ALS points' xy and their heights ``ground_z`` (m in L).
+    xy of the ALS's ground points (:data:`fgloc.scenario.GROUND_CLASSES`; all points but the
+    buildings when it has none: a tree crown would lift the sight line's end) and their
+    heights ``ground_z`` (m in L).
     """
 
     origin: np.ndarray
@@ -61,7 +63,7 @@ class Buildings:
     @classmethod
     def of(cls, als: AlsCloud, centre: np.ndarray, reach: float) -> Buildings | None:
         """From the ALS points within ``reach`` m of ``centre`` (2,) in L; None without a
-        building point there or without any other point."""
+        building point there or without a ground point (or, lacking those, any other)."""
         xyz = np.asarray(als.xyz, dtype=float)
         near = np.hypot(*(xyz[:, :2] - centre).T) <= reach
         code = np.asarray(als.classification)
