@@ -32,6 +32,8 @@ ASPRS_CLASSES: dict[int, str] = {
 }
 #: ASPRS classes of the bare ground: 2 ground, 11 road surface.
 GROUND_CLASSES: tuple[int, ...] = (2, 11)
+#: ASPRS class of building points (the sight lines' obstacles; the simulator writes it).
+BUILDING_CLASS: int = 6
 
 
 @dataclass

@@ -14,7 +14,7 @@ from factors.gp import rectangle_radius
 from fgloc.config import Config, from_dict
 from fgloc.io import load_scenario
 from fgloc.pipeline import track
-from fgloc.scenario import AlsCloud, Lanelet, LaneletMap
+from fgloc.scenario import BUILDING_CLASS, AlsCloud, Lanelet, LaneletMap
 from fgloc.sim import SimConfig, simulate_detailed
 from fgloc.sim.radar import GHOST as SIM_GHOST
 from fgloc.sim.real_map import simulate_on_map
@@ -27,7 +27,7 @@ from fgloc.tracking.road_users import (
     is_motor_vehicle,
     split_road_users,
 )
-from fgloc.tracking.sightlines import BUILDING, Buildings
+from fgloc.tracking.sightlines import Buildings
 from fgloc.tracks import N_KIN, N_STATE, YAW, Track, V, X, Y, contour_angles
 
 CROP = Path(__file__).parent / "data" / "lanelet2_example_crop.osm"
@@ -335,7 +335,7 @@ def _als(boxes: list[tuple[float, float, float, float, float]]) -> AlsCloud:
     for x0, x1, y0, y1, top in boxes:
         bx, by = np.meshgrid(np.arange(x0, x1, 0.5), np.arange(y0, y1, 0.5))
         parts.append(np.column_stack([bx.ravel(), by.ravel(), np.full(bx.size, top)]))
-        cls.append(np.full(bx.size, BUILDING))
+        cls.append(np.full(bx.size, BUILDING_CLASS))
     return AlsCloud(np.vstack(parts).astype(np.float32), np.concatenate(cls).astype(np.uint8))
 
 
@@ -371,8 +371,8 @@ def test_a_tree_over_the_road_does_not_lift_the_sight_line() -> None:
     vehicle = np.array([[40.1, 0.1]])             # under a crown point, 0.14 m from the ground's
     assert b is not None and b.hidden(SENSOR, vehicle)[0]
     # without ground classes the other points give the ground (here the crown: seen over)
-    unclassified = AlsCloud(treed.xyz, np.where(treed.classification == BUILDING, BUILDING,
-                                                1).astype(np.uint8))
+    building = treed.classification == BUILDING_CLASS
+    unclassified = AlsCloud(treed.xyz, np.where(building, BUILDING_CLASS, 1).astype(np.uint8))
     b = Buildings.of(unclassified, np.zeros(2), 100.0)
     assert b is not None and not b.hidden(SENSOR, vehicle)[0]
 

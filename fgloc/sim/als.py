@@ -10,13 +10,13 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from fgloc.scenario import AlsCloud
+from fgloc.scenario import BUILDING_CLASS, AlsCloud
 from fgloc.sim.config import AlsSimConfig
 from fgloc.sim.roads import RoadArea
 from fgloc.sim.scenery import Scenery
 from fgloc.sim.terrain import Terrain
 
-GROUND, UNCLASSIFIED, HIGH_VEGETATION, BUILDING, ROAD = 2, 1, 5, 6, 11
+GROUND, UNCLASSIFIED, HIGH_VEGETATION, ROAD = 2, 1, 5, 11
 
 
 def _roofs(xy: np.ndarray, z: np.ndarray, cls: np.ndarray, scn: Scenery,
@@ -31,7 +31,7 @@ def _roofs(xy: np.ndarray, z: np.ndarray, cls: np.ndarray, scn: Scenery,
         v = -d[:, 0] * np.sin(yaw) + d[:, 1] * np.cos(yaw)
         inside = near[(np.abs(u) <= size[0] / 2) & (np.abs(v) <= size[1] / 2)]
         z[inside] = terrain.ground(c) + h
-        cls[inside] = BUILDING
+        cls[inside] = BUILDING_CLASS
 
 
 def _crowns(rng: np.random.Generator, xy: np.ndarray, z: np.ndarray, cls: np.ndarray,

@@ -30,8 +30,8 @@ from fgloc.geo import LocalFrame, natural_utm_zone, transformer, utm_zone, wrap_
 from fgloc.io.lanelet_map import WGS84, crop_lanelet_osm, read_lanelet_map
 from fgloc.map import points_in_polygon
 from fgloc.progress import quiet
-from fgloc.scenario import Lanelet, LaneletMap, Scenario
-from fgloc.sim.als import BUILDING, GROUND, synthesize_als
+from fgloc.scenario import BUILDING_CLASS, Lanelet, LaneletMap, Scenario
+from fgloc.sim.als import GROUND, synthesize_als
 from fgloc.sim.config import SimConfig
 from fgloc.sim.core import SimResult, drive_and_observe
 from fgloc.sim.map_paths import map_users
@@ -256,7 +256,7 @@ def _sidewalks_and_roofs(als_xyz: np.ndarray, cls: np.ndarray, lmap: LaneletMap,
             als_xyz[hit, 2] += SIDEWALK_RAISE
         else:
             als_xyz[hit, 2] = terrain.ground(poly.mean(axis=0)) + roof.height
-            cls[hit] = BUILDING
+            cls[hit] = BUILDING_CLASS
 
 
 @dataclass

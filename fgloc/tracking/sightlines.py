@@ -21,10 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from fgloc.scenario import GROUND_CLASSES, AlsCloud
+from fgloc.scenario import BUILDING_CLASS, GROUND_CLASSES, AlsCloud
 
-#: ASPRS class of building points
-BUILDING = 6
 #: cell (m) of the building-top grid
 CELL = 1.0
 #: spacing (m) of the samples along a sight line
@@ -67,7 +65,7 @@ class Buildings:
         xyz = np.asarray(als.xyz, dtype=float)
         near = np.hypot(*(xyz[:, :2] - centre).T) <= reach
         code = np.asarray(als.classification)
-        building = near & (code == BUILDING)
+        building = near & (code == BUILDING_CLASS)
         other = near & np.isin(code, GROUND_CLASSES)
         if not other.any():
             other = near & ~building
