@@ -39,7 +39,8 @@ VARIANTS: dict[str, SimConfig] = {
     ),
     "dense-traffic": SimConfig(
         road=RoadSimConfig(lanes_per_direction=[2], lane_width=3.25),
-        traffic=TrafficSimConfig(arrival_interval=1.2, class_mix=(0.4, 0.3, 0.3)),
+        traffic=TrafficSimConfig(arrival_interval=1.2, class_mix=(0.4, 0.3, 0.3),
+                                 stop_share=0.3),
     ),
 }
 
@@ -338,7 +339,12 @@ def test_truth_states_are_ctra_consistent(case: str, seed: int, variant: str) ->
         pred = _ctra_step(np.column_stack([x[:-1], y[:-1], yaw_u[:-1], v[:-1], w_mid, acc]), dt)
         assert np.abs(pred - np.column_stack([x[1:], y[1:]])).max() < 0.02
         assert np.abs(np.diff(yaw_u) - w_mid * dt).max() < 2e-3
-        assert np.all(np.abs(acc) <= 2.5) and np.all(v > 0.5) and v.max() <= 15.0 + 1e-9
+        assert np.all(np.abs(acc) <= 2.5) and v.max() <= 15.0 + 1e-9
+        standing = v == 0.0               # a stop ([traffic] stop_share): it stands still
+        assert np.all(v > 0.5) or standing.any()
+        still = standing[1:] & standing[:-1]
+        assert np.all(np.diff(x)[still] == 0) and np.all(np.diff(y)[still] == 0)
+        assert np.all(w[standing] == 0)
         assert np.abs(np.diff(w) / dt).max() < 1.0   # smooth yaw rate (curvature ramps)
         turning = np.abs(w / v) > 0.05
         if turning.any():
@@ -380,18 +386,24 @@ def _overlap(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return ~sep
 
 
-@pytest.mark.parametrize("case,seed,variant", GEOMETRY_PARAMS[1::2])
-def test_vehicles_never_overlap(case: str, seed: int, variant: str) -> None:
-    scn = sim(case, seed, variant=variant).scenario
+def assert_vehicles_apart(scn: Scenario) -> None:
+    """No two truth boxes of ``scn`` overlap at any time stamp they share."""
     rows = np.vstack([np.column_stack([tr.states[:, :4], np.full((len(tr.states), 2),
                                                                  (tr.length, tr.width))])
                       for tr in scn.truth.tracks])
     corners = box_corners(rows[:, 1:3], rows[:, 3], rows[:, 4], rows[:, 5])
-    i, j = np.triu_indices(len(rows), 1)
-    same_t = rows[i, 0] == rows[j, 0]
-    i, j = i[same_t], j[same_t]
-    assert len(i) > 0
-    assert not _overlap(corners[i], corners[j]).any()
+    pairs = 0
+    for t in np.unique(rows[:, 0]):
+        k = np.flatnonzero(rows[:, 0] == t)
+        i, j = np.triu_indices(len(k), 1)
+        pairs += len(i)
+        assert not _overlap(corners[k[i]], corners[k[j]]).any(), f"overlap at t = {t}"
+    assert pairs > 0
+
+
+@pytest.mark.parametrize("case,seed,variant", GEOMETRY_PARAMS[1::2])
+def test_vehicles_never_overlap(case: str, seed: int, variant: str) -> None:
+    assert_vehicles_apart(sim(case, seed, variant=variant).scenario)
 
 
 # --------------------------------------------------------------------------------------------

@@ -9,6 +9,7 @@ import dataclasses
 import numpy as np
 import pytest
 from scipy.spatial import cKDTree
+from test_sim import assert_vehicles_apart
 
 from fgloc.config import from_dict
 from fgloc.geo import transform_points
@@ -371,3 +372,52 @@ def test_cyclists_ride_beside_the_unchanged_motor_traffic() -> None:
         from_dict(SimConfig, {"traffic": {"cyclists_per_minute": -1.0}}, None)
     with pytest.raises(Exception, match="cyclist_speed"):
         from_dict(SimConfig, {"traffic": {"cyclist_speed": [5.0, 3.0]}}, None)
+
+
+def test_stopping_vehicles_stand_before_the_crossing_with_static_returns() -> None:
+    """``stop_share``: that share of the vehicles stands still (v 0, no motion, zero yaw rate)
+    for ``stop_time`` s short of its route's first crossing, out of the crossing traffic's
+    paths, its returns static; the others do not stop, and no two vehicles overlap (the
+    vehicles behind a standing one wait)."""
+    cfg = SimConfig(traffic=TrafficSimConfig(stop_share=0.5, stop_time=(4.0, 8.0)))
+    res = simulate_detailed("intersection", 2, 40.0, config=cfg)
+    scn = res.scenario
+    dt = float(np.median(np.diff(np.unique(scn.radar.t))))
+    paths = np.vstack([tr.states[:, [1, 2, 3]] for tr in scn.truth.tracks])
+    stood = 0
+    for tr in scn.truth.tracks:
+        t, x, y, yaw, v, w = tr.states.T
+        standing = v == 0.0
+        if not standing.any():
+            continue
+        stood += 1
+        edges = np.flatnonzero(np.diff(np.concatenate([[0], standing.astype(int), [0]])))
+        assert len(edges) == 2                       # one stop
+        first, last = edges[0], edges[1] - 1
+        length = t[last] - t[first]
+        if 0 < first and last < len(t) - 1:           # the whole stand in the recording
+            assert 4.0 - 2 * dt <= length <= 8.0 + 2 * dt
+        assert np.ptp(x[standing]) == 0 and np.ptp(y[standing]) == 0
+        assert np.all(w[standing] == 0)
+        # the front stands out of the paths that cross its heading (30-150 deg)
+        front = np.array([x[first], y[first]]) + 0.5 * tr.length * np.array(
+            [np.cos(yaw[first]), np.sin(yaw[first])])
+        turn = np.abs(np.angle(np.exp(1j * (paths[:, 2] - yaw[first]))))
+        crossing = paths[(turn > np.deg2rad(30)) & (turn < np.deg2rad(150)), :2]
+        assert np.linalg.norm(crossing - front, axis=1).min() > 1.0
+        # its returns while it stands are static
+        det = (res.source == tr.id) & (scn.radar.t >= t[first]) & (scn.radar.t <= t[last])
+        assert det.sum() > 10
+        assert np.quantile(np.abs(scn.radar.doppler[det]), 0.99) < 3 * cfg.radar.sigma_doppler
+    assert stood >= 0.25 * len(scn.truth.tracks)
+    assert_vehicles_apart(scn)
+    plain = simulate_detailed("intersection", 2, 40.0).scenario
+    assert all(np.all(tr.states[:, 4] > 0.5) for tr in plain.truth.tracks)
+    # a platoon whose leader stops: its followers keep the free profile and wait
+    platoons = SimConfig(traffic=TrafficSimConfig(stop_share=0.5, platoon_size=(2, 3)))
+    scn = simulate_detailed("tjunction", 3, 30.0, config=platoons).scenario
+    assert any((tr.states[:, 4] == 0).any() for tr in scn.truth.tracks)
+    assert all(np.isfinite(tr.states).all() for tr in scn.truth.tracks)
+    assert_vehicles_apart(scn)
+    with pytest.raises(Exception, match="stop_share"):
+        from_dict(SimConfig, {"traffic": {"stop_share": 1.5}}, None)

@@ -225,6 +225,16 @@ class TrafficSimConfig:
     """Time headway (s, front to front) of each platoon follower behind its predecessor,
     uniform in this range; never closer than ``headway`` between them (time gap, rear to
     front)."""
+    stop_share: float = 0.0
+    """Share of the motor vehicles that stop once on their route, at a stop line ``stop_gap``
+    m before their first crossing with another route, for a time drawn from ``stop_time``
+    (a red light, a yield): standing, their returns are static (zero Doppler); the vehicles
+    behind them wait (entry delayed, as for every conflict). Routes crossing no other route
+    (straight road, curve) have no stop line. 0 (default) = no vehicle stops."""
+    stop_time: tuple[float, float] = (3.0, 15.0)
+    """Standing time (s) of a stopping vehicle, uniform in [low, high]."""
+    stop_gap: float = 2.0
+    """Distance (m) from a stopped vehicle's front to its route's first crossing."""
     platoon_abreast: bool = False
     """Platoon followers drive the lane beside their predecessor's instead of its own (a route
     whose start lies 2-4.5 m to the side of the predecessor's, heading within 15 deg; its own
@@ -236,6 +246,10 @@ class TrafficSimConfig:
             raise ValueError(f"cyclists_per_minute must be >= 0 and cyclist_speed [low, high] with "
                              f"0 < low <= high (m/s), got {self.cyclists_per_minute} and "
                              f"{list(self.cyclist_speed)}")
+        if not 0.0 <= self.stop_share <= 1.0 or not 0.0 <= self.stop_time[0] <= self.stop_time[1]:
+            raise ValueError(f"stop_share must be in [0, 1] and stop_time [low, high] with "
+                             f"0 <= low <= high (s), got {self.stop_share} and "
+                             f"{list(self.stop_time)}")
         lo, hi = self.platoon_size
         if not 1 <= lo <= hi:
             raise ValueError(f"platoon_size must be [low, high] with 1 <= low <= high, "

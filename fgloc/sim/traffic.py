@@ -12,7 +12,10 @@ Vehicles arrive singly or in platoons (``platoon_size``): a platoon's followers 
 leader's route at the leader's speed profile, ``platoon_headway`` s (front to front) behind
 their predecessor. Vehicles never overlap: each vehicle's entry time is delayed until its
 occupancy of every point it shares with an earlier vehicle's route (same lane, merge or
-crossing) is separated from that vehicle's occupancy by at least the headway.
+crossing) is separated from that vehicle's occupancy by at least the headway. With
+``stop_share`` that share of the vehicles stops once short of its route's first crossing
+(:func:`stop_lines`) and stands ``stop_time`` s, v 0 (a red light, a yield); the stand is part
+of its occupancy, so the vehicles behind it enter later.
 
 Cyclists (``cyclists_per_minute``; none by default) ride the same routes ``cyclist_offset`` m
 right of the lane centre line, at the lane's edge: road users that are not motor vehicles,
@@ -23,6 +26,7 @@ rails, :mod:`fgloc.sim.map_paths`) arrive the same way on their own routes.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -47,6 +51,9 @@ LATERAL_MARGIN = 0.6
 #: lateral error decaying as exp(-FOLLOW_WAVENUMBER * distance)
 FOLLOW_WAVENUMBER = 0.1
 
+#: two routes cross (:func:`stop_lines`) where their headings differ by more than this and
+#: less than its supplement (deg): not a lane followed or shared, not the opposite lane
+CROSSING_DEG = 30.0
 #: conflicts (:func:`_conflicts`) per pair of route indices, computed once
 _ConflictCache = dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]
 
@@ -92,7 +99,9 @@ class Route:
 @dataclass
 class Vehicle:
     """One vehicle: class index, size (m), route index, entry time t0 (s) and, on the route's
-    s grid, its speed v (m/s) and the time tau (s) since entry."""
+    s grid, its speed v (m/s) and the time tau (s) since entry, not counting a stop; a
+    vehicle that stops stands ``dwell`` s at arc length ``stop_s`` (m; inf: no stop), where
+    its v is 0."""
 
     kind: int
     length: float
@@ -101,6 +110,21 @@ class Vehicle:
     t0: float
     v: np.ndarray
     tau: np.ndarray
+    stop_s: float = math.inf
+    dwell: float = 0.0
+
+    def time_at(self, route: Route, s: np.ndarray) -> np.ndarray:
+        """Time since entry (s) when the vehicle centre is at arc length s (clamped at the
+        ends; after a stop's standing time where the stop is reached)."""
+        return np.interp(s, route.s, self.tau) + np.where(s > self.stop_s, self.dwell, 0.0)
+
+    def arc_at(self, route: Route, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Arc length (m) of the centre at times t since entry, and whether it stands."""
+        t_stop = (float(np.interp(self.stop_s, route.s, self.tau)) if self.dwell > 0
+                  else math.inf)
+        standing = (t >= t_stop) & (t <= t_stop + self.dwell)
+        t = np.where(t > t_stop + self.dwell, t - self.dwell, np.minimum(t, t_stop))
+        return np.interp(t, self.tau, route.s), standing
 
 
 @dataclass
@@ -223,9 +247,43 @@ def _conflicts(a: Route, b: Route) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             pairs["v"])
 
 
-def _time_at(veh: Vehicle, route: Route, s: np.ndarray) -> np.ndarray:
-    """Time since entry (s) when the vehicle centre is at arc length s (clamped at the ends)."""
-    return np.interp(s, route.s, veh.tau)
+def stop_lines(routes: list[Route], gap: float) -> np.ndarray:
+    """(n,) arc length (m) on each route of ``gap`` m before its first crossing with another
+    route (a point within CONFLICT_DIST of the other's whose heading differs by
+    CROSSING_DEG to 180 - CROSSING_DEG), where a stopping vehicle's front stands; inf where
+    the route crosses none."""
+    pts = [r.xy[::CONFLICT_STRIDE] for r in routes]
+    heads = [r.heading[::CONFLICT_STRIDE] for r in routes]
+    owner = np.concatenate([np.full(len(p), i) for i, p in enumerate(pts)])
+    head = np.concatenate(heads)
+    tree = cKDTree(np.vstack(pts))
+    lo, hi = np.deg2rad(CROSSING_DEG), np.deg2rad(180.0 - CROSSING_DEG)
+    out = np.full(len(routes), np.inf)
+    for i, route in enumerate(routes):
+        for k, near in enumerate(tree.query_ball_point(pts[i], CONFLICT_DIST)):
+            near = np.asarray(near, dtype=np.int64)
+            turn = np.abs(wrap_angle(head[near] - heads[i][k]))
+            if np.any((owner[near] != i) & (turn > lo) & (turn < hi)):
+                out[i] = route.s[::CONFLICT_STRIDE][k] - gap
+                break
+    return out
+
+
+def _with_stop(veh: Vehicle, route: Route, line: float, dwell: float,
+               cfg: TrafficSimConfig) -> Vehicle:
+    """``veh`` stopping with its front at arc length ``line`` (m) for ``dwell`` s: braking at
+    ``cfg.decel`` to it and accelerating at ``cfg.accel`` from it (a new Vehicle); ``veh``
+    itself when the line leaves no room to brake from the entry speed."""
+    stop = line - 0.5 * veh.length
+    if not np.isfinite(stop) or stop < veh.v[0] ** 2 / (2.0 * cfg.decel):
+        return veh
+    stop = float(route.s[np.searchsorted(route.s, stop, side="right") - 1])   # a grid node: v 0
+    d = route.s - stop
+    v = np.minimum(veh.v, np.sqrt(2.0 * np.where(d < 0.0, cfg.decel, cfg.accel) * np.abs(d)))
+    # constant acceleration between grid nodes (v^2 linear in s): dt = 2 ds / (v0 + v1), finite
+    # where v is 0 at the stop (the trapezoid of 1 / v is not)
+    tau = np.concatenate([[0.0], np.cumsum(2.0 * ROUTE_DS / (v[1:] + v[:-1]))])
+    return dataclasses.replace(veh, v=v, tau=tau, stop_s=stop, dwell=float(dwell))
 
 
 def _forbidden(f: Vehicle, rf: Route, lead: Vehicle, rl: Route,
@@ -237,10 +295,10 @@ def _forbidden(f: Vehicle, rf: Route, lead: Vehicle, rl: Route,
     if not m.any():
         return None
     sf, sl = sf[m], sl[m]
-    lead_in = lead.t0 + _time_at(lead, rl, sl - lead.length / 2) - headway
-    lead_out = lead.t0 + _time_at(lead, rl, sl + lead.length / 2) + headway
-    lo = lead_in - _time_at(f, rf, sf + f.length / 2)
-    hi = lead_out - _time_at(f, rf, sf - f.length / 2)
+    lead_in = lead.t0 + lead.time_at(rl, sl - lead.length / 2) - headway
+    lead_out = lead.t0 + lead.time_at(rl, sl + lead.length / 2) + headway
+    lo = lead_in - f.time_at(rf, sf + f.length / 2)
+    hi = lead_out - f.time_at(rf, sf - f.length / 2)
     return float(lo.min()), float(hi.max())
 
 
@@ -320,9 +378,9 @@ def _arrivals(rng: np.random.Generator, cfg: TrafficSimConfig, start: float, end
 
 def _states(veh: Vehicle, route: Route, times: np.ndarray) -> np.ndarray:
     """(n, 6) [t, x, y, yaw, v, yawrate] at the given times within the vehicle's life."""
-    t = times[(times >= veh.t0) & (times <= veh.t0 + veh.tau[-1])]
-    s = np.interp(t - veh.t0, veh.tau, route.s)
-    v = np.interp(s, route.s, veh.v)
+    t = times[(times >= veh.t0) & (times <= veh.t0 + veh.tau[-1] + veh.dwell)]
+    s, standing = veh.arc_at(route, t - veh.t0)
+    v = np.where(standing, 0.0, np.interp(s, route.s, veh.v))
     x = np.interp(s, route.s, route.xy[:, 0])
     y = np.interp(s, route.s, route.xy[:, 1])
     yaw = wrap_angle(np.interp(s, route.s, route.heading))
@@ -346,11 +404,17 @@ def simulate_traffic(rng: np.random.Generator, cfg: TrafficSimConfig, net: RoadN
     duration = float(times[-1] - times[0]) if len(times) else 0.0
     cache: _ConflictCache = {}
     vehicles: list[Vehicle] = []
+    lines = stop_lines(routes, cfg.stop_gap) if cfg.stop_share > 0 else None
     for t_nom, size in _arrivals(rng, cfg, times[0] - warm, times[0] + duration, count):
         leader = None
         for _ in range(size):
             f = _new_vehicle(rng, cfg, routes, t_nom, leader)
-            _enter(f, vehicles, routes, cache, cfg.headway)
+            driven = f
+            if lines is not None and rng.random() < cfg.stop_share:
+                driven = _with_stop(f, routes[f.route], lines[f.route],
+                                    rng.uniform(*cfg.stop_time), cfg)
+            _enter(driven, vehicles, routes, cache, cfg.headway)
+            f.t0 = driven.t0      # a platoon's followers take the profile without the stop
             leader = f
     rides = [(veh, routes[veh.route]) for veh in vehicles]
     groups = list(others)
