@@ -13,9 +13,11 @@ inside the footprints ("roof-returns"; the independent generator's share); multi
 (16 buildings 2 m or more from the road edge, each facade that faces the sensor mirroring 30 %
 of the vehicles' returns it can: "ghosts", 1-37 % as many ghosts as vehicle returns over the
 first four seeds, the intersections most); pairs of vehicles side by side in adjacent lanes,
-0-0.5 s apart, on roads of two 3 m lanes per direction ("abreast"); and all of these but the
-micro-Doppler, the cyclists, the roof returns, the ghosts and the pairs abreast at once
-("combined", with returns at every visible corner and at the wheels and more clutter).
+0-0.5 s apart, on roads of two 3 m lanes per direction ("abreast"); a third of the vehicles
+standing 3-15 s short of the junction, their returns static ("stops"); and all of these but
+the micro-Doppler, the cyclists, the roof returns, the ghosts, the pairs abreast and the stops
+at once ("combined", with returns at every visible corner and at the wheels and more
+clutter).
 Seeds: odd ones simulate an intersection, even ones a T-junction.
 
 Per run: tracks per eligible true vehicle (all tracks, false ones included), tracks covering
@@ -90,6 +92,7 @@ SETTINGS: dict[str, dict] = {
     "abreast": {"road": {"lane_width": 3.0, "lanes_per_direction": [2]},
                 "traffic": {"platoon_size": [2, 2], "platoon_headway": [0.0, 0.5],
                             "platoon_abreast": True}},
+    "stops": {"traffic": {"stop_share": 0.3}},
     "combined": {
         "traffic": {**_PLATOONS, **_TRUCKS, "class_mix": [0.75, 0.15, 0.1]},
         "radar": {**_SPARSE, "return_height": [0.2, 1.5], "corners": "visible",
