@@ -14,7 +14,8 @@ inside the footprints ("roof-returns"; the independent generator's share); multi
 of the vehicles' returns it can: "ghosts", 1-37 % as many ghosts as vehicle returns over the
 first four seeds, the intersections most); pairs of vehicles side by side in adjacent lanes,
 0-0.5 s apart, on roads of two 3 m lanes per direction ("abreast"); a third of the vehicles
-standing 3-15 s short of the junction, their returns static ("stops"); and all of these but
+standing 3-15 s short of the junction, their returns static, and the vehicles that come up
+behind them queueing ("stops"); and all of these but
 the micro-Doppler, the cyclists, the roof returns, the ghosts, the pairs abreast and the stops
 at once ("combined", with returns at every visible corner and at the wheels and more
 clutter).

@@ -228,13 +228,19 @@ class TrafficSimConfig:
     stop_share: float = 0.0
     """Share of the motor vehicles that stop once on their route, at a stop line ``stop_gap``
     m before their first crossing with another route, for a time drawn from ``stop_time``
-    (a red light, a yield): standing, their returns are static (zero Doppler); the vehicles
-    behind them wait (entry delayed, as for every conflict). Routes crossing no other route
-    (straight road, curve) have no stop line. 0 (default) = no vehicle stops."""
+    (a red light, a yield): standing, their returns are static (zero Doppler). A vehicle on
+    the same lane that would come up behind a standing one before it has left joins a queue
+    (``queue_gap``, ``queue_discharge``); the others wait (entry delayed, as for every
+    conflict). Routes crossing no other route (straight road, curve) have no stop line. 0
+    (default) = no vehicle stops."""
     stop_time: tuple[float, float] = (3.0, 15.0)
     """Standing time (s) of a stopping vehicle, uniform in [low, high]."""
     stop_gap: float = 2.0
     """Distance (m) from a stopped vehicle's front to its route's first crossing."""
+    queue_gap: float = 2.0
+    """Distance (m) from a queued vehicle's front to the rear of the vehicle it stands behind."""
+    queue_discharge: float = 2.0
+    """A queued vehicle moves off this long (s) after the vehicle ahead of it."""
     platoon_abreast: bool = False
     """Platoon followers drive the lane beside their predecessor's instead of its own (a route
     whose start lies 2-4.5 m to the side of the predecessor's, heading within 15 deg; its own

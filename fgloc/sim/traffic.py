@@ -14,8 +14,10 @@ their predecessor. Vehicles never overlap: each vehicle's entry time is delayed 
 occupancy of every point it shares with an earlier vehicle's route (same lane, merge or
 crossing) is separated from that vehicle's occupancy by at least the headway. With
 ``stop_share`` that share of the vehicles stops once short of its route's first crossing
-(:func:`stop_lines`) and stands ``stop_time`` s, v 0 (a red light, a yield); the stand is part
-of its occupancy, so the vehicles behind it enter later.
+(:func:`stop_lines`) and stands ``stop_time`` s, v 0 (a red light, a yield); a vehicle that
+would come up behind a standing one on its lane before it has moved off queues behind it and
+moves off ``queue_discharge`` s after it; the stand is part of its occupancy, so the other
+vehicles whose paths it blocks enter later.
 
 Cyclists (``cyclists_per_minute``; none by default) ride the same routes ``cyclist_offset`` m
 right of the lane centre line, at the lane's edge: road users that are not motor vehicles,
@@ -54,6 +56,8 @@ FOLLOW_WAVENUMBER = 0.1
 #: two routes cross (:func:`stop_lines`) where their headings differ by more than this and
 #: less than its supplement (deg): not a lane followed or shared, not the opposite lane
 CROSSING_DEG = 30.0
+#: how often a queue is looked for again from a later entry time (:func:`_join_queue`)
+QUEUE_TRIES = 3
 #: conflicts (:func:`_conflicts`) per pair of route indices, computed once
 _ConflictCache = dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]
 
@@ -286,6 +290,38 @@ def _with_stop(veh: Vehicle, route: Route, line: float, dwell: float,
     return dataclasses.replace(veh, v=v, tau=tau, stop_s=stop, dwell=float(dwell))
 
 
+def _same_lane(a: Route, b: Route, s: float) -> bool:
+    """Whether routes a and b pass within 0.5 m of each other at arc length s (m)."""
+    pa = [np.interp(s, a.s, a.xy[:, k]) for k in range(2)]
+    pb = [np.interp(s, b.s, b.xy[:, k]) for k in range(2)]
+    return math.hypot(pa[0] - pb[0], pa[1] - pb[1]) < 0.5
+
+
+def _queued(f: Vehicle, route: Route, earlier: list[Vehicle], routes: list[Route],
+            cfg: TrafficSimConfig) -> Vehicle | None:
+    """``f`` standing in the queue behind the last of the ``earlier`` vehicles that stand on
+    its lane (its route and theirs together from the start to their front), when, braking
+    for it, it comes up behind that one before it moves off: its front ``queue_gap`` m
+    behind that one's rear, moving off ``queue_discharge`` s after it; None when there is no
+    such queue (or no room to brake for it)."""
+    tail: tuple[float, Vehicle] | None = None
+    for lead in earlier:
+        rl = routes[lead.route]
+        front = lead.stop_s + 0.5 * lead.length
+        if (lead.dwell <= 0 or front > min(route.s[-1], rl.s[-1])
+                or not (_same_lane(route, rl, 0.0) and _same_lane(route, rl, front))):
+            continue
+        line = lead.stop_s - 0.5 * lead.length - cfg.queue_gap
+        queued = _with_stop(f, route, line, 0.0, cfg)
+        if queued is f or (tail is not None and queued.stop_s >= tail[1].stop_s):
+            continue
+        arrive = queued.t0 + float(queued.time_at(route, np.array(queued.stop_s)))
+        off = lead.t0 + float(lead.time_at(rl, np.array(lead.stop_s))) + lead.dwell
+        if arrive < off:
+            tail = (off + cfg.queue_discharge - arrive, queued)
+    return None if tail is None else dataclasses.replace(tail[1], dwell=tail[0])
+
+
 def _forbidden(f: Vehicle, rf: Route, lead: Vehicle, rl: Route,
                pairs: tuple[np.ndarray, np.ndarray, np.ndarray],
                headway: float) -> tuple[float, float] | None:
@@ -410,9 +446,13 @@ def simulate_traffic(rng: np.random.Generator, cfg: TrafficSimConfig, net: RoadN
         for _ in range(size):
             f = _new_vehicle(rng, cfg, routes, t_nom, leader)
             driven = f
-            if lines is not None and rng.random() < cfg.stop_share:
-                driven = _with_stop(f, routes[f.route], lines[f.route],
-                                    rng.uniform(*cfg.stop_time), cfg)
+            if lines is not None:
+                dwell = rng.uniform(*cfg.stop_time) if rng.random() < cfg.stop_share else 0.0
+                queued = _join_queue(f, vehicles, routes, cache, cfg)
+                if queued is not None:
+                    driven = queued
+                elif dwell > 0:
+                    driven = _with_stop(f, routes[f.route], lines[f.route], dwell, cfg)
             _enter(driven, vehicles, routes, cache, cfg.headway)
             f.t0 = driven.t0      # a platoon's followers take the profile without the stop
             leader = f
@@ -439,11 +479,10 @@ def _warm_up(routes: list[Route], speed: tuple[float, float]) -> float:
     return 0.8 * float(np.median([r.s[-1] for r in routes])) / float(np.mean(speed))
 
 
-def _enter(f: Vehicle, earlier: list[Vehicle], routes: list[Route],
-           cache: _ConflictCache,
-           headway: float) -> None:
-    """Delay ``f``'s entry until it overlaps none of the ``earlier`` vehicles (on ``routes``;
-    ``cache`` keeps the conflicts per route pair), then append it to them."""
+def _entry(f: Vehicle, earlier: list[Vehicle], routes: list[Route], cache: _ConflictCache,
+           headway: float) -> float:
+    """The earliest entry time (s) from ``f.t0`` on at which ``f`` overlaps none of the
+    ``earlier`` vehicles (on ``routes``; ``cache`` keeps the conflicts per route pair)."""
     intervals = []
     for lead in earlier:
         key = (f.route, lead.route)
@@ -452,8 +491,33 @@ def _enter(f: Vehicle, earlier: list[Vehicle], routes: list[Route],
         iv = _forbidden(f, routes[f.route], lead, routes[lead.route], cache[key], headway)
         if iv is not None:
             intervals.append(iv)
-    f.t0 = _earliest(f.t0, intervals)
+    return _earliest(f.t0, intervals)
+
+
+def _enter(f: Vehicle, earlier: list[Vehicle], routes: list[Route],
+           cache: _ConflictCache,
+           headway: float) -> None:
+    """Delay ``f``'s entry until it overlaps none of the ``earlier`` vehicles (:func:`_entry`),
+    then append it to them."""
+    f.t0 = _entry(f, earlier, routes, cache, headway)
     earlier.append(f)
+
+
+def _join_queue(f: Vehicle, earlier: list[Vehicle], routes: list[Route],
+                cache: _ConflictCache, cfg: TrafficSimConfig) -> Vehicle | None:
+    """``f`` queued (:func:`_queued`) at an entry time at which it overlaps none of the
+    ``earlier`` vehicles, or None: when the queue's profile must enter later (it would come
+    too close to another vehicle after moving off), the queue is looked for again from that
+    later time, up to QUEUE_TRIES times."""
+    t0 = f.t0
+    for _ in range(QUEUE_TRIES):
+        queued = _queued(dataclasses.replace(f, t0=t0), routes[f.route], earlier, routes, cfg)
+        if queued is None:
+            return None
+        t0 = _entry(queued, earlier, routes, cache, cfg.headway)
+        if t0 <= queued.t0:
+            return queued
+    return None
 
 
 def _every_route_step(xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
