@@ -122,10 +122,14 @@ class Vehicle:
         ends; after a stop's standing time where the stop is reached)."""
         return np.interp(s, route.s, self.tau) + np.where(s > self.stop_s, self.dwell, 0.0)
 
+    def stop_reached(self, route: Route) -> float:
+        """Time since entry (s) when the vehicle reaches its stop; inf when it has none."""
+        return (float(np.interp(self.stop_s, route.s, self.tau)) if math.isfinite(self.stop_s)
+                else math.inf)
+
     def arc_at(self, route: Route, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Arc length (m) of the centre at times t since entry, and whether it stands."""
-        t_stop = (float(np.interp(self.stop_s, route.s, self.tau)) if self.dwell > 0
-                  else math.inf)
+        t_stop = self.stop_reached(route)
         standing = (t >= t_stop) & (t <= t_stop + self.dwell)
         t = np.where(t > t_stop + self.dwell, t - self.dwell, np.minimum(t, t_stop))
         return np.interp(t, self.tau, route.s), standing
@@ -315,8 +319,8 @@ def _queued(f: Vehicle, route: Route, earlier: list[Vehicle], routes: list[Route
         queued = _with_stop(f, route, line, 0.0, cfg)
         if queued is f or (tail is not None and queued.stop_s >= tail[1].stop_s):
             continue
-        arrive = queued.t0 + float(queued.time_at(route, np.array(queued.stop_s)))
-        off = lead.t0 + float(lead.time_at(rl, np.array(lead.stop_s))) + lead.dwell
+        arrive = queued.t0 + queued.stop_reached(route)
+        off = lead.t0 + lead.stop_reached(rl) + lead.dwell
         if arrive < off:
             tail = (off + cfg.queue_discharge - arrive, queued)
     return None if tail is None else dataclasses.replace(tail[1], dwell=tail[0])
