@@ -31,8 +31,10 @@ def test_override_and_int_to_float(tmp_path):
         ("seed = 1.5\n", "seed"),
         ("[map]\nroad_classes = [2, 'x']\n", "map.road_classes"),
         ("bogus = 1\n", "bogus"),
+        ("[smoothing]\nbatch_steps = 0\n", "smoothing"),
     ],
-    ids=["unknown-key", "wrong-type", "float-for-int", "bad-list-item", "unknown-top"],
+    ids=["unknown-key", "wrong-type", "float-for-int", "bad-list-item", "unknown-top",
+         "out-of-range"],
 )
 def test_bad_config_names_the_key(tmp_path, text, field):
     p = tmp_path / "c.toml"

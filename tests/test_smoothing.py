@@ -17,6 +17,7 @@ from fgloc.evaluation.tracking import evaluate_tracks
 from fgloc.pipeline import track
 from fgloc.sim import SimConfig, simulate
 from fgloc.smoothing import SmoothingConfig
+from fgloc.smoothing.batch import smooth_batch, step_groups
 from fgloc.smoothing.fixed_lag import smooth_fixed_lag
 from fgloc.smoothing.graph import TrackModel
 from fgloc.smoothing.run import smooth_tracks
@@ -61,6 +62,36 @@ def test_fixed_lag_tracks_smoothed_together_equal_each_alone() -> None:
         assert not np.allclose(alone.tracks[0].states, tr.states)          # it did smooth
     # both tracks' windows at once (0.5 s at 20 Hz: 11 steps each) while they overlap
     assert 20 <= both.diagnostics["window_variables_max"] <= 2 * 12
+
+
+def test_step_groups_bound_the_steps_and_keep_the_order() -> None:
+    assert step_groups([5, 4, 3, 9, 1], 9) == [[0, 1], [2], [3], [4]]
+    assert step_groups([12, 2], 9) == [[0], [1]]           # a longer track is a group alone
+    assert step_groups([0, 3], 3) == [[0, 1]]
+    assert step_groups([], 5) == []
+
+
+def test_batch_smoother_in_groups_equals_all_tracks_at_once() -> None:
+    # tracks share no variable: grouping them (the memory bound on long recordings) gives each
+    # the same optimum up to rounding, with the same iterations and summed cost
+    rng = np.random.default_rng(21)
+    parts = [make_track(rng, n=n, track_id=k) for k, n in ((3, 70), (4, 50), (5, 90))]
+    offset, tracks = 0, []
+    for tr, det, _, _ in parts:
+        tracks.append(dataclasses.replace(tr, det_index=tr.det_index + offset))
+        offset += len(det)
+    det, sensor = np.vstack([p[1] for p in parts]), parts[0][2]
+    runs = {b: smooth_batch(TrackSet(tracks), det, sensor, SmoothingConfig(batch_steps=b))
+            for b in (10**6, 130, 60)}                 # one group; [3, 4], [5]; one per track
+    ref = runs[10**6]
+    for out in runs.values():
+        for got, want, filt in zip(out.tracks, ref.tracks, tracks):
+            np.testing.assert_allclose(got.states, want.states, rtol=0, atol=1e-9)
+            assert not np.allclose(got.states, filt.states)             # it did smooth
+        assert out.diagnostics["smoother_iterations"] == ref.diagnostics["smoother_iterations"]
+        assert np.isclose(out.diagnostics["smoother_error_final"],
+                          ref.diagnostics["smoother_error_final"], rtol=1e-12)
+        assert out.diagnostics["smoother_error_final"] < out.diagnostics["smoother_error_initial"]
 
 
 def test_factor_callbacks_repeated_at_the_same_state_match_fresh_factors() -> None:

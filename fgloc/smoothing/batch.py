@@ -12,11 +12,14 @@ block-tridiagonal systems in one banded Cholesky), which gives the same optimum 
 Levenberg-Marquardt on each track's graph at a fraction of the Python-callback cost (tests
 compare the two). Because every step sees the whole track, shape learned late (e.g. a truck's
 length once its side is in view) corrects the early centre estimates, and the measurement
-association is re-done at each linearization around the smoothed states.
+association is re-done at each linearization around the smoothed states. On long recordings
+the tracks are optimized in groups of at most ``smoothing.batch_steps`` steps, one after the
+other (:func:`step_groups`), so the optimizer's memory does not grow with the recording.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import gtsam
@@ -49,16 +52,23 @@ def smooth_batch(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     same tracks (ids, times, detections, frame) with smoothed states, labels from kappa and --
     with ``smoothing.marginals`` -- marginal covariances (``gtsam.Marginals`` of each track's
     graph at the smoothed states); diagnostics gain ``smoother_seconds``,
-    ``smoother_iterations`` (optimizer passes over all tracks) and the summed graph cost
-    (``0.5 |whitened residual|^2``) before/after.
+    ``smoother_iterations`` (optimizer passes; the most of any group of tracks) and the
+    summed graph cost (``0.5 |whitened residual|^2``) before/after.
     """
     scfg = smoothing or SmoothingConfig()
     t0 = time.perf_counter()
-    system = stack_tracks(tracks, det_xy, sensor_xy, scfg, tracking, det_trusted,
-                          det_range_rate)
-    x0 = np.concatenate([tr.states for tr in tracks.tracks] or [np.zeros((0, 26))])
-    res = levenberg_marquardt(system, x0, scfg.max_iterations, scfg.relative_tolerance)
-    states = np.split(res.states, system.start[1:-1])
+    states: list[np.ndarray] = []
+    iterations, cost_initial, cost_final = 0, 0.0, 0.0
+    for group in step_groups([len(tr) for tr in tracks.tracks], scfg.batch_steps):
+        part = dataclasses.replace(tracks, tracks=[tracks.tracks[i] for i in group])
+        system = stack_tracks(part, det_xy, sensor_xy, scfg, tracking, det_trusted,
+                              det_range_rate)
+        x0 = np.concatenate([tr.states for tr in part.tracks])
+        res = levenberg_marquardt(system, x0, scfg.max_iterations, scfg.relative_tolerance)
+        states += np.split(res.states, system.start[1:-1])
+        iterations = max(iterations, res.iterations)
+        cost_initial += float(res.cost_initial.sum())
+        cost_final += float(res.cost_final.sum())
     out = tracks_from_states(tracks, states, tracking, smoother="batch")
     if scfg.marginals:
         smoothed = []
@@ -72,7 +82,21 @@ def smooth_batch(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                                            marg).tracks
         out = TrackSet(smoothed, out.frame, out.T_frame_to_L, out.diagnostics)
     out.diagnostics.update(smoother="batch", smoother_seconds=time.perf_counter() - t0,
-                           smoother_iterations=res.iterations,
-                           smoother_error_initial=float(res.cost_initial.sum()),
-                           smoother_error_final=float(res.cost_final.sum()))
+                           smoother_iterations=iterations,
+                           smoother_error_initial=cost_initial,
+                           smoother_error_final=cost_final)
     return out
+
+
+def step_groups(lengths: list[int], budget: int) -> list[list[int]]:
+    """Consecutive groups of the track indices whose ``lengths`` (steps) sum to at most
+    ``budget`` each (a track longer than it alone); every index once, in order."""
+    groups: list[list[int]] = []
+    total = 0
+    for i, n in enumerate(lengths):
+        if not groups or total + n > budget:
+            groups.append([])
+            total = 0
+        groups[-1].append(i)
+        total += n
+    return groups

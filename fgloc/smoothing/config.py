@@ -86,6 +86,11 @@ class SmoothingConfig:
     """Batch: Levenberg-Marquardt iteration limit per track."""
     relative_tolerance: float = 1e-3
     """Batch: stop when the relative decrease of the error is below this."""
+    batch_steps: int = 16384
+    """Batch: optimize the tracks in groups of at most this many steps (track order; a longer
+    track is a group of its own). The optimizer's arrays take about 60 kB a step, so this
+    bounds its memory on long recordings (a 60 s junction has 6000-9000 steps, one group).
+    Tracks share no variable: each gets the same optimum in any grouping, up to rounding."""
     marginals: bool = False
     """Batch: compute each state's marginal covariance (gtsam.Marginals) into the output
     tracks; otherwise the smoothed tracks carry no covariances."""
@@ -118,3 +123,5 @@ class SmoothingConfig:
         if self.max_detections < 0 or self.max_iterations < 1 or self.relinearize_skip < 1:
             raise ValueError("max_detections >= 0, max_iterations >= 1 and "
                              "relinearize_skip >= 1 are required")
+        if self.batch_steps < 1:
+            raise ValueError(f"batch_steps must be >= 1, got {self.batch_steps}")
