@@ -371,7 +371,7 @@ TABLES: list[Table] = [
           "proportional) and with the vehicle count. Times depend on the machine's load, "
           "given in the provenance line.",
           produce_speed,
-          {"duration": 120.0, "vehicles": 60, "durations": [30.0, 60.0, 120.0, 300.0],
+          {"duration": 120.0, "vehicles": 60, "durations": [30.0, 60.0, 120.0, 300.0, 900.0],
            "vehicle_counts": [20, 50, 100], "methods": _ALL_METHODS},
           {"duration": 30.0, "vehicles": 20, "durations": [], "vehicle_counts": [],
            "methods": _ALL_METHODS}),

@@ -12,7 +12,7 @@ Sections: (1) stages + peak memory on one 120 s intersection with 60 vehicles (-
 30 vehicles); (2) SICP vs Open3D ``registration_icp`` on the same clouds (bench.sicp_vs_open3d);
 (3) tracker real-time factors on one core with the oracle pose (recording s / CPU s) of the
 filter, the fixed-lag and the batch smoother (``fgloc.smoothing.run.compare_trackers``; a smoother's
-time excludes the filter it starts from); (4) scaling: recording length 30, 60, 120, 300 s
+time excludes the filter it starts from); (4) scaling: recording length 30, 60, 120, 300, 900 s
 (vehicle arrivals proportional to length) and vehicle count 20, 50, 100 in 60 s (--quick:
 30, 60 s; 20, 50).
 """
@@ -211,7 +211,8 @@ def main() -> int:
                                                        vehicles=nveh))), flush=True)
         if "scaling" in args.sections:
             print("\n".join(section_scaling(work, args.methods,
-                                             [30.0, 60.0] if quick else [30.0, 60.0, 120.0, 300.0],
+                                             [30.0, 60.0] if quick
+                                             else [30.0, 60.0, 120.0, 300.0, 900.0],
                                              [20, 50] if quick else [20, 50, 100], rows)))
     return 0
 
