@@ -34,24 +34,27 @@ DAMPING_FLOOR = 1e-9
 
 class BandedLayout:
     """Where the entries of a symmetric block-tridiagonal matrix go in LAPACK's lower banded
-    storage ``ab (2 * 26, 26 N)`` (``ab[i - j, j] = A[i, j]``): diagonal blocks D (N, 26, 26)
-    and the blocks B (P, 26, 26) at block (``below[p]``, ``below[p] - 1``). Computed once per
-    system, reused at every iteration."""
+    storage ``ab (2 * 26, 26 N)`` (``ab[i - j, j] = A[i, j]``, Fortran order, the layout
+    LAPACK takes without a copy): diagonal blocks D (N, 26, 26) and the blocks B (P, 26, 26)
+    at block (``below[p]``, ``below[p] - 1``). Computed once per system, reused at every
+    iteration."""
 
     def __init__(self, n: int, below: np.ndarray) -> None:
         self.shape = (2 * N_STATE, N_STATE * n)
         cols = N_STATE * np.arange(n)[:, None] + _LOWER_B[None, :]
         self.diag = np.ravel_multi_index(
-            (np.broadcast_to(_LOWER_A - _LOWER_B, cols.shape), cols), self.shape).ravel()
+            (np.broadcast_to(_LOWER_A - _LOWER_B, cols.shape), cols), self.shape,
+            order="F").ravel()
         a, b = np.divmod(np.arange(N_STATE * N_STATE), N_STATE)
         cols = N_STATE * (np.asarray(below) - 1)[:, None] + b[None, :]
         self.off = np.ravel_multi_index(
-            (np.broadcast_to(N_STATE + a - b, cols.shape), cols), self.shape).ravel()
+            (np.broadcast_to(N_STATE + a - b, cols.shape), cols), self.shape,
+            order="F").ravel()
 
     def fill(self, D: np.ndarray, B: np.ndarray) -> np.ndarray:
-        """The banded storage of the matrix with blocks ``D`` and ``B``."""
-        ab = np.zeros(self.shape)
-        flat = ab.reshape(-1)
+        """The banded storage of the matrix with blocks ``D`` and ``B`` (Fortran order)."""
+        ab = np.zeros(self.shape, order="F")
+        flat = ab.reshape(-1, order="F")                   # a view: ab is Fortran-contiguous
         flat[self.diag] = D[:, _LOWER_A, _LOWER_B].ravel()
         flat[self.off] = B.reshape(-1)
         return ab
@@ -93,7 +96,8 @@ def damped_step(layout: BandedLayout, ne: NormalEquations, lam: np.ndarray) -> n
     equations ``ne`` (H from D and B), with ``lam`` (N,) the damping of each step (0 = the
     Gauss-Newton step). ``LinAlgError`` if the damped matrix is not positive definite."""
     return solveh_banded(layout.fill(damp_diagonal(ne.D, lam), ne.B), -ne.g.ravel(),
-                         lower=True, check_finite=False).reshape(ne.g.shape)
+                         overwrite_ab=True, overwrite_b=True, lower=True,
+                         check_finite=False).reshape(ne.g.shape)
 
 
 def levenberg_marquardt(system: StackedTracks, x0: np.ndarray, max_iterations: int = 10,
