@@ -23,7 +23,7 @@ from fgloc.scenario import (
 )
 from fgloc.tracking import TrackingConfig, kappa_labels, track_scenario
 from fgloc.tracking.birth import BirthZones, FieldOfView, LaneHeadings
-from fgloc.tracking.tracker import Tracker, _Frame, _Record
+from fgloc.tracking.tracker import Tracker, _Frame, _Record, linear_quantile, median
 from fgloc.tracks import N_STATE
 
 Path = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -115,6 +115,20 @@ def _errors(scn: Scenario, track_states: np.ndarray, track_t: np.ndarray,
     iou = iou_polygon_rectangle(poly, st[:, 1:3], st[:, 3], np.full(n, g.length),
                                 np.full(n, g.width))
     return centre, yaw, iou
+
+
+@pytest.mark.parametrize("n", [1, 2, 3, 7, 8, 40])
+def test_list_quantile_and_median_are_numpys_numbers(n: int) -> None:
+    # the tracker's fast span quantile and noise median: the same floats as numpy's, so the
+    # tracks are bit for bit those numpy's calls gave
+    rng = np.random.default_rng(n)
+    for _ in range(200):
+        v = rng.normal(4.0, 2.0, n) * rng.choice([1e-3, 1.0, 1e3])
+        if rng.random() < 0.3:
+            v = np.round(v, 1)                                    # ties
+        for q in (0.0, 0.1, 0.5, 0.8, 0.95, 1.0, float(rng.random())):
+            assert linear_quantile(list(v), q) == np.quantile(v, q)
+        assert median(v) == np.median(v)
 
 
 # ---------------------------------------------------------------------------------------------
