@@ -71,9 +71,20 @@ def test_step_groups_bound_the_steps_and_keep_the_order() -> None:
     assert step_groups([], 5) == []
 
 
-def test_batch_smoother_in_groups_equals_all_tracks_at_once() -> None:
+def test_batch_smoother_in_groups_equals_all_tracks_at_once(
+        monkeypatch: pytest.MonkeyPatch) -> None:
     # tracks share no variable: grouping them (the memory bound on long recordings) gives each
     # the same optimum up to rounding, with the same iterations and summed cost
+    import fgloc.smoothing.batch as batch
+
+    systems: list[list[int]] = []                  # the track ids of each system optimized
+    stack = batch.stack_tracks
+
+    def recorded(tracks: TrackSet, *args: object) -> object:
+        systems.append([tr.id for tr in tracks.tracks])
+        return stack(tracks, *args)
+
+    monkeypatch.setattr(batch, "stack_tracks", recorded)
     rng = np.random.default_rng(21)
     parts = [make_track(rng, n=n, track_id=k) for k, n in ((3, 70), (4, 50), (5, 90))]
     offset, tracks = 0, []
@@ -82,7 +93,8 @@ def test_batch_smoother_in_groups_equals_all_tracks_at_once() -> None:
         offset += len(det)
     det, sensor = np.vstack([p[1] for p in parts]), parts[0][2]
     runs = {b: smooth_batch(TrackSet(tracks), det, sensor, SmoothingConfig(batch_steps=b))
-            for b in (10**6, 130, 60)}                 # one group; [3, 4], [5]; one per track
+            for b in (10**6, 130, 60)}
+    assert systems == [[3, 4, 5], [3, 4], [5], [3], [4], [5]]
     ref = runs[10**6]
     for out in runs.values():
         for got, want, filt in zip(out.tracks, ref.tracks, tracks):
