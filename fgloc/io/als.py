@@ -20,6 +20,7 @@ from fgloc.errors import InputError
 from fgloc.geo import LocalFrame, parse_crs, same_crs
 from fgloc.io._crs import canonical_world_crs
 from fgloc.io.atomic import atomic_path
+from fgloc.order_stats import median_inplace
 from fgloc.progress import quiet
 from fgloc.scenario import GROUND_CLASSES, AlsCloud
 
@@ -180,21 +181,11 @@ def read_als(
     if z0 is None:
         near_z = np.concatenate(road_z) if road_z else np.zeros(0, dtype=np.float32)
         del road_z[:]
-        z0 = z_ref + _median_inplace(near_z if near_z.size else xyz[:, 2].copy())
+        z0 = z_ref + median_inplace(near_z if near_z.size else xyz[:, 2].copy())
     z0 = float(round(z0))
     xyz[:, 2] -= np.float32(z0 - z_ref)
     frame = LocalFrame((e0, n0, z0), crs)
     return AlsCloud(xyz=xyz, classification=cls, source_files=[t.path for t in tiles]), frame
-
-
-def _median_inplace(a: np.ndarray) -> float:
-    """Median of a 1-D array, partitioning it in place (no sorted copy of a large array)."""
-    n = a.size
-    k = n // 2
-    a.partition(k)
-    if n % 2:
-        return float(a[k])
-    return 0.5 * (float(a[k]) + float(a[:k].max()))
 
 
 def write_als(

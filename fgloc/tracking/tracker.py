@@ -26,7 +26,6 @@ Per radar frame:
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 from dataclasses import dataclass, field
 
@@ -43,6 +42,7 @@ from factors.measurement import (
     visibility_slack,
 )
 from fgloc.labels import kappa_labels
+from fgloc.order_stats import linear_quantile, median_inplace
 from fgloc.scenario import Scenario
 from fgloc.tracking import ukf
 from fgloc.tracking.birth import BirthZones, FieldOfView, LaneHeadings, initial_kinematics
@@ -85,27 +85,6 @@ TOWARD_SIDE_MARGIN = 0.3
 #: lanelets within the sensor's range plus this (m) tell the tracks' ways
 #: (:class:`fgloc.tracking.road_users.MapWays`)
 WAYS_MARGIN = 50.0
-
-
-def linear_quantile(values: list[float], q: float) -> float:
-    """The ``q`` (0..1) quantile of a short list of finite ``values`` with linear
-    interpolation: the same number as ``np.quantile(values, q)`` (its default method, the
-    same floating-point operations), without numpy's per-call overhead (tens of us) on the
-    tracker's per-track, per-frame lists of at most ``span_history`` entries."""
-    s = sorted(values)
-    at = (len(s) - 1) * q
-    lo = math.floor(at)
-    a, b = s[lo], s[min(lo + 1, len(s) - 1)]
-    gamma, diff = at - lo, b - a
-    return b - diff * (1.0 - gamma) if gamma >= 0.5 else a + diff * gamma
-
-
-def median(values: np.ndarray) -> float:
-    """``np.median`` of the finite 1D ``values`` (the middle one, or the mean of the middle
-    two), without its per-call overhead on short arrays."""
-    s = np.sort(values)
-    k = len(s) // 2
-    return float(s[k]) if len(s) % 2 else float((s[k - 1] + s[k]) / 2.0)
 
 
 def _connected_reach(d: np.ndarray, gap: float, k: int) -> float:
@@ -750,8 +729,8 @@ class Tracker:
                 los = z - sensor
                 r = np.maximum(np.linalg.norm(los, axis=1), 1e-6)
                 cos_a = np.abs(los @ h) / r
-                noise = median(np.hypot(cfg.sigma_range * cos_a, sig_az * r
-                                        * np.sqrt(np.maximum(1.0 - cos_a**2, 0.0))))
+                noise = median_inplace(np.hypot(cfg.sigma_range * cos_a, sig_az * r
+                                                * np.sqrt(np.maximum(1.0 - cos_a**2, 0.0))))
                 rec.spans.append(float(np.ptp(lo)) - 2.0 * noise)
                 del rec.spans[:-cfg.span_history]
                 rec.span_length = linear_quantile(rec.spans, cfg.span_quantile)
