@@ -32,11 +32,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.linalg import solveh_banded
 
 from factors.registration_factors import N_POSE, point_rows_batch
 from factors.state import N_STATE
-from fgloc.smoothing.banded_lm import BandedLayout, damp_diagonal
+from fgloc.smoothing.banded_lm import BandedLayout, damp_diagonal, solve_damped
 
 
 @dataclass
@@ -201,12 +200,10 @@ def solve_arrow(sys: ArrowSystem, layout: BandedLayout, owner: np.ndarray, offse
     track of each step; ``offsets`` False drops the offset variables. ``LinAlgError`` if the
     damped track block is not positive definite."""
     n, T, G = len(sys.D), len(sys.Hb), len(sys.gp)
-    # the right-hand sides in Fortran order, so LAPACK solves in place (no copy of either)
-    rhs = np.empty((sys.gx.size, G + 2), order="F")
+    rhs = np.empty((sys.gx.size, G + 2), order="F")      # solved in place (solve_damped)
     rhs[:, 0], rhs[:, 1:G + 1], rhs[:, G + 1] = (sys.gx.reshape(-1), sys.E.reshape(-1, G),
                                                  sys.e.reshape(-1))
-    Y = solveh_banded(layout.fill(damp_diagonal(sys.D, lam), sys.B), rhs, overwrite_ab=True,
-                      overwrite_b=True, lower=True, check_finite=False)
+    Y = solve_damped(layout, sys.D, sys.B, lam, rhs)
     Ag, AE, Ae = Y[:, 0], Y[:, 1:G + 1], Y[:, G + 1]
     Ef, ef = sys.E.reshape(-1, G), sys.e.reshape(-1)
     row_track = np.repeat(owner, N_STATE)

@@ -91,13 +91,22 @@ def damp_diagonal(M: np.ndarray, lam: np.ndarray | float) -> np.ndarray:
     return out
 
 
+def solve_damped(layout: BandedLayout, D: np.ndarray, B: np.ndarray,
+                 lam: np.ndarray | float, rhs: np.ndarray) -> np.ndarray:
+    """Solution of ``(H + lambda (diag(H) + DAMPING_FLOOR)) x = rhs``, H the block-tridiagonal
+    matrix of blocks ``D`` and ``B`` (``layout``), ``lam`` the damping per step (or one);
+    ``rhs`` (26 N,) or Fortran-ordered (26 N, k) is solved in place (LAPACK takes the band
+    and it without a copy). ``LinAlgError`` if the damped matrix is not positive
+    definite."""
+    return solveh_banded(layout.fill(damp_diagonal(D, lam), B), rhs, overwrite_ab=True,
+                         overwrite_b=True, lower=True, check_finite=False)
+
+
 def damped_step(layout: BandedLayout, ne: NormalEquations, lam: np.ndarray) -> np.ndarray:
     """(N, 26) solution of ``(H + lambda (diag(H) + DAMPING_FLOOR)) step = -g`` for the normal
     equations ``ne`` (H from D and B), with ``lam`` (N,) the damping of each step (0 = the
     Gauss-Newton step). ``LinAlgError`` if the damped matrix is not positive definite."""
-    return solveh_banded(layout.fill(damp_diagonal(ne.D, lam), ne.B), -ne.g.ravel(),
-                         overwrite_ab=True, overwrite_b=True, lower=True,
-                         check_finite=False).reshape(ne.g.shape)
+    return solve_damped(layout, ne.D, ne.B, lam, -ne.g.ravel()).reshape(ne.g.shape)
 
 
 def levenberg_marquardt(system: StackedTracks, x0: np.ndarray, max_iterations: int = 10,
