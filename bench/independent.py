@@ -33,7 +33,8 @@ import functools
 import json
 import tempfile
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +46,7 @@ from fgloc.config import load_config
 from fgloc.evaluation.pose import pose_error, pose_error_vector
 from fgloc.io import load_scenario
 from fgloc.result import LocalizationResult
+from fgloc.scenario import Scenario
 
 #: how many of a map's largest junctions the benchmark may run
 N_JUNCTIONS = 12
@@ -99,20 +101,29 @@ def rows_of(res: dict[str, LocalizationResult | None], truth: np.ndarray, key: R
     return rows
 
 
+@contextmanager
+def generated(junction: int, seed: int, setting: str, duration: float,
+              map_path: Path = DEFAULT_MAP) -> Iterator[Scenario]:
+    """The generator's scenario (``duration`` s at junction ``junction`` of ``map_path``,
+    ``seed``, ``setting``) written to a temporary directory and loaded as a user's would be
+    (:func:`fgloc.io.load_scenario`); the directory is removed on exit. ``ValueError`` for
+    a junction the map does not have."""
+    sites = junctions(map_path)
+    if junction not in sites:
+        raise ValueError(f"{map_path}: {len(sites)} junctions in its routing graph, "
+                         f"no junction {junction}")
+    with tempfile.TemporaryDirectory(prefix="fgloc-independent-") as tmp:
+        yield load_scenario(generate(map_path, sites[junction], seed, Path(tmp) / "scenario",
+                                     duration=duration, **SETTINGS[setting]))
+
+
 def run_one(junction: int, seed: int, setting: str, duration: float,
             config: Path | None = None, map_path: Path = DEFAULT_MAP) -> list[Row]:
     """Generate the scenario (``duration`` s at junction ``junction``, ``seed``, ``setting``),
     localize it with every method (fgloc config TOML ``config``, None: the defaults) and
     score it: :func:`rows_of` with the vehicle count and the wall time of all methods
     together (s)."""
-    sites = junctions(map_path)
-    if junction not in sites:
-        raise ValueError(f"{map_path}: {len(sites)} junctions in its routing graph, "
-                         f"no junction {junction}")
-    with tempfile.TemporaryDirectory(prefix="fgloc-independent-") as tmp:
-        out = generate(map_path, sites[junction], seed, Path(tmp) / "scenario",
-                       duration=duration, **SETTINGS[setting])
-        scn = load_scenario(out)
+    with generated(junction, seed, setting, duration, map_path) as scn:
         t0 = time.perf_counter()
         res = localize_each(scn, load_config(config))
         seconds = time.perf_counter() - t0
@@ -148,6 +159,19 @@ def site_group(junction: int) -> str:
     return "" if junction <= LOOKED_AT else HELD_OUT
 
 
+def group_label(setting: str, junction: int) -> str:
+    """The row label of a run: its setting, with :data:`HELD_OUT` for a held-out junction."""
+    group = site_group(junction)
+    return f"{setting}, {group}" if group else setting
+
+
+def ordered_labels(labels: Iterable[str]) -> list[str]:
+    """The row labels (:func:`group_label`) among ``labels``, each once, in table order: the
+    settings' order in :data:`SETTINGS`, the junctions looked at before the held-out ones."""
+    have = set(labels)
+    return [label for s in SETTINGS for label in (s, f"{s}, {HELD_OUT}") if label in have]
+
+
 def table(rows: list[Row]) -> list[str]:
     """Markdown: per setting (and :func:`site_group`) and method the runs, how many resolved,
     the 2D error (mean / worst over the runs with a pose, then over the resolved ones), the
@@ -157,13 +181,10 @@ def table(rows: list[Row]) -> list[str]:
              "worst) | abs dyaw deg (mean / worst) | NEES resolved (mean) | dz m (mean / worst "
              "abs) | no pose |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
-    group_of = [(r["setting"], site_group(r["junction"])) for r in rows]
-    groups = [(s, g) for s in SETTINGS for g in ("", HELD_OUT)
-              if (s, g) in group_of]
-    for setting, group in groups:
-        label = f"{setting}, {group}" if group else setting
+    label_of = [group_label(r["setting"], r["junction"]) for r in rows]
+    for label in ordered_labels(label_of):
         for m in METHODS:
-            rs = [r for r, g in zip(rows, group_of) if g == (setting, group) and r["method"] == m]
+            rs = [r for r, g in zip(rows, label_of) if g == label and r["method"] == m]
             posed = [r for r in rs if r["status"] != NO_POSE]
             nees = [r["nees"] for r in rs if r["status"] == "resolved" and r["nees"] is not None]
             dz = [r["dz"] for r in posed]

@@ -135,6 +135,18 @@ def produce_independent(groups: list[dict[str, list]], duration: float,
     return Produced(rows, ind.table(rows), ind.setting_sentence(groups, duration))
 
 
+def produce_independent_tracking(groups: list[dict[str, list]], duration: float,
+                                 jobs: int = 1) -> Produced:
+    """bench/independent_tracking.py: the tracker (true pose) and the batch smoother on the
+    independent generator's scenarios of ``groups``; the scenarios in ``jobs`` processes."""
+    from bench import independent as ind
+    from bench import independent_tracking as it
+
+    runs = it.run(groups, duration, pool_map=lambda fn, items: _ordered_map(fn, items, jobs))
+    return Produced([r.row() for r in runs], it.table(runs),
+                    ind.setting_sentence(groups, duration))
+
+
 def produce_scenarios(**kw) -> Produced:
     from bench.accuracy import produce_scenarios as f
     return f(**kw)
@@ -333,6 +345,28 @@ TABLES: list[Table] = [
            "duration": 60.0},
           {"groups": [{"junctions": [1], "seeds": [1], "settings": ["static"]}],
            "duration": 60.0}, parallel=True),
+    Table("independent_tracking", "Tracking on the independent generator's scenarios",
+          "bench/independent_tracking.py",
+          "The tracker on scenarios fgloc's simulator did not make: the independent "
+          "generator's scenarios of the table above (the same junctions, seeds and settings "
+          "give the same scenarios), each tracked by the filter with the true sensor pose and "
+          "smoothed by the batch smoother on its tracks; the figures and cells of the "
+          "robustness matrix (mean over the runs / worst run; truck figures over the tracks "
+          "following a truck, > 8 m), with the track counts per run beside tracks per vehicle: "
+          "false tracks (following no vehicle, or a vehicle another track follows at the "
+          "same time), fragments (a vehicle's later tracks: a track break; a vehicle that "
+          "stands has static returns, dropped, and gets a new track when it moves off) and "
+          "missed vehicles. A vehicle counts where the sensor sees it.",
+          produce_independent_tracking,
+          {"groups": [{"junctions": [1, 2, 3, 4, 5, 6], "seeds": [1, 2],
+                       "settings": ["static"]},
+                      {"junctions": [7, 8, 9, 10, 11, 12], "seeds": [1, 2],
+                       "settings": ["static"]},
+                      {"junctions": [1, 2, 3, 4, 5, 6], "seeds": [1, 2],
+                       "settings": ["occluded", "ghosts"]}],
+           "duration": 60.0},
+          {"groups": [{"junctions": [1], "seeds": [1], "settings": ["static"]}],
+           "duration": 30.0}, parallel=True),
     Table("straight", "Straight road without a junction", "bench/accuracy.py",
           "On a straight road nothing observes the position along the road: every method "
           "is off along it. The table shows how far, and whether a method that reports a "

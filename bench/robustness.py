@@ -289,9 +289,19 @@ valley, :func:`bench.sparse.truth_distance`): honest, not confidently wrong; unf
 2D error of the others."""
 
 
-def table(results: list[RunResult], settings: list[str]) -> list[str]:
-    """Markdown table: per setting ``mean / worst seed`` of every column."""
-    cols = [c for c in COLUMNS if any(c[1] in r.figures for r in results)]
+#: the track counts per run beside tracks per vehicle (bench/independent_tracking.py's table)
+COUNT_COLUMNS: list[tuple[str, str, Callable, str]] = [
+    ("false", "false", max, "{:.1f}"),
+    ("fragments", "fragments", max, "{:.1f}"),
+    ("missed", "missed", max, "{:.1f}"),
+]
+
+
+def table(results: list[RunResult], settings: list[str],
+          columns: list[tuple[str, str, Callable, str]] = COLUMNS) -> list[str]:
+    """Markdown table: per setting ``mean / worst seed`` of every column of ``columns`` that
+    the results have (:data:`COLUMNS`)."""
+    cols = [c for c in columns if any(c[1] in r.figures for r in results)]
     lines = ["| setting | runs | vehicles | " + " | ".join(c[0] for c in cols) + " |",
              "|---|---|---|" + "---|" * len(cols)]
     for s in settings:

@@ -289,3 +289,29 @@ def test_the_benchmark_reports_held_out_junctions_on_rows_of_their_own():
     assert joint[0].startswith("| static | joint | 2 | 2 | 0.200 / 0.300 | 0.200 / 0.300 |")
     assert joint[1].startswith("| static, held-out junctions | joint | 2 | 1 | 5.000 / 6.000 | "
                                "4.000 / 4.000 |")
+
+
+def test_the_tracking_benchmark_follows_the_generators_vehicles():
+    """bench/independent_tracking.py on a generated scenario (the crop's junction 1, 40 s):
+    the filter with the true pose follows the generator's vehicles (at most one in seven
+    missed, at most 1.5 tracks per vehicle, centres within a metre RMS) and the batch
+    smoother brings the centres closer; the table puts the held-out junctions' runs on a row
+    of their own, with the track counts."""
+    from bench.independent import HELD_OUT
+    from bench.independent_tracking import run_one, table
+    from bench.robustness import RunResult
+
+    run = run_one(1, 1, "static", 40.0, map_path=CROP)
+    f = run.figures
+    assert run.setting == "static" and run.case == "junction 1" and run.vehicles >= 7
+    assert f["missed"] <= run.vehicles / 7 and f["tracks_per_vehicle"] <= 1.5
+    assert f["filter.rms"] < 1.0 and f["batch.rms"] < f["filter.rms"]
+    assert f["filter.iou"] > 0.6 and f["batch.iou"] > 0.6
+    held = RunResult(f"static, {HELD_OUT}", 2, "junction 9", 5, {**f, "false": 3.0})
+    lines = table([held, run])
+    assert lines[0].startswith("| setting | runs | vehicles | tracks/veh | false | fragments "
+                               "| missed | cover 2 |")
+    assert lines[2].startswith("| static | 1 |") and lines[3].startswith(
+        f"| static, {HELD_OUT} | 1 | 5 |")
+    assert f"| {f['false']:.1f} / {f['false']:.1f} |" in lines[2]
+    assert "| 3.0 / 3.0 |" in lines[3]
