@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import sys
 import time
 from collections.abc import Callable, Iterable, Iterator
@@ -478,6 +479,13 @@ def _f(v, fmt: str = "{:.3f}") -> str:
     return "-" if v is None else fmt.format(v)
 
 
+def _mean_of(rows: list[dict], key: str, fmt: str) -> str:
+    """The mean of ``key`` over the rows that have a finite value of it, formatted; "-" when
+    none has."""
+    values = [r[key] for r in rows if math.isfinite(r.get(key, math.nan))]
+    return fmt.format(sum(values) / len(values)) if values else "-"
+
+
 def _when(doc: dict) -> str:
     return f"commit `{doc['commit']}`, {doc['started']}"
 
@@ -524,8 +532,8 @@ def first_screen(docs: dict[str, dict]) -> list[str]:
                 f"{s['sicp_yaw']:.3f} |",
                 f"| Open3D point-to-point ICP (50 m) | {s['open3d_ms']:.1f} | "
                 f"{s['open3d_2d']:.3f} | {s['open3d_yaw']:.3f} |", ""]
-    tr, py = docs.get("tracking"), docs.get("pyrecest")
-    if tr is not None or py is not None:
+    tr, py, it = docs.get("tracking"), docs.get("pyrecest"), docs.get("independent_tracking")
+    if tr is not None or py is not None or it is not None:
         out += ["### Tracking (true pose)", "",
                 "| tracker | data | centre RMS m | yaw deg | IoU |", "|---|---|---:|---:|---:|"]
         if tr is not None:
@@ -534,6 +542,13 @@ def first_screen(docs: dict[str, dict]) -> list[str]:
                 out.append(f"| fgloc {name} (per-track mean RMS) | {tr['setting']} ({_when(tr)})"
                            f" | {t['centre_rms_track_mean']:.3f} | {t['yaw_error_deg']:.2f} | "
                            f"{t['iou']:.3f} |")
+        if it is not None:
+            for name in ("filter", "batch"):
+                out.append(f"| fgloc {name} (per-track mean RMS) | the independent generator's "
+                           f"scenarios, {len(it['rows'])} runs, oracle pose ({_when(it)}) | "
+                           + " | ".join(_mean_of(it["rows"], f"{name}.{k}", fmt)
+                                        for k, fmt in (("rms", "{:.3f}"), ("yaw", "{:.2f}"),
+                                                       ("iou", "{:.3f}"))) + " |")
         if py is not None and "pyrecest" in py["summary"]:
             for name in ("fgloc", "pyrecest"):
                 t = py["summary"][name]

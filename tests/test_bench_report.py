@@ -121,13 +121,21 @@ def test_first_screen_quotes_stored_summaries():
                                   "ms_per_frame": 3.05},
         "pyrecest": {"rms": 1.462, "yaw_deg": 2.01, "iou": 0.574, "states": 10,
                      "ms_per_frame": 10.2}}}
-    lines = report.first_screen({"scenarios": doc, "speed": speed, "pyrecest": py})
+    independent = {"commit": "4567def", "started": "g", "rows": [
+        {"filter.rms": 0.5, "filter.yaw": 2.0, "filter.iou": 0.7, "batch.rms": 0.4,
+         "batch.yaw": 1.0, "batch.iou": float("nan")},
+        {"filter.rms": 0.7, "filter.yaw": 3.0, "filter.iou": 0.8, "batch.rms": 0.2,
+         "batch.yaw": 2.0, "batch.iou": 0.75}]}
+    lines = report.first_screen({"scenarios": doc, "speed": speed, "pyrecest": py,
+                                 "independent_tracking": independent})
     assert "| joint | 2 | 0.123 (0.200) | 0.030 | 0.100 | 2.50 | 10.0 | 900 |" in lines
     assert "| icp | 2 | 0.300 (0.400) | 0.050 | 0.100 | 0.25 (1 of 2 runs) | 5.0 | - |" in lines
     assert any(ln.startswith("| paper, SICP") and "0.66, 0.94, 0.38, 0.55" in ln
                for ln in lines)
     assert ("| pyrecest FullSCGPTracker (pooled RMS, 10.2 ms per frame) | 7 single-vehicle "
             "sequences (commit `0123abc`, e) | 1.462 | 2.01 | 0.574 |") in lines
+    assert ("| fgloc batch (per-track mean RMS) | the independent generator's scenarios, 2 "
+            "runs, oracle pose (commit `4567def`, g) | 0.300 | 1.50 | 0.750 |") in lines
     # no stored result: no invented numbers, a pointer to the command instead
     empty = report.first_screen({})
     assert any("--only scenarios" in ln for ln in empty)
