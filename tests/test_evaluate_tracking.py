@@ -170,6 +170,28 @@ def test_track_break_is_a_fragment_and_a_duplicate_is_false():
     assert m.n_states == 50 + 61 + 121 + 101
 
 
+@pytest.mark.parametrize("overlap, handover_s, role", [
+    (0.2, 0.5, "fragment"),     # a new track a moment before the old one's last row
+    (0.0, 0.0, "false"),        # rows at the same time: an overlap without the tolerance
+    (1.0, 0.5, "false"),        # a second of two tracks on one vehicle: a duplicate
+])
+def test_a_hand_over_overlapping_by_less_than_the_tolerance_is_a_fragment(
+        overlap: float, handover_s: float, role: str) -> None:
+    """Vehicle 1 tracked by track 10 until t = 3 s and by track 11 from 3 s - ``overlap``:
+    a fragment when the overlap is shorter than ``handover_s``, else a false track (the
+    vehicle followed by the other at the same time); the other vehicles' tracks unchanged."""
+    tracks = _perfect()
+    t = tracks[0].t
+    first = _track(1, t[t <= 3.0 + 1e-9], tid=10)
+    second = _track(1, t[t >= 3.0 - overlap - 1e-9], tid=11, dxy=(0.2, 0.0))
+    m = evaluate_tracks(_in_c([first, second, *tracks[1:]]), _truth(10.0),
+                        handover_s=handover_s)
+    roles = {r.track_id: r.role for r in m.rows}
+    assert {roles[10], roles[11]} == {"matched", role}
+    assert (m.fragments, m.false_tracks) == ((1, 0) if role == "fragment" else (0, 1))
+    assert m.n_matched == 3 and m.missed == 0
+
+
 def test_labels_overlap_and_gate():
     tracks = _perfect()
     tracks[1].labels[:30] = STRAIGHT  # vehicle 2 turns left: 30 wrong labels

@@ -14,9 +14,11 @@ Matching policy (one vehicle, possibly several tracks one after the other)
    (``scipy.optimize.linear_sum_assignment``), maximizing the number of matches first and
    minimizing the summed cost second.
 3. Fragments (track breaks): each still unassigned track, cheapest candidate first, is
-   attached to a candidate vehicle when it does not overlap in time with any track already
-   attached to that vehicle. A fragment counts as matched -- its states enter the state
-   metrics -- and is reported in ``fragments`` (a track break, not a false track).
+   attached to a candidate vehicle when it overlaps in time with every track already
+   attached to that vehicle by less than ``handover_s`` (0.5 s: a vehicle's new track
+   confirmed a moment before its old one's last row; 0 = no overlap at all). A fragment
+   counts as matched -- its states enter the state metrics -- and is reported in
+   ``fragments`` (a track break, not a false track).
 4. Every other track -- no candidate, or only candidates already followed at the same time
    (a duplicate track) -- is a *false track*.
 
@@ -343,8 +345,10 @@ def _box(t: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return np.r_[t[0], xy.min(axis=0), t[-1], xy.max(axis=0)]
 
 
-def _assign(pairs: list[_Pair], tracks: list[Track], n_truth: int) -> dict[int, tuple[_Pair, str]]:
-    """track index -> (pair, "matched" | "fragment") following the module's matching policy."""
+def _assign(pairs: list[_Pair], tracks: list[Track], n_truth: int, handover_s: float
+            ) -> dict[int, tuple[_Pair, str]]:
+    """track index -> (pair, "matched" | "fragment") following the module's matching policy
+    (a fragment overlaps the vehicle's other tracks by less than ``handover_s``)."""
     if not pairs:
         return {}
     big = 1.0 + 2.0 * sum(p.cost for p in pairs)  # above any sum of real costs: max cardinality
@@ -363,7 +367,7 @@ def _assign(pairs: list[_Pair], tracks: list[Track], n_truth: int) -> dict[int, 
         if p.track in out:
             continue
         t0, t1 = tracks[p.track].t[0], tracks[p.track].t[-1]
-        if all(t1 < a or t0 > b for a, b in spans.get(p.truth, [])):
+        if all(min(t1, b) - max(t0, a) < handover_s for a, b in spans.get(p.truth, [])):
             out[p.track] = (p, "fragment")
             spans.setdefault(p.truth, []).append((t0, t1))
     return out
@@ -377,6 +381,7 @@ def evaluate_tracks(
     gate: float = 3.0,
     min_visible_s: float = 2.0,
     min_overlap_steps: int = 5,
+    handover_s: float = 0.5,
     sensor_pose: np.ndarray | None = None,
     hfov_deg: float | None = None,
     max_range: float | None = None,
@@ -387,6 +392,8 @@ def evaluate_tracks(
     eta: curvature threshold (rad/m) of the true labels. gate: largest mean centre distance (m)
     of a match. min_visible_s: visible time (s) that makes a vehicle eligible for the counts.
     min_overlap_steps: fewest track steps inside a vehicle's truth span for a match.
+    handover_s: a vehicle's later track that overlaps its other tracks by less than this (s)
+    is a fragment, not a false track (module docstring, step 3).
     Visibility (at most one source): ``visible`` maps a true vehicle id to an (n,) bool mask
     over its truth states (missing ids: all visible); or ``sensor_pose`` (4x4 S -> L, e.g.
     ``truth.sensor_pose``) with optional ``hfov_deg`` (default 360) and ``max_range`` (m,
@@ -404,7 +411,8 @@ def evaluate_tracks(
                  for tr in truth.tracks}
     truths = [_prepare_truth(tr, masks.get(tr.id), min_visible_s) for tr in truth.tracks]
     local = tracks.in_local().tracks
-    assigned = _assign(_candidates(local, truths, gate, min_overlap_steps), local, len(truths))
+    assigned = _assign(_candidates(local, truths, gate, min_overlap_steps), local, len(truths),
+                       handover_s)
 
     rows, err = [], []
     for i, tr in enumerate(local):
