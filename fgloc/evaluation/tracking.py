@@ -16,7 +16,8 @@ Matching policy (one vehicle, possibly several tracks one after the other)
 3. Fragments (track breaks): each still unassigned track, cheapest candidate first, is
    attached to a candidate vehicle when it overlaps in time with every track already
    attached to that vehicle by less than ``handover_s`` (0.5 s: a vehicle's new track
-   confirmed a moment before its old one's last row; 0 = no overlap at all). A fragment
+   confirmed a moment before its old one's last row, either of the two the primary match;
+   0 = no overlap at all, not even a shared time stamp). A fragment
    counts as matched -- its states enter the state metrics -- and is reported in
    ``fragments`` (a track break, not a false track).
 4. Every other track -- no candidate, or only candidates already followed at the same time
@@ -392,8 +393,8 @@ def evaluate_tracks(
     eta: curvature threshold (rad/m) of the true labels. gate: largest mean centre distance (m)
     of a match. min_visible_s: visible time (s) that makes a vehicle eligible for the counts.
     min_overlap_steps: fewest track steps inside a vehicle's truth span for a match.
-    handover_s: a vehicle's later track that overlaps its other tracks by less than this (s)
-    is a fragment, not a false track (module docstring, step 3).
+    handover_s: a further track of a followed vehicle that overlaps its other tracks by less
+    than this (s) is a fragment, not a false track (module docstring, step 3).
     Visibility (at most one source): ``visible`` maps a true vehicle id to an (n,) bool mask
     over its truth states (missing ids: all visible); or ``sensor_pose`` (4x4 S -> L, e.g.
     ``truth.sensor_pose``) with optional ``hfov_deg`` (default 360) and ``max_range`` (m,
