@@ -209,25 +209,40 @@ def setting_sentence(groups: list[dict[str, list]], duration: float,
             f"{duration:g} s each")
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def parser(description: str) -> argparse.ArgumentParser:
+    """The options of the benchmarks on the generator's scenarios (this one and
+    bench/independent_tracking.py): the map, one group of runs instead of the report's set,
+    the scenario length, an fgloc config and a JSON output (:func:`groups_of`)."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--map", type=Path, default=DEFAULT_MAP,
                     help="Lanelet2 map (default: the Lanelet2 example map)")
     ap.add_argument("--junctions", type=int, nargs="+",
                     choices=range(1, N_JUNCTIONS + 1), default=None,
-                    help="with --seeds and --settings: one group instead of the full set "
+                    help="with --seeds and --settings: one group instead of the report's set "
                          "(1 = the map's largest junction)")
     ap.add_argument("--seeds", type=int, nargs="+", default=[1])
     ap.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=["static"])
     ap.add_argument("--duration", type=float, default=60.0, help="scenario length (s)")
     ap.add_argument("--config", type=Path, default=None,
                     help="fgloc config TOML (default: all defaults)")
-    ap.add_argument("--json", type=Path, default=None, help="also write every row here")
-    args = ap.parse_args()
+    ap.add_argument("--json", type=Path, default=None, help="also write every run here")
+    return ap
+
+
+def groups_of(args: argparse.Namespace, table_name: str) -> list[dict[str, list]]:
+    """The groups of runs :func:`parser`'s ``args`` ask for: the one group of ``--junctions``,
+    ``--seeds`` and ``--settings``, or without ``--junctions`` the report table
+    ``table_name``'s full set (bench/report.py)."""
+    if args.junctions is not None:
+        return [{"junctions": args.junctions, "seeds": args.seeds, "settings": args.settings}]
     from bench.report import BY_NAME
 
-    groups = BY_NAME["independent"].full["groups"] if args.junctions is None else [
-        {"junctions": args.junctions, "seeds": args.seeds, "settings": args.settings}]
+    return BY_NAME[table_name].full["groups"]
+
+
+def main() -> int:
+    args = parser(__doc__.split("\n\n")[0]).parse_args()
+    groups = groups_of(args, "independent")
     rows = run(groups, args.duration, args.config, map_path=args.map)
     if args.json:
         args.json.write_text(json.dumps(rows, indent=1))

@@ -21,14 +21,12 @@ docs/benchmarks.md's table comes from ``python -m bench.report --only independen
 
 from __future__ import annotations
 
-import argparse
 import json
-import sys
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
 from bench import robustness
-from bench.independent import N_JUNCTIONS, SETTINGS, generated, group_label, ordered_labels, runs_of
+from bench.independent import generated, group_label, groups_of, ordered_labels, parser, runs_of
 from bench.real_map import DEFAULT_MAP
 from bench.robustness import RunResult, tracking_figures
 from fgloc.config import load_config
@@ -65,25 +63,8 @@ def table(results: list[RunResult]) -> list[str]:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--map", type=Path, default=DEFAULT_MAP,
-                    help="Lanelet2 map (default: the Lanelet2 example map)")
-    ap.add_argument("--junctions", type=int, nargs="+", choices=range(1, N_JUNCTIONS + 1),
-                    default=None, help="with --seeds and --settings: one group instead of the "
-                                       "report's set (1 = the map's largest junction)")
-    ap.add_argument("--seeds", type=int, nargs="+", default=[1])
-    ap.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=["static"])
-    ap.add_argument("--duration", type=float, default=60.0, help="scenario length (s)")
-    ap.add_argument("--config", type=Path, default=None,
-                    help="fgloc config TOML (default: all defaults)")
-    ap.add_argument("--json", type=Path, default=None, help="also write every run's figures")
-    args = ap.parse_args()
-    if args.junctions is None:                      # the report's set
-        from bench.report import BY_NAME
-        groups = BY_NAME["independent_tracking"].full["groups"]
-    else:
-        groups = [{"junctions": args.junctions, "seeds": args.seeds,
-                   "settings": args.settings}]
+    args = parser(__doc__.split("\n\n")[0]).parse_args()
+    groups = groups_of(args, "independent_tracking")
     results = run(groups, args.duration, args.config, map_path=args.map)
     print("\n".join(table(results)))
     if args.json:
@@ -92,4 +73,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())
