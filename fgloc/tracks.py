@@ -45,7 +45,11 @@ class Track:
     length_floor: a lower bound (m) of the vehicle's length the tracker measured (the
     largest occupied length behind the seen end of a truck seen end-on that set its
     contour's length; ``[tracking] occupancy_gap``), 0 without; the batch smoother keeps the
-    length above it (:mod:`fgloc.smoothing.length_floor`). Not stored in the track files.
+    length above it (:mod:`fgloc.smoothing.length_floor`). standing: (n,) bool, the steps at
+    which the vehicle stood without a detection (the rows of a stand the re-linking joined
+    across, :mod:`fgloc.tracking.relink`), or None for none; the smoothers hold their speed,
+    acceleration and yaw rate at 0 (:mod:`fgloc.smoothing.standing`). Neither is stored in the
+    track files.
     """
 
     id: int
@@ -56,9 +60,16 @@ class Track:
     det_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     det_step: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
     length_floor: float = 0.0
+    standing: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.t.shape[0])
+
+    def standing_steps(self) -> np.ndarray:
+        """(k,) int64 indices of the ``standing`` steps (empty without)."""
+        if self.standing is None:
+            return np.zeros(0, dtype=np.int64)
+        return np.flatnonzero(self.standing).astype(np.int64)
 
     def contour_points(self, k: int) -> np.ndarray:
         """(N_CONTOUR, 2) contour points of step k in the track set's frame."""
@@ -124,6 +135,7 @@ class TrackSet:
                     tr.det_index.copy(),
                     tr.det_step.copy(),
                     tr.length_floor,
+                    None if tr.standing is None else tr.standing.copy(),
                 )
             )
         return TrackSet(out, frame="L", T_frame_to_L=np.eye(3), diagnostics=dict(self.diagnostics))

@@ -1,6 +1,7 @@
 """Re-linking of the tracks the tracker lost inside the field of view
-(:mod:`fgloc.tracking.relink`): the gap rows in closed-form cases, the link tests, and a car
-whose returns vanish for 1.5 s keeping one track (simulator truth)."""
+(:mod:`fgloc.tracking.relink`): the gap rows in closed-form cases, the link tests, a car
+whose returns vanish for 1.5 s keeping one track, and vehicles that stand keeping theirs
+(simulator truth)."""
 
 from __future__ import annotations
 
@@ -15,7 +16,7 @@ from fgloc.pipeline import track
 from fgloc.scenario import RadarData
 from fgloc.sim import SimConfig, simulate_detailed
 from fgloc.tracking import TrackingConfig
-from fgloc.tracking.relink import gap_rows, relink
+from fgloc.tracking.relink import gap_rows, relink, stand_rows
 from fgloc.tracks import N_KIN, N_STATE, YAW, YAWRATE, A, Track, V, X, Y
 
 DT = 0.05
@@ -140,6 +141,70 @@ def test_the_nearer_continuation_wins_and_chains_join() -> None:
     assert [tr.id for tr in out] == [1, 3]
     joined = out[0]
     np.testing.assert_allclose(joined.t, np.arange(0, 101) * DT)
+
+
+def test_stand_rows_brake_stand_and_start() -> None:
+    """A ends at the origin heading +x at 2 m/s (t = 1 s), B starts 10 s later at x = 2 m at
+    2 m/s; at 2 m/s^2 A brakes for 1 s to a stop at x = 1 m, and the vehicle moves off from
+    there 1 s before B's first row (1 m at 1 m/s on average): the closed-form ramps, the
+    stand flagged and held at x = 1 m."""
+    a = _straight(1, 0.0, 1.0, speed=2.0, offset=-2.0)          # at x = 0 at t = 1 s
+    b = _straight(2, 11.0, 12.0, speed=2.0, offset=-20.0)       # at x = 2 m at t = 11 s
+    times = np.arange(21, 220) * DT
+    states, covs, standing = stand_rows(a, b, times, 0.5, 2.0)
+    w, u = times - 1.0, 11.0 - times
+    braking, starting = w < 1.0, u < 1.0
+    np.testing.assert_array_equal(standing, ~braking & ~starting)
+    x = np.where(braking, 2.0 * w - w * w, np.where(starting, 2.0 - 2.0 * u + u * u, 1.0))
+    np.testing.assert_allclose(states[:, X], x, atol=1e-9)
+    np.testing.assert_allclose(states[:, V], np.where(braking, 2.0 * (1.0 - w),
+                                                      np.where(starting, 2.0 * (1.0 - u), 0.0)),
+                               atol=1e-9)
+    np.testing.assert_allclose(states[:, A], np.where(braking, -2.0,
+                                                      np.where(starting, 2.0, 0.0)))
+    np.testing.assert_allclose(states[:, [Y, YAW, YAWRATE]], 0.0, atol=1e-12)
+    assert covs is not None and covs.shape == (len(times), N_STATE, N_STATE)
+
+
+def _stopping(tid: int, t0: float, t1: float, x_end: float, speed: float = 1.5) -> Track:
+    """Rows from t0 to t1 (s) of a vehicle on the x axis at ``speed``, at ``x_end`` at t1."""
+    return _straight(tid, t0, t1, speed=speed, offset=x_end - speed * t1)
+
+
+@pytest.mark.parametrize("case", ["stand", "queue follower", "fast", "turned", "late", "off"])
+def test_a_vehicle_that_stood_keeps_one_track(case: str) -> None:
+    """A slows to 1.5 m/s and is lost at x = 0 (t = 2 s); a track starting 20 s later at
+    x = 1.5 m, as slow, heading the same way, is A moving off: one track across a stand. Not
+    so a car one queue place (7 m) behind, a fast one, one turned by 45 deg, one after
+    ``stand_time``, or any with ``stand_time`` 0."""
+    cfg = TrackingConfig()
+    a = _stopping(1, 0.0, 2.0, 0.0)
+    b = _stopping(2, 22.0, 23.0, 1.5 + 1.5)                     # at x = 1.5 m at t = 22 s
+    if case == "queue follower":
+        b = _stopping(2, 22.0, 23.0, -7.0 + 1.5)
+    elif case == "fast":
+        b = _straight(2, 22.0, 23.0, speed=8.0, offset=1.0 - 8.0 * 22.0)
+    elif case == "turned":
+        b = _straight(2, 22.0, 23.0, speed=1.5, heading=np.pi / 4, offset=-1.5 * 22.0)
+    elif case == "late":
+        b = _stopping(2, 2.0 + cfg.stand_time + 0.1, 2.0 + cfg.stand_time + 1.0, 2.0)
+    elif case == "off":
+        cfg = dataclasses.replace(cfg, stand_time=0.0)
+    frames = np.arange(0, 1400) * DT
+    out, links = relink([a, b], {1}, frames, cfg)
+    if case != "stand":
+        assert links == [] and [tr.id for tr in out] == [1, 2]
+        return
+    assert [(k.first, k.then, k.stand) for k in links] == [(1, 2, True)]
+    tr = out[0]
+    assert tr.standing is not None and len(tr.standing) == len(tr)
+    still = tr.standing_steps()
+    # braked within 0.75 s of A's last row (1.5 m/s at 2 m/s^2) to x = 0.5625 m; moved off
+    # from there 1.25 s before B's first row (0.9375 m at 1.5 / 2 m/s on average)
+    np.testing.assert_allclose(tr.t[still[[0, -1]]], [2.75, 20.75], atol=DT)
+    np.testing.assert_allclose(tr.states[still][:, X], 0.5625)
+    np.testing.assert_allclose(tr.states[still][:, V], 0.0)
+    assert np.all(np.diff(tr.states[:, X]) >= -1e-12)            # never backwards
 
 
 def _without(radar: RadarData, drop: np.ndarray) -> RadarData:

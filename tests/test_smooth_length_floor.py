@@ -6,10 +6,9 @@ from __future__ import annotations
 
 import copy
 
-import gtsam
 import numpy as np
 import pytest
-from test_track_system import three_tracks, values_of
+from test_track_system import assert_equals_graph, three_tracks
 from test_tracking_robustness import SPARSE, TRUCK_12M
 
 from factors.gp import rectangle_radius
@@ -57,16 +56,7 @@ def test_stacked_floor_rows_equal_the_gtsam_graph() -> None:
     x = np.concatenate([t.states for t in tracks.tracks])
     rng = np.random.default_rng(5)
     x[st.floor_step, N_KIN] -= rng.uniform(-0.3, 1.5, len(st.floor_step))   # most too short
-    order = gtsam.Ordering()
-    for k in np.concatenate(tg.keys):
-        order.push_back(int(k))
-    values = values_of(tg.keys, x)
-    ne = st.evaluate(x)
-    np.testing.assert_allclose(np.sum(ne.cost), tg.graph.error(values), rtol=1e-10)
-    H, eta = tg.graph.linearize(values).hessian(order)
-    blocks = np.array([H[26 * i:26 * i + 26, 26 * i:26 * i + 26] for i in range(len(x))])
-    np.testing.assert_allclose(ne.D, blocks, rtol=1e-9, atol=1e-9 * np.abs(H).max())
-    np.testing.assert_allclose(ne.g.ravel(), -eta, rtol=1e-9, atol=1e-9 * np.abs(eta).max())
+    assert_equals_graph(st, tg, x)
     # without the floor (or for the car tracks) no such rows
     off = stack_tracks(tracks, det, sensor, SmoothingConfig(max_detections=6,
                                                            length_floor_sigma=0.0))

@@ -52,6 +52,23 @@ def values_of(keys: list[np.ndarray], x: np.ndarray) -> gtsam.Values:
     return v
 
 
+def assert_equals_graph(st, tg, x: np.ndarray) -> None:
+    """The stacked system ``st`` at states ``x`` has the cost, diagonal and off-diagonal
+    blocks and gradient of the gtsam graph ``tg`` (a :class:`TrackGraph` of the same tracks)."""
+    order = gtsam.Ordering()
+    for k in np.concatenate(tg.keys):
+        order.push_back(int(k))
+    values = values_of(tg.keys, x)
+    ne = st.evaluate(x)
+    np.testing.assert_allclose(np.sum(ne.cost), tg.graph.error(values), rtol=1e-10)
+    H, eta = tg.graph.linearize(values).hessian(order)
+    blocks = np.array([H[26 * i:26 * i + 26, 26 * i:26 * i + 26] for i in range(len(x))])
+    np.testing.assert_allclose(ne.D, blocks, rtol=1e-9, atol=1e-9 * np.abs(H).max())
+    np.testing.assert_allclose(ne.g.ravel(), -eta, rtol=1e-9, atol=1e-9 * np.abs(eta).max())
+    below = np.array([H[26 * p:26 * p + 26, 26 * (p - 1):26 * p] for p in st.proc_step])
+    np.testing.assert_allclose(ne.B, below, rtol=1e-9, atol=1e-9 * np.abs(H).max())
+
+
 @pytest.mark.parametrize("truck", [False, True])
 def test_stacked_cost_and_normal_equations_equal_the_gtsam_graph(truck: bool) -> None:
     tracks, det, sensor = three_tracks(1)
@@ -76,22 +93,10 @@ def test_stacked_cost_and_normal_equations_equal_the_gtsam_graph(truck: bool) ->
                                long_mu if truck else tracks.tracks[1].states[0, N_KIN:])
     x0 = np.concatenate([tr.states for tr in tracks.tracks])
     rng = np.random.default_rng(3)
-    order = gtsam.Ordering()
-    for k in np.concatenate(tg.keys):
-        order.push_back(int(k))
     for x in (x0, x0 + rng.normal(0, 0.05, x0.shape)):
-        values = values_of(tg.keys, x)
-        ne = st.evaluate(x)
-        np.testing.assert_allclose(np.sum(ne.cost), tg.graph.error(values), rtol=1e-10)
-        H, eta = tg.graph.linearize(values).hessian(order)
-        n = len(x)
-        blocks = np.array([H[26 * i:26 * i + 26, 26 * i:26 * i + 26] for i in range(n)])
-        np.testing.assert_allclose(ne.D, blocks, rtol=1e-9, atol=1e-9 * np.abs(H).max())
-        np.testing.assert_allclose(ne.g.ravel(), -eta, rtol=1e-9, atol=1e-9 * np.abs(eta).max())
-        below = np.array([H[26 * p:26 * p + 26, 26 * (p - 1):26 * p] for p in st.proc_step])
-        np.testing.assert_allclose(ne.B, below, rtol=1e-9, atol=1e-9 * np.abs(H).max())
-        # no coupling between tracks: the first step of a track has no block to the left
-        assert not set(st.start[1:-1]) & set(st.proc_step)
+        assert_equals_graph(st, tg, x)
+    # no coupling between tracks: the first step of a track has no block to the left
+    assert not set(st.start[1:-1]) & set(st.proc_step)
 
 
 def test_batched_rows_equal_the_one_frame_rows() -> None:

@@ -250,7 +250,8 @@ def decimate(tracks: TrackSet, stride: int, min_steps: int) -> TrackSet:
         sel = new_step[tr.det_step] >= 0
         out.append(Track(tr.id, tr.t[keep], tr.states[keep], tr.labels[keep],
                          None if tr.covariances is None else tr.covariances[keep],
-                         tr.det_index[sel], new_step[tr.det_step[sel]]))
+                         tr.det_index[sel], new_step[tr.det_step[sel]],
+                         standing=None if tr.standing is None else tr.standing[keep]))
     return dataclasses.replace(tracks, tracks=out)
 
 

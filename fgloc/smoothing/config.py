@@ -74,6 +74,12 @@ class SmoothingConfig:
     radius) is shorter by d (m) adds 0.5 (d / length_floor_sigma)^2 to the cost
     (:mod:`fgloc.smoothing.length_floor`; seen end-on the smoother's rows would shorten the
     truck to its grazing side returns). 0 = off."""
+    stand_sigma_speed: float = 0.05
+    """Std. dev. (m/s) of a standing step's speed about 0: the steps at which a vehicle stood
+    between two tracks the re-linking joined (``Track.standing``; ``[tracking] stand_time``)
+    hold no detection, and the smoothers hold them still (:mod:`fgloc.smoothing.standing`)."""
+    stand_sigma_yawrate: float = 0.01
+    """Std. dev. (rad/s) of a standing step's yaw rate about 0."""
     use_doppler: bool = True
     """Add range-rate rows to each measurement factor (the tracker's Doppler measurement,
     ``tracking.sigma_doppler``): they observe speed, heading and yaw rate, which the contour
@@ -118,6 +124,9 @@ class SmoothingConfig:
         if self.length_floor_sigma < 0:
             raise ValueError(f"length_floor_sigma must be >= 0 m, got "
                              f"{self.length_floor_sigma}")
+        if not (self.stand_sigma_speed > 0 and self.stand_sigma_yawrate > 0):
+            raise ValueError("stand_sigma_speed and stand_sigma_yawrate must be > 0, got "
+                             f"{self.stand_sigma_speed}, {self.stand_sigma_yawrate}")
         if not self.lag > 0:
             raise ValueError(f"lag must be > 0 s, got {self.lag}")
         if self.max_detections < 0 or self.max_iterations < 1 or self.relinearize_skip < 1:

@@ -149,8 +149,8 @@ def _step_factors(model: TrackModel, tr: Track, s: int, w: _TrackWindow, states:
                   ) -> tuple[gtsam.NonlinearFactorGraph, gtsam.Values, int]:
     """New factors, initial value and key of step ``s`` of ``tr``: the process factor from the
     previous step (initialised by the process model from its current estimate in
-    ``states``) when that step is in the window, else the filter's prior; the contour factor
-    of the step's detections ``idx``."""
+    ``states``) when that step is in the window, else the filter's prior; the standing rows
+    of a standing step; the contour factor of the step's detections ``idx``."""
     graph, values = gtsam.NonlinearFactorGraph(), gtsam.Values()
     key = track_key(tr.id, s)
     if w.steps and w.steps[-1] == s - 1:
@@ -161,6 +161,8 @@ def _step_factors(model: TrackModel, tr: Track, s: int, w: _TrackWindow, states:
     else:       # first step, or the previous one already left the window
         graph.add(model.prior(key, tr, s))
         values.insert(key, tr.states[s])
+    if tr.standing is not None and tr.standing[s]:
+        graph.add(model.standing(key))
     if len(idx):
         graph.add(model.measurement(key, det_xy[idx], sensor_xy,
                                     None if det_trusted is None else det_trusted[idx],

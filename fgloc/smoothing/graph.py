@@ -60,7 +60,8 @@ from fgloc.geo import wrap_angle
 from fgloc.labels import kappa_labels
 from fgloc.scenario import Scenario
 from fgloc.smoothing.config import SmoothingConfig
-from fgloc.smoothing.length_floor import FlooredTracks, length_floor_factor
+from fgloc.smoothing.length_floor import length_floor_factor
+from fgloc.smoothing.standing import StandingTracks, stand_jacobian, standing_factor
 from fgloc.tracking.birth import FieldOfView
 from fgloc.tracking.config import TrackingConfig
 from fgloc.tracks import (
@@ -267,6 +268,11 @@ class TrackModel:
             return 0.0
         return max(float(track.length_floor) - 2.0 * self.tracking.sigma_range, 0.0)
 
+    def standing(self, key: int) -> gtsam.CustomFactor:
+        """The standing rows on ``key`` (:mod:`fgloc.smoothing.standing`)."""
+        s = self.smoothing
+        return standing_factor(key, s.stand_sigma_speed, s.stand_sigma_yawrate)
+
     def prior(self, key: int, track: Track, step: int = 0) -> gtsam.PriorFactorVector:
         """Prior on ``key``: :meth:`prior_mean` and :meth:`prior_covariance`."""
         return prior_factor(key, self.prior_mean(track, step),
@@ -406,6 +412,8 @@ def build_track_graph(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarra
             if floor > 0:
                 graph.add(length_floor_factor(int(k[s]), floor,
                                               model.smoothing.length_floor_sigma))
+        for s in tr.standing_steps():
+            graph.add(model.standing(int(k[s])))
     return TrackGraph(graph, values, keys, models)
 
 
@@ -440,10 +448,11 @@ def stack_tracks(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
                  tracking: TrackingConfig | None = None,
                  det_trusted: np.ndarray | None = None,
                  det_range_rate: np.ndarray | None = None,
-                 chunk: int = 1024) -> FlooredTracks:
+                 chunk: int = 1024) -> StandingTracks:
     """The factors of :func:`build_track_graph` (same arguments, same residuals and noise,
     same model per track) as one :class:`factors.track_system.StackedTracks` (with the
-    length floor rows: :class:`fgloc.smoothing.length_floor.FlooredTracks`) over the steps
+    length floor rows: :class:`fgloc.smoothing.length_floor.FlooredTracks`, and the standing
+    rows: :class:`fgloc.smoothing.standing.StandingTracks`) over the steps
     of all tracks, in ``tracks.tracks`` order; measurement frames in chunks of at most
     ``chunk`` frames of one model (bounds the memory of an evaluation)."""
     det_xy = np.asarray(det_xy, dtype=float)
@@ -498,11 +507,16 @@ def stack_tracks(tracks: TrackSet, det_xy: np.ndarray, sensor_xy: np.ndarray,
     floor = np.repeat([m.length_floor(tr) for m, tr in zip(per_track, tracks.tracks)],
                       lengths)
     floor_step = np.flatnonzero(floor > 0)
-    return FlooredTracks(start, prior_mean, prior_W, proc_step, dt, proc_W,
-                         np.array(meas_step, dtype=np.int64), meas,
-                         np.array(bounds, dtype=np.int64), proc_mean, models.car.tau,
-                         floor_step, floor[floor_step],
-                         float(models.car.smoothing.length_floor_sigma))
+    stand_step = np.concatenate([start[i] + tr.standing_steps()
+                                 for i, tr in enumerate(tracks.tracks)]
+                                or [np.zeros(0, np.int64)]).astype(np.int64)
+    scfg = models.car.smoothing
+    return StandingTracks(start, prior_mean, prior_W, proc_step, dt, proc_W,
+                          np.array(meas_step, dtype=np.int64), meas,
+                          np.array(bounds, dtype=np.int64), proc_mean, models.car.tau,
+                          floor_step, floor[floor_step], float(scfg.length_floor_sigma),
+                          stand_step,
+                          stand_jacobian(scfg.stand_sigma_speed, scfg.stand_sigma_yawrate))
 
 
 def tracks_from_states(tracks: TrackSet, states: list[np.ndarray],

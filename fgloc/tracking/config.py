@@ -414,6 +414,23 @@ class TrackingConfig:
     relink_max_turn_deg: float = 90.0
     """... and their headings differ by at most this (deg; a vehicle entering the view where
     another left it drives the other way). The rows between are interpolated."""
+    stand_time: float = 60.0
+    """Re-linking across a stand: a lost track continues as a track whose first row comes at
+    most this long (s) after its last (0 = off) when the vehicle stood in between -- a
+    vehicle that stops at a stop line or in a queue returns only static detections (its
+    Doppler below ``doppler_min``), they are dropped, its track ends and a new one starts
+    when it moves off -- ..."""
+    stand_speed: float = 3.0
+    """... when both the ended track's last row and the new track's state ``relink_settle`` s
+    after its first row are slower than this (m/s) ..."""
+    stand_accel: float = 2.0
+    """... and the ended track braked to a stop at this rate (m/s^2) and the new one started
+    from a stop at it lie within ``relink_gate`` of each other, their headings within
+    ``stand_max_turn_deg``. The rows between brake, stand and start at this rate; the standing
+    ones are flagged (``Track.standing``) and the smoothers hold them still. A pair that
+    passes both tests takes the model whose ends meet closer."""
+    stand_max_turn_deg: float = 30.0
+    """Largest heading change (deg) across a stand."""
 
     # ---- birth zones -------------------------------------------------------------------------
     birth_zones: list[list[float]] | None = None

@@ -21,7 +21,8 @@ A pedestrian is rarely seen well enough to shrink its contour (on the example ma
 with 10 pedestrians per minute on its crosswalks and walkways, their kept tracks had the
 prior's 4.4 x 1.9 m), but it walks: a track whose speed stays below ``walking_speed`` for 90 %
 of its steps is not a motor vehicle either (static returns are not tracked: a vehicle waiting
-at a stop line leaves no track there, its track is its moving part).
+at a stop line leaves no track there, its track is its moving part; the rows at which a
+re-linked track stood do not count).
 
 A tram is as long, wide and fast as a truck, but it runs on rails: where the map has them
 (lanelets no motor vehicle may drive: rails, bicycle lanes, walkways, crosswalks; the
@@ -85,11 +86,14 @@ def is_motor_vehicle(track: Track, cfg: TrackingConfig) -> bool:
     """Whether ``track``'s contour (median length and width over its steps, m) has a shorter
     side of at least ``cfg.min_vehicle_width`` and either a longer one of at least
     ``cfg.min_vehicle_length`` or a shorter one of at least ``cfg.wide_vehicle_width``, and
-    its speed (90th percentile of |v| over its steps, m/s) reaches ``cfg.walking_speed``. The
+    its speed (90th percentile of |v| over its steps but those it stood at,
+    ``Track.standing``, m/s) reaches ``cfg.walking_speed``. The
     footprint's sides, whichever axis the tracker took for the heading (a car whose contour
     came out turned by 90 deg, 2.7 m long and 3.2 m wide, is a car); and a wide one is a
     vehicle however short (a car seen end-on, 2.9 m long and 2.5 m wide)."""
-    if np.quantile(np.abs(track.states[:, V]), 0.9) < cfg.walking_speed:
+    moving = np.ones(len(track), dtype=bool)
+    moving[track.standing_steps()] = False
+    if np.quantile(np.abs(track.states[moving, V]), 0.9) < cfg.walking_speed:
         return False
     length, width = contour_length_width(track.states)
     short, long = sorted((float(np.median(length)), float(np.median(width))))

@@ -1188,6 +1188,7 @@ def track_scenario(scn: Scenario, T_coarse: np.ndarray, cfg: TrackingConfig | No
         "hidden": users.hidden,
         "off_lane_doubted": users.doubted,
         "relinked": [[k.first, k.then] for k in links],
+        "relinked_stands": [[k.first, k.then] for k in links if k.stand],
         "birth_zones": np.column_stack([zones.centre, zones.radius,
                                         np.rad2deg(zones.yaw)]).tolist(),
         "seconds": time.perf_counter() - t0,
