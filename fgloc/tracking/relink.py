@@ -139,6 +139,7 @@ def candidate_links(tracks: list[Track], lost: set[int], cfg: TrackingConfig) ->
     """Every pair (lost track, later track) that passes a test of the module docstring,
     smallest ``miss`` first."""
     starts = np.array([tr.t[0] for tr in tracks])
+    ends = np.array([tr.t[-1] for tr in tracks])
     order = np.argsort(starts, kind="stable")
     reach = max(cfg.relink_time, cfg.stand_time)
     links = []
@@ -152,8 +153,9 @@ def candidate_links(tracks: list[Track], lost: set[int], cfg: TrackingConfig) ->
             if k is not None and k.stand:
                 stop = _stop_points(a.states[-1], b, _settled(b, cfg.relink_settle)[1],
                                     cfg.stand_accel)[0]
-                if any(_covers(c, ta, float(b.t[0]), stop) for c in tracks
-                       if c.id not in (a.id, b.id)):
+                meanwhile = np.flatnonzero((starts < b.t[0]) & (ends > ta))
+                if any(_covers(tracks[j], ta, float(b.t[0]), stop) for j in meanwhile
+                       if tracks[j].id not in (a.id, b.id)):
                     continue            # another vehicle stood or drove there meanwhile
             if k is not None:
                 links.append(k)
