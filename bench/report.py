@@ -356,8 +356,9 @@ TABLES: list[Table] = [
           "following a truck, > 8 m), with the track counts per run beside tracks per vehicle: "
           "false tracks (following no vehicle, or a vehicle another track follows at the "
           "same time), fragments (a vehicle's later tracks: a track break; a vehicle that "
-          "stands has static returns, dropped, and gets a new track when it moves off) and "
-          "missed vehicles. A vehicle counts where the sensor sees it.",
+          "stands has static returns, dropped, and gets a new track when it moves off unless "
+          "the re-linking joins the two across the stand, [tracking] stand_time) and missed "
+          "vehicles. A vehicle counts where the sensor sees it.",
           produce_independent_tracking,
           {"groups": [{"junctions": [1, 2, 3, 4, 5, 6], "seeds": [1, 2],
                        "settings": ["static"]},
