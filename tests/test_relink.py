@@ -16,7 +16,7 @@ from fgloc.pipeline import track
 from fgloc.scenario import RadarData
 from fgloc.sim import SimConfig, simulate_detailed
 from fgloc.tracking import TrackingConfig
-from fgloc.tracking.relink import gap_rows, relink, stand_rows
+from fgloc.tracking.relink import candidate_links, gap_rows, relink, stand_rows
 from fgloc.tracks import N_KIN, N_STATE, YAW, YAWRATE, A, Track, V, X, Y
 
 DT = 0.05
@@ -205,6 +205,28 @@ def test_a_vehicle_that_stood_keeps_one_track(case: str) -> None:
     np.testing.assert_allclose(tr.states[still][:, X], 0.5625)
     np.testing.assert_allclose(tr.states[still][:, V], 0.0)
     assert np.all(np.diff(tr.states[:, X]) >= -1e-12)            # never backwards
+
+
+@pytest.mark.parametrize("gap", [1.0, 20.0])
+def test_a_stop_point_another_track_covered_is_no_stand(gap: float) -> None:
+    """A slows to 1.5 m/s and is lost at x = 0 (t = 2 s); B starts ``gap`` s later at
+    x = 0.6 m, as slow: the stand model's ends meet closer (0.53 m) than the moving one's
+    (0.90 m after 1 s). A third track stands over A's stop point meanwhile: no stand; after
+    1 s the moving model joins the two, after 20 s (beyond ``relink_time``) nothing does."""
+    a = _stopping(1, 0.0, 2.0, 0.0)
+    b = _stopping(2, 2.0 + gap, 3.0 + gap, 0.6 + 1.5)
+    other = _straight(3, 2.0, 2.0 + gap, speed=0.0, offset=0.6)
+    frames = np.arange(0, 1400) * DT
+    alone = candidate_links([a, b], {1}, TrackingConfig())
+    assert [(k.then, k.stand) for k in alone] == [(2, True)]
+    np.testing.assert_allclose(alone[0].miss, 0.525, atol=1e-9)
+    out, links = relink([a, b, other], {1}, frames, TrackingConfig())
+    if gap > TrackingConfig().relink_time:
+        assert links == [] and [tr.id for tr in out] == [1, 2, 3]
+        return
+    assert [(k.first, k.then, k.stand) for k in links] == [(1, 2, False)]
+    np.testing.assert_allclose(links[0].miss, 0.9, atol=1e-9)
+    assert out[0].standing is None
 
 
 def _without(radar: RadarData, drop: np.ndarray) -> RadarData:

@@ -52,6 +52,7 @@ detections.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -98,9 +99,13 @@ def _stop_points(xa: np.ndarray, b: Track, xb: np.ndarray, accel: float
     return stop, start
 
 
-def _link(a: Track, b: Track, cfg: TrackingConfig) -> Link | None:
+def _link(a: Track, b: Track, cfg: TrackingConfig,
+          covered: Callable[[np.ndarray, float, float, tuple[int, int]], bool]
+          ) -> Link | None:
     """The link of lost track ``a`` to the later track ``b`` by the better of the two tests
-    of the module docstring, None if neither passes."""
+    of the module docstring, None if neither passes. ``covered(point, t0, t1, ids)``:
+    whether a track other than ``ids`` covered ``point`` strictly between ``t0`` and ``t1``
+    s (then the stand model does not apply)."""
     ta, xa = float(a.t[-1]), a.states[-1]
     tb, xb = _settled(b, cfg.relink_settle)
     turn = abs(wrap_angle(xb[YAW] - xa[YAW]))
@@ -114,7 +119,8 @@ def _link(a: Track, b: Track, cfg: TrackingConfig) -> Link | None:
             and max(xa[V], xb[V]) <= cfg.stand_speed):
         stop, start = _stop_points(xa, b, xb, cfg.stand_accel)
         miss = float(np.linalg.norm(stop - start))
-        if best is None or miss < best.miss:
+        if (miss <= cfg.relink_gate and (best is None or miss < best.miss)
+                and not covered(stop, ta, float(b.t[0]), (a.id, b.id))):
             best = Link(a.id, b.id, miss, stand=True)
     return best if best is not None and best.miss <= cfg.relink_gate else None
 
@@ -142,23 +148,21 @@ def candidate_links(tracks: list[Track], lost: set[int], cfg: TrackingConfig) ->
     ends = np.array([tr.t[-1] for tr in tracks])
     order = np.argsort(starts, kind="stable")
     reach = max(cfg.relink_time, cfg.stand_time)
+
+    def covered(point: np.ndarray, t0: float, t1: float, ids: tuple[int, int]) -> bool:
+        """Another vehicle stood or drove at ``point`` meanwhile."""
+        alive = np.flatnonzero((starts < t1) & (ends > t0))
+        return any(_covers(tracks[j], t0, t1, point) for j in alive
+                   if tracks[j].id not in ids)
+
     links = []
     for a in tracks:
         if a.id not in lost:
             continue
         ta = float(a.t[-1])
         lo, hi = np.searchsorted(starts[order], [ta, ta + reach], side="right")
-        for b in (tracks[j] for j in order[lo:hi]):
-            k = _link(a, b, cfg)
-            if k is not None and k.stand:
-                stop = _stop_points(a.states[-1], b, _settled(b, cfg.relink_settle)[1],
-                                    cfg.stand_accel)[0]
-                meanwhile = np.flatnonzero((starts < b.t[0]) & (ends > ta))
-                if any(_covers(tracks[j], ta, float(b.t[0]), stop) for j in meanwhile
-                       if tracks[j].id not in (a.id, b.id)):
-                    continue            # another vehicle stood or drove there meanwhile
-            if k is not None:
-                links.append(k)
+        links += [k for k in (_link(a, tracks[j], cfg, covered) for j in order[lo:hi])
+                  if k is not None]
     return sorted(links, key=lambda k: k.miss)
 
 
