@@ -185,6 +185,35 @@ def visibility_slack(z: np.ndarray, sensor: np.ndarray, sigma_range: float,
     return np.maximum(floor, SLACK_SIGMAS * np.hypot(sigma_range, sigma_azimuth * r))
 
 
+def _edge_distances(z: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Squared distance (..., k, m) of detections z (..., k, 2) to each edge (j, j + 1) of the
+    closed polygon ``points`` (..., m, 2), the edge parameter (..., k, m) in [0, 1] of the
+    closest point and the edges' x, y components and squared lengths (..., m)."""
+    p = np.asarray(points, dtype=float)
+    z = np.asarray(z, dtype=float)
+    # x / y components apart (no reductions over the length-2 axis: same values, faster)
+    px, py = p[..., 0], p[..., 1]
+    ex, ey = _shift(px, 1) - px, _shift(py, 1) - py                # (..., m) edges
+    ee = np.maximum(ex * ex + ey * ey, 1e-12)                       # (..., m)
+    ex_, ey_ = ex[..., None, :], ey[..., None, :]
+    dx = z[..., :, None, 0] - px[..., None, :]                      # (..., k, m)
+    dy = z[..., :, None, 1] - py[..., None, :]
+    u = (dx * ex_ + dy * ey_) / ee[..., None, :]
+    np.clip(u, 0.0, 1.0, out=u)
+    dx -= u * ex_
+    dy -= u * ey_
+    return dx * dx + dy * dy, u, ex, ey, ee
+
+
+def contour_distance(z: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Distance (m) (..., k) of detections z (..., k, 2) to the closed polygon ``points``
+    (..., m, 2) (leading axes are a batch), inside or outside it: the offset from the closest
+    contour point that the measurement model's rows measure. Unlike the radial excess (along
+    the ray from the centre) it stays at most half the width for a detection inside an
+    elongated contour."""
+    return np.sqrt(_edge_distances(z, points)[0].min(axis=-1))
+
+
 def closest_on_chain(z: np.ndarray, points: np.ndarray, theta: np.ndarray,
                      visible: np.ndarray, slack: float | np.ndarray = np.inf
                      ) -> tuple[np.ndarray, np.ndarray]:
@@ -200,25 +229,12 @@ def closest_on_chain(z: np.ndarray, points: np.ndarray, theta: np.ndarray,
     metres behind the front, would pull the front round).
     Returns the contour angle (..., k) of the closest point (linear in the edge parameter)
     and the unit outward normal (..., k, 2) of that edge."""
-    p = np.asarray(points, dtype=float)
-    z = np.asarray(z, dtype=float)
-    m = p.shape[-2]
+    m = np.shape(points)[-2]
     step = 2.0 * np.pi / m
     vis = np.asarray(visible, dtype=bool)
     chain = vis & _shift(vis, 1)
     chain = chain | ~chain.any(axis=-1, keepdims=True)
-    # x / y components apart (no reductions over the length-2 axis: same values, faster)
-    px, py = p[..., 0], p[..., 1]
-    ex, ey = _shift(px, 1) - px, _shift(py, 1) - py                # (..., m) edges
-    ee = np.maximum(ex * ex + ey * ey, 1e-12)                       # (..., m)
-    ex_, ey_ = ex[..., None, :], ey[..., None, :]
-    dx = z[..., :, None, 0] - px[..., None, :]                      # (..., k, m)
-    dy = z[..., :, None, 1] - py[..., None, :]
-    u = (dx * ex_ + dy * ey_) / ee[..., None, :]
-    np.clip(u, 0.0, 1.0, out=u)
-    dx -= u * ex_
-    dy -= u * ey_
-    dist = dx * dx + dy * dy
+    dist, u, ex, ey, ee = _edge_distances(z, points)
     anywhere = np.argmin(dist, axis=-1)                             # (..., k)
     d_any = np.take_along_axis(dist, anywhere[..., None], axis=-1)[..., 0]
     dist[~np.broadcast_to(chain[..., None, :], dist.shape)] = np.inf
