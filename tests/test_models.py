@@ -11,6 +11,7 @@ from factors.measurement import (
     associate_candidates,
     closest_on_chain,
     contour_candidates,
+    contour_distance,
     contour_point,
     contour_point_jacobian,
     normal_offset,
@@ -280,6 +281,26 @@ def test_detections_far_from_the_visible_chain_take_the_whole_contour() -> None:
     # a slack wider than their distance to the chain changes nothing
     _, wide = closest_on_chain(z, pts, theta, vis, slack=5.0)
     np.testing.assert_allclose(wide, chain)
+
+
+def test_contour_distance_is_the_offset_from_the_closest_contour_point() -> None:
+    """A 12 x 2.5 m box (a truck) about (3, -1), turned by 0.4 rad: a point on its long side
+    is 0 off, one 0.5 m beyond its front face 0.5 m, its centre 1.25 m (half the width: the
+    nearest side) although 6 m from either end along the ray that the radial excess takes,
+    a point 0.3 m inside a side 0.3 m; batched boxes give the single ones'."""
+    n = 48
+    theta = 2 * np.pi * np.arange(n) / n
+    c, yaw = np.array([3.0, -1.0]), 0.4
+    pts = contour_point(c, yaw, rectangle_radius(theta, 12.0, 2.5), theta)
+    h, lat = np.array([np.cos(yaw), np.sin(yaw)]), np.array([-np.sin(yaw), np.cos(yaw)])
+    z = c + np.array([[2.0 * h[0] + 1.25 * lat[0], 2.0 * h[1] + 1.25 * lat[1]],
+                      6.5 * h, [0.0, 0.0], -4.0 * h - 0.95 * lat])
+    d = contour_distance(z, pts)
+    np.testing.assert_allclose(d, [0.0, 0.5, 1.25, 0.3], atol=1e-9)
+    other = contour_point(np.zeros(2), 0.0, rectangle_radius(theta, 4.6, 1.9), theta)
+    both = contour_distance(np.stack([z, z - c]), np.stack([pts, other]))
+    np.testing.assert_allclose(both[0], d)
+    np.testing.assert_allclose(both[1], contour_distance(z - c, other))
 
 
 def test_visibility_slack_grows_with_the_cross_range_noise() -> None:

@@ -412,8 +412,7 @@ class Tracker:
         radial excess alone grows with the contour's elongation: a 13 m truck's returns from
         inside its contour (its top, its far side) lie up to its half length inside along
         the ray from the centre but at most its half width from a side, and the 20 smooth
-        radii bulge between a long contour's corners, so truck tracks on the independent
-        generator's scenarios diverged every 2-3 s while following their truck."""
+        radii bulge between a long contour's corners (``TrackingConfig.diverge_excess``)."""
         if not len(self.recs):
             return
         g = 1.0 - np.exp(-max(dt, 0.0) / max(self.cfg.diverge_time, 1e-6))
