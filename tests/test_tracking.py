@@ -25,7 +25,7 @@ from fgloc.scenario import (
 from fgloc.tracking import TrackingConfig, kappa_labels, track_scenario
 from fgloc.tracking.birth import BirthZones, FieldOfView, LaneHeadings
 from fgloc.tracking.tracker import Tracker, _Frame, _Record
-from fgloc.tracks import N_STATE
+from fgloc.tracks import N_KIN, N_STATE
 
 Path = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
 RATE = 20.0
@@ -466,6 +466,40 @@ def test_a_diverged_track_ends_and_is_reported_up_to_its_last_calm_row(
         (tr,) = tracker.done
         assert len(tr.t) == 20
         assert np.array_equal(tr.det_step, np.repeat(np.arange(20), 2))
+
+
+@pytest.mark.parametrize("shift", [0.0, 1.5])
+def test_a_truck_tracks_misfit_is_its_returns_distance_to_the_contour(shift: float) -> None:
+    """A truck track heading +x 50 m out and 20 m to the left, seen from the sensor at the
+    origin, with the contour the tracker held for a 15.4 m truck on the independent
+    generator's held-out junction 11 seed 1 (1.25 s; 13.9 x 2.8 m, its smooth radii 18 deg
+    off the axis longer than on it); returns of a 13.9 x 2.5 m box about its centre along
+    its near side and its rear face with 0.2 m noise, one in four on its top (inside the
+    contour). The radial excess about the centre (along the ray from it) of the returns on
+    its top reaches metres (that track's median of it passed the old divergence threshold,
+    1 m, 2 s later though it followed its truck); a return inside lies at most half the
+    width from the contour, and the misfit, the returns' distance to the contour, settles
+    below ``diverge_excess``. The same returns ``shift`` = 1.5 m to the right (the track
+    slid off its vehicle) exceed it."""
+    rng = np.random.default_rng(4)
+    tracker = _one_track((50.0, 20.0, 8.0), None, np.diag(np.full(N_STATE, 1e-4)))
+    tracker.x[0, N_KIN:] = [6.96, 7.27, 2.06, 1.54, 1.39, 1.37, 1.39, 1.54, 2.06, 7.26, 6.95,
+                            7.25, 2.03, 1.52, 1.42, 1.42, 1.43, 1.58, 2.09, 7.29]
+    side = np.column_stack([rng.uniform(43.05, 56.95, 12), np.full(12, 18.75)])
+    rear = np.column_stack([np.full(4, 43.05), rng.uniform(18.75, 21.25, 4)])
+    top = np.column_stack([rng.uniform(43.05, 56.95, 5), rng.uniform(18.75, 21.25, 5)])
+    z = np.vstack([side, rear, top]) + rng.normal(0.0, 0.2, (21, 2)) - [0.0, shift]
+    excess = tracker._local(z)[2][0]
+    owner = np.zeros(len(z), dtype=np.int64)
+    for _ in range(40):
+        tracker._misfit(owner, excess, z, 0.1)
+    limit = tracker.cfg.diverge_excess
+    if shift == 0.0:
+        assert np.max(np.abs(excess[-5:])) > 2.0
+        # the returns inside count at their distance to the contour (0.28 against 0.50 m)
+        assert tracker.recs[0].misfit < min(limit, 0.7 * np.median(np.abs(excess)))
+    else:
+        assert tracker.recs[0].misfit > limit
 
 
 @pytest.mark.parametrize("oncoming", [False, True])
