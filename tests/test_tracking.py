@@ -502,6 +502,34 @@ def test_a_truck_tracks_misfit_is_its_returns_distance_to_the_contour(shift: flo
         assert tracker.recs[0].misfit > limit
 
 
+@pytest.mark.parametrize("towards", [True, False])
+def test_a_track_heading_against_its_vehicles_motion_diverges(towards: bool) -> None:
+    """A car track 30 m out heading +x (away from the sensor at the origin) at 0.5 m/s; its
+    returns, on its contour, come from a car driving towards the sensor at 3 m/s (range rate
+    -3 m/s): every update wants a negative speed (clipped to 0), and after
+    ``reverse_updates`` of them in a row the track has diverged. Returns of a car driving
+    away at 3 m/s, as the track heads, leave it alive."""
+    tracker = _one_track((30.0, 0.0, 0.5), (4.5, 1.9), np.diag(np.r_[
+        0.01, 0.01, 1.0, 1.0, 0.01, 0.01, np.full(N_STATE - 6, 1e-3)]))
+    rec = tracker.recs[0]
+    rec.confirmed = True
+    z = np.array([[27.75, -0.5], [27.75, 0.4], [28.5, -0.95], [30.0, -0.95], [31.5, -0.95]])
+    rng = np.linalg.norm(z, axis=1)
+    dop = (-3.0 if towards else 3.0) * z[:, 0] / rng
+    owner = np.zeros(len(z), dtype=np.int64)
+    cfg = tracker.cfg
+    for _ in range(cfg.reverse_updates):
+        assert len(tracker.recs) == 1
+        tracker.t += 0.05
+        tracker._predict(0.05)
+        tracker._update(_Frame(z, rng, dop, np.arange(len(z))), owner)
+        rec.last_update_t = tracker.t
+        tracker._manage(tracker.t)
+    assert (rec.reverse_run == cfg.reverse_updates) == towards
+    assert (len(tracker.recs) == 0) == towards
+    assert tracker.x.shape[0] == (0 if towards else 1)
+
+
 @pytest.mark.parametrize("oncoming", [False, True])
 def test_a_young_tracks_loose_gate_holds_births_of_its_own_motion_only(oncoming: bool) -> None:
     """The car 5 m behind a young 11 m truck track joins it neither way. Its returns inside

@@ -1,10 +1,11 @@
 """Re-linking of the tracks the tracker lost inside the field of view (frame C).
 
 A confirmed track that ends inside the field of view -- missed for ``delete_after`` s, or
-diverged (its misfit above ``diverge_excess``, its contour wider than ``max_width``) -- often
-followed a vehicle that is still there: one turning across the line of sight far out (its
-range rate below ``doppler_min``, its returns dropped as static: the track coasts on the turn
-it had and slides off), one hidden for a second behind another, one with a few far returns.
+diverged (its misfit above ``diverge_excess``, its heading against its vehicle, its contour
+wider than ``max_width``) -- often followed a vehicle that is still there: one turning
+across the line of sight far out (its range rate below ``doppler_min``, its returns dropped
+as static: the track coasts on the turn it had and slides off), one hidden for a second
+behind another, one with a few far returns.
 The vehicle gets a new track a moment later, and one vehicle has two tracks.
 
 A lost track A continues as a track B whose first row comes at most ``relink_time`` s after

@@ -111,6 +111,11 @@ class _Record:
     #: that diverges is reported up to there)
     calm_step: int = 0
     misfit: float = 0.0
+    #: updates in a row whose UKF estimate of the speed, before the clip at 0, was below
+    #: -``reverse_speed``: the vehicle moves against the track's heading
+    reverse_run: int = 0
+    #: the row at which that run began (its rows are not reported)
+    reverse_from: int = 0
     #: ended inside the field of view, missed or diverged (:mod:`fgloc.tracking.relink`)
     lost: bool = False
     #: updates in a row with a contour at least ``long_trigger_width`` wide
@@ -628,6 +633,11 @@ class Tracker:
                               cfg.sigma_doppler if cfg.use_doppler else None)
         x, self.P[tracks] = ukf.update(x, P, Xs, Z, measurement_vector(batch, cfg.use_doppler),
                                        R, self.w)
+        for i, backwards in zip(tracks, x[:, V] < -cfg.reverse_speed):
+            rec = self.recs[i]
+            if backwards and not rec.reverse_run:
+                rec.reverse_from = len(rec.states)
+            rec.reverse_run = rec.reverse_run + 1 if backwards else 0
         self.x[tracks] = self._plausible(x)
         return tracks
 
@@ -1047,9 +1057,12 @@ class Tracker:
         blind = self.fov.blind(self.x[:, [X, Y]])
         wide = contour_length_width(self.x)[1] > cfg.max_width
         for i, rec in enumerate(self.recs):
-            if rec.misfit > cfg.diverge_excess or wide[i]:
-                # diverged: no longer one vehicle; reported up to its last calm row
-                rec.last_update_step = min(rec.last_update_step, rec.calm_step)
+            reverse = 0 < cfg.reverse_updates <= rec.reverse_run
+            if rec.misfit > cfg.diverge_excess or wide[i] or reverse:
+                # diverged: no longer one vehicle (or heading against it); reported up to
+                # its last calm row (before it turned against its vehicle)
+                rec.last_update_step = min(rec.last_update_step, rec.calm_step,
+                                           rec.reverse_from - 1 if reverse else rec.calm_step)
                 end[i] = rec.lost = True
                 continue
             if rec.confirmed:
