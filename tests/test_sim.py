@@ -346,7 +346,7 @@ def test_truth_states_are_ctra_consistent(case: str, seed: int, variant: str) ->
         assert np.all(np.diff(x)[still] == 0) and np.all(np.diff(y)[still] == 0)
         assert np.all(w[standing] == 0)
         assert np.abs(np.diff(w) / dt).max() < 1.0   # smooth yaw rate (curvature ramps)
-        turning = np.abs(w / v) > 0.05
+        turning = ~standing & (np.abs(w) > 0.05 * v)     # curvature w / v above 0.05 1/m
         if turning.any():
             assert v[turning].max() <= 8.0 + 1e-6
 
