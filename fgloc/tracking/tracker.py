@@ -408,6 +408,12 @@ class Tracker:
                 owner[c[:n]] = i
                 excess[c[:n]] = np.where(np.isfinite(loose_ex[i, c[:n]]), loose_ex[i, c[:n]], 0.0)
 
+    def _dense_contour(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Radii (T, m) (m) and points (T, m, 2) in C of the contours of states x (T, N_STATE)
+        at the ``n_candidates`` dense angles ``cand_theta``."""
+        r = self.cand_mean + (x[:, N_KIN:] - self.gp.mu) @ self.cand_H.T
+        return r, contour_point(x[:, [X, Y]], x[:, YAW], r, self.cand_theta)
+
     def _misfit(self, owner: np.ndarray, excess: np.ndarray, z: np.ndarray, dt: float
                 ) -> None:
         """Smoothed median offset (m) of each track's associated detections z (D, 2) from its
@@ -425,15 +431,13 @@ class Tracker:
         if not len(mine):
             return
         tracks, inv = np.unique(owner[mine], return_inverse=True)
-        x = self.x[tracks]
-        r = self.cand_mean + (x[:, N_KIN:] - self.gp.mu) @ self.cand_H.T
-        pts = contour_point(x[:, [X, Y]], x[:, YAW], r, self.cand_theta)         # (T, m, 2)
+        pts = self._dense_contour(self.x[tracks])[1]
         dist = contour_distance(z[mine, None], pts[inv])[:, 0]
         # per-track median of the offsets: sort by (track, offset), take the middle element(s)
         a = np.minimum(np.abs(excess[mine]), dist)
-        order = np.lexsort((a, owner[mine]))
-        o, a = owner[mine][order], a[order]
-        tracks, start, count = np.unique(o, return_index=True, return_counts=True)
+        a = a[np.lexsort((a, inv))]
+        count = np.bincount(inv)
+        start = np.concatenate([[0], np.cumsum(count)[:-1]])
         med = 0.5 * (a[start + (count - 1) // 2] + a[start + count // 2])
         for i, m in zip(tracks, med):
             rec = self.recs[i]
@@ -458,8 +462,7 @@ class Tracker:
         sensor = self.fov.sensor
         x = self.x[tracks]
         T, K = valid.shape
-        r = self.cand_mean + (x[:, N_KIN:] - self.gp.mu) @ self.cand_H.T          # (T, m)
-        pts = contour_point(x[:, [X, Y]], x[:, YAW], r, self.cand_theta)         # (T, m, 2)
+        r, pts = self._dense_contour(x)
         vis = contour_candidates(pts, sensor)
         in_fov = self.fov.seen(pts, cfg.chain_fov_margin)
         use_fov = (vis & in_fov).any(axis=1, keepdims=True)
@@ -1061,8 +1064,9 @@ class Tracker:
             if rec.misfit > cfg.diverge_excess or wide[i] or reverse:
                 # diverged: no longer one vehicle (or heading against it); reported up to
                 # its last calm row (before it turned against its vehicle)
-                rec.last_update_step = min(rec.last_update_step, rec.calm_step,
-                                           rec.reverse_from - 1 if reverse else rec.calm_step)
+                rec.last_update_step = min(rec.last_update_step, rec.calm_step)
+                if reverse:
+                    rec.last_update_step = min(rec.last_update_step, rec.reverse_from - 1)
                 end[i] = rec.lost = True
                 continue
             if rec.confirmed:
