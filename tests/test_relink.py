@@ -123,11 +123,48 @@ def test_tracks_of_other_vehicles_stay_apart(case: str) -> None:
     elif case == "follower":             # the car 1.5 s (15 m) behind A in its lane
         b = _straight(2, 2.0, 3.0, offset=-15.0)
     elif case == "late":
-        b = _straight(2, 1.0 + cfg.relink_time + 0.1, 5.0)
+        b = _straight(2, 1.0 + cfg.relink_time + 0.1, 1.0 + cfg.relink_time + 2.0)
     else:
         cfg = dataclasses.replace(cfg, relink_time=0.0)
     out, links = relink([a, b], lost, np.arange(0, 121) * DT, cfg)
     assert links == [] and [tr.id for tr in out] == [1, 2]
+
+
+def _braking(tid: int, t0: float, t1: float, shift: float = 0.0) -> Track:
+    """Rows from t0 to t1 (s) of a car on the x axis, at the origin at t = ``shift``: 10 m/s,
+    braking at 2.5 m/s^2 from ``shift`` + 1.5 s to 5 m/s, then holding that."""
+    t = np.arange(round(t0 / DT), round(t1 / DT) + 1) * DT
+    u = t - shift
+    fine = np.linspace(-10.0, 20.0, 30001)
+    speed = np.clip(10.0 - 2.5 * (fine - 1.5), 5.0, 10.0)
+    x = np.concatenate([[0.0], np.cumsum(0.5 * (speed[1:] + speed[:-1]) * np.diff(fine))])
+    x -= np.interp(0.0, fine, x)
+    tr = _track(tid, t, np.column_stack([np.interp(u, fine, x), np.zeros(len(t))]),
+                np.zeros(len(t)), 0.0)
+    tr.states[:, V] = np.interp(u, fine, speed)
+    return tr
+
+
+@pytest.mark.parametrize("velocity_error", [0.5, 0.0])
+def test_a_car_braking_unseen_for_four_seconds_keeps_one_track(velocity_error: float) -> None:
+    """A car at 10 m/s, unseen from 1 to 5 s (hidden behind another), brakes meanwhile to
+    5 m/s and holds that: the constant-velocity runs of A's last row (10 m/s) and of B's
+    state 0.5 s after its first row (5 m/s) meet 3.75 m apart halfway, beyond ``relink_gate``
+    but within the gate that grows with the 4.5 s between them (3 + 0.5 x 4.5 = 5.25 m);
+    the car 1.5 s behind it in its lane is not joined to it (11.25 m)."""
+    cfg = dataclasses.replace(TrackingConfig(), relink_velocity_error=velocity_error)
+    a, b = _braking(1, 0.0, 1.0), _braking(2, 5.0, 7.0)
+    follower = _braking(3, 5.0, 7.0, shift=1.5)
+    links = candidate_links([a, b], {1}, cfg)
+    if velocity_error == 0.0:
+        assert links == []
+        return
+    assert [(k.first, k.then) for k in links] == [(1, 2)]
+    assert links[0].miss == pytest.approx(3.75, abs=0.01)
+    assert links[0].gate == pytest.approx(5.25) and links[0].rank < 1.0
+    frames = np.arange(0, 141) * DT
+    assert [tr.id for tr in relink([a, b], {1}, frames, cfg)[0]] == [1]
+    assert candidate_links([a, follower], {1}, cfg) == []
 
 
 def test_the_nearer_continuation_wins_and_chains_join() -> None:

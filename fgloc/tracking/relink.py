@@ -14,35 +14,39 @@ hold the birth's guesses: the lane's heading, a default speed where the Doppler 
 
 * the headings of A's last row and of that state differ by at most ``relink_max_turn_deg``;
 * A's last row run forward at constant velocity and that state run backward at constant
-  velocity meet within ``relink_gate`` m halfway in time (two tangents of a turn meet
-  near its corner; a vehicle following in the same lane is a headway behind).
+  velocity meet halfway in time within ``relink_gate`` m plus ``relink_velocity_error``
+  m/s times the time between the two rows (two tangents of a turn meet near its corner; a
+  vehicle following in the same lane is a headway behind; the two runs are exact for a
+  constant acceleration, and an error in an end's velocity, or a vehicle that braked and
+  held its speed while unseen, moves them apart the more the longer the gap).
 
-Pairs are taken by that distance, smallest first, each track at most once as A and once as
-B; chains (A, B, C) join into one track with A's id. The frames between A's last and B's
-first row get rows interpolated between them: heading and speed linear in time from A's
-last row to B's settled state (constant yaw rate and acceleration, as the CTRA model has
-them), the centre on the cubic Hermite curve from A's last to B's first centre with tangents
-along the two headings, A's contour; covariances blended linearly between the end rows' (not
-a filter's). A tangent's length is the speed times the gap, at most three times the chord's
-component along that heading (the Fritsch-Carlson bound: the curve does not run backward
-along it); without the bound, ends whose positions disagree with their speeds (a lost track
-coasting ahead of the vehicle, a new track's first row behind it) make the curve loop.
+Pairs are taken by that distance over its gate (a stand's: over ``relink_gate``), smallest
+first, each track at most once as A and once as B; chains (A, B, C) join into one track with
+A's id. The frames between A's last and B's first row get rows interpolated between them:
+heading and speed linear in time from A's last row to B's settled state (constant yaw rate
+and acceleration, as the CTRA model has them), the centre on the cubic Hermite curve from
+A's last to B's first centre with tangents along the two headings, A's contour; covariances
+blended linearly between the end rows' (not a filter's). A tangent's length is the speed
+times the gap, at most three times the chord's component along that heading (the
+Fritsch-Carlson bound: the curve does not run backward along it); without the bound, ends
+whose positions disagree with their speeds (a lost track coasting ahead of the vehicle, a
+new track's first row behind it) make the curve loop.
 A vehicle that stops (at a stop line, in a queue) returns only static detections; they are
-dropped, its track ends and a new one starts where it moves off, up to a minute later. A lost
-track A continues as a track B whose first row comes at most ``stand_time`` s after A's last
-row across a stand when A's last row and B's settled state are both slower than
+dropped, its track ends and a new one starts where it moves off, up to a minute later. A
+lost track A continues as a track B whose first row comes at most ``stand_time`` s after A's
+last row across a stand when A's last row and B's settled state are both slower than
 ``stand_speed``, their headings differ by at most ``stand_max_turn_deg``, and A braked to a
 stop at ``stand_accel`` and B started from a stop at it lie within ``relink_gate`` m of each
 other (the stop points: A's last centre ``v^2 / (2 stand_accel)`` on along its heading, B's
 first centre as far back along its). A pair that passes both tests is joined by the model
-whose ends meet closer -- a stand only if no other track's box covered A's stop point in
-between (the vehicle left unseen and another came to stand where it stood: a queue moves
-up to a stop line). The rows of a stand brake
-at ``stand_accel`` from A's last row to A's stop point, stand there (speed, acceleration and
-yaw rate 0, A's heading), and move off at the constant acceleration that reaches B's first
-row at its speed (half that speed on average: a vehicle creeps off slowly, its returns still
-static, before its new track is born; in a queue it may creep up to the stop line first),
-turning to B's heading on the way. The standing rows are flagged in ``Track.standing``,
+whose ends meet closer for its gate -- a stand only if no other track's box covered A's stop
+point in between (the vehicle left unseen and another came to stand where it stood: a queue
+moves up to a stop line). The rows of a stand brake at ``stand_accel`` from A's last row to
+A's stop point, stand there (speed, acceleration and yaw rate 0, A's heading), and move off
+at the constant acceleration that reaches B's first row at its speed (half that speed on
+average: a vehicle creeps off slowly, its returns still static, before its new track is
+born; in a queue it may creep up to the stop line first), turning to B's heading on the way.
+The standing rows are flagged in ``Track.standing``,
 and the smoothers hold their speed at 0 (interpolated rows hold no detection, and a
 smoother left alone there finds the smoothest motion between the two ends: on through the
 stop and back).
@@ -72,12 +76,18 @@ class Link:
     """Track ``first`` continues as track ``then``; ``miss`` (m): how far apart the two
     tracks' ends arrive -- the constant-velocity runs of ``first``'s last row forward and
     ``then``'s settled state backward halfway in time, or with ``stand`` the two stop points
-    (module docstring)."""
+    (module docstring) --, at most ``gate`` (m)."""
 
     first: int
     then: int
     miss: float
+    gate: float
     stand: bool = False
+
+    @property
+    def rank(self) -> float:
+        """The miss over its gate: pairs are taken smallest first."""
+        return self.miss / self.gate
 
 
 def _heading(yaw: float) -> np.ndarray:
@@ -115,15 +125,16 @@ def _link(a: Track, b: Track, cfg: TrackingConfig,
         half = 0.5 * (tb - ta)
         meet_a = xa[[X, Y]] + xa[V] * _heading(xa[YAW]) * half
         meet_b = xb[[X, Y]] - xb[V] * _heading(xb[YAW]) * half
-        best = Link(a.id, b.id, float(np.linalg.norm(meet_a - meet_b)))
+        best = Link(a.id, b.id, float(np.linalg.norm(meet_a - meet_b)),
+                    cfg.relink_gate + cfg.relink_velocity_error * (tb - ta))
     if (b.t[0] - ta <= cfg.stand_time and turn <= np.deg2rad(cfg.stand_max_turn_deg)
             and max(xa[V], xb[V]) <= cfg.stand_speed):
         stop, start = _stop_points(xa, b, xb, cfg.stand_accel)
-        miss = float(np.linalg.norm(stop - start))
-        if (miss <= cfg.relink_gate and (best is None or miss < best.miss)
+        stand = Link(a.id, b.id, float(np.linalg.norm(stop - start)), cfg.relink_gate, True)
+        if (stand.rank <= 1.0 and (best is None or stand.rank < best.rank)
                 and not covered(stop, ta, float(b.t[0]), (a.id, b.id))):
-            best = Link(a.id, b.id, miss, stand=True)
-    return best if best is not None and best.miss <= cfg.relink_gate else None
+            best = stand
+    return best if best is not None and best.rank <= 1.0 else None
 
 
 def _covers(tr: Track, t0: float, t1: float, point: np.ndarray) -> bool:
@@ -144,7 +155,7 @@ def _covers(tr: Track, t0: float, t1: float, point: np.ndarray) -> bool:
 
 def candidate_links(tracks: list[Track], lost: set[int], cfg: TrackingConfig) -> list[Link]:
     """Every pair (lost track, later track) that passes a test of the module docstring,
-    smallest ``miss`` first."""
+    smallest :attr:`Link.rank` first."""
     starts = np.array([tr.t[0] for tr in tracks])
     ends = np.array([tr.t[-1] for tr in tracks])
     order = np.argsort(starts, kind="stable")
@@ -164,7 +175,7 @@ def candidate_links(tracks: list[Track], lost: set[int], cfg: TrackingConfig) ->
         lo, hi = np.searchsorted(starts[order], [ta, ta + reach], side="right")
         links += [k for k in (_link(a, tracks[j], cfg, covered) for j in order[lo:hi])
                   if k is not None]
-    return sorted(links, key=lambda k: k.miss)
+    return sorted(links, key=lambda k: k.rank)
 
 
 def gap_rows(a: Track, b: Track, times: np.ndarray, settle: float
