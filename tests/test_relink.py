@@ -273,29 +273,34 @@ def _without(radar: RadarData, drop: np.ndarray) -> RadarData:
                      None if radar.frame is None else radar.frame[keep])
 
 
-@pytest.mark.parametrize("relink_time", [3.0, 0.0])
-def test_a_car_unseen_for_a_second_and_a_half_keeps_one_track(relink_time: float) -> None:
+@pytest.mark.parametrize(("unseen", "relink_time"), [(1.5, 3.0), (1.5, 0.0), (4.0, None),
+                                                     (4.0, 3.0)])
+def test_a_car_unseen_for_a_while_keeps_one_track(unseen: float,
+                                                  relink_time: float | None) -> None:
     """Straight road, one car approaching from 150 m (seen 6-19 s); its returns dropped from
-    11 to 12.5 s, longer than ``delete_after``: one track, its gap rows within 1 m of the
-    car; without re-linking the car has two."""
+    11 s for ``unseen`` s (1.5 s; 4 s: hidden behind another), longer than ``delete_after``:
+    one track, its gap rows within 1 m of the car; without re-linking, or with a
+    ``relink_time`` shorter than the gap, the car has two (None: the default)."""
     sim = from_dict(SimConfig, {"traffic": {"class_mix": [1.0, 0.0, 0.0]}}, None)
     res = simulate_detailed("straight", 1, 25.0, vehicles=1, config=sim)
     scn = res.scenario
-    gap = (res.source == scn.truth.tracks[0].id) & (scn.radar.t >= 11.0) & (scn.radar.t < 12.5)
+    gap = ((res.source == scn.truth.tracks[0].id) & (scn.radar.t >= 11.0)
+           & (scn.radar.t < 11.0 + unseen))
     scn = dataclasses.replace(scn, radar=_without(scn.radar, gap))
     cfg = Config()
-    cfg.tracking.relink_time = relink_time
+    if relink_time is not None:
+        cfg.tracking.relink_time = relink_time
     tracks = track(scn, cfg, oracle_pose=True).tracks
     m = evaluate_tracks(tracks, scn.truth, sensor_pose=scn.truth.sensor_pose,
                         hfov_deg=scn.sensor.hfov_deg, max_range=scn.sensor.max_range)
     assert m.n_matched == m.n_true == 1 and m.false_tracks == 0
-    if relink_time == 0.0:
+    if cfg.tracking.relink_time < unseen:
         assert m.fragments == 1
         return
     assert m.fragments == 0 and len(tracks.tracks) == 1
     tr = tracks.in_local().tracks[0]
     truth = scn.truth.tracks[0].states
-    inside = (tr.t > 11.1) & (tr.t < 12.4)
+    inside = (tr.t > 11.1) & (tr.t < 10.9 + unseen)
     assert inside.sum() >= 20
     tx = np.interp(tr.t[inside], truth[:, 0], truth[:, 1])
     ty = np.interp(tr.t[inside], truth[:, 0], truth[:, 2])
