@@ -110,7 +110,8 @@ def test_a_lost_track_is_joined_to_its_continuation() -> None:
     assert len(tr.labels) == len(tr.t)
 
 
-@pytest.mark.parametrize("case", ["not lost", "other way", "follower", "late", "off"])
+@pytest.mark.parametrize("case", ["not lost", "other way", "follower", "late", "off",
+                                  "tight turn"])
 def test_tracks_of_other_vehicles_stay_apart(case: str) -> None:
     cfg = TrackingConfig()
     a = _straight(1, 0.0, 1.0)
@@ -122,6 +123,10 @@ def test_tracks_of_other_vehicles_stay_apart(case: str) -> None:
         b = _straight(2, 2.0, 3.0, heading=np.pi, offset=-40.0)
     elif case == "follower":             # the car 1.5 s (15 m) behind A in its lane
         b = _straight(2, 2.0, 3.0, offset=-15.0)
+    elif case == "tight turn":           # 1 m/s, then 1.65 m on heading 80 deg: a 1.3 m radius
+        a = _straight(1, 0.0, 1.0, speed=1.0)
+        b = _straight(2, 2.0, 3.0, speed=1.0, heading=np.deg2rad(80.0), offset=-0.5)
+        assert candidate_links([a, b], lost, dataclasses.replace(cfg, relink_min_radius=0.0))
     elif case == "late":
         b = _straight(2, 1.0 + cfg.relink_time + 0.1, 1.0 + cfg.relink_time + 2.0)
     else:

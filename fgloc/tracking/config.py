@@ -435,7 +435,11 @@ class TrackingConfig:
     1 of two vehicles', 2 of a false track and a vehicle's) ..."""
     relink_max_turn_deg: float = 90.0
     """... and their headings differ by at most this (deg; a vehicle entering the view where
-    another left it drives the other way). The rows between are interpolated."""
+    another left it drives the other way) ..."""
+    relink_min_radius: float = 4.0
+    """... and an arc of this radius (m; a road vehicle turns no tighter) through the ended
+    track's last and the new track's first centre turns at least that much (their distance
+    at least ``2 relink_min_radius sin(turn / 2)``). The rows between are interpolated."""
     stand_time: float = 60.0
     """Re-linking across a stand: a lost track continues as a track whose first row comes at
     most this long (s) after its last (0 = off) when the vehicle stood in between -- a

@@ -12,7 +12,10 @@ A lost track A continues as a track B whose first row comes at most ``relink_tim
 A's last row when, with B's state ``relink_settle`` s after its first row (its first rows
 hold the birth's guesses: the lane's heading, a default speed where the Doppler gives none):
 
-* the headings of A's last row and of that state differ by at most ``relink_max_turn_deg``;
+* the headings of A's last row and of that state differ by at most ``relink_max_turn_deg``,
+  and an arc of radius ``relink_min_radius`` through A's last and B's first centre turns at
+  least as much (a road vehicle turns no tighter; a slow track's ends 1.5 m apart with
+  headings 80 deg apart are not one vehicle's motion);
 * A's last row run forward at constant velocity and that state run backward at constant
   velocity meet halfway in time within ``relink_gate`` m plus ``relink_velocity_error``
   m/s times the time between the two rows (two tangents of a turn meet near its corner; a
@@ -121,7 +124,9 @@ def _link(a: Track, b: Track, cfg: TrackingConfig,
     tb, xb = _settled(b, cfg.relink_settle)
     turn = abs(wrap_angle(xb[YAW] - xa[YAW]))
     best = None
-    if b.t[0] - ta <= cfg.relink_time and turn <= np.deg2rad(cfg.relink_max_turn_deg):
+    chord = float(np.linalg.norm(b.states[0][[X, Y]] - xa[[X, Y]]))
+    if (b.t[0] - ta <= cfg.relink_time and turn <= np.deg2rad(cfg.relink_max_turn_deg)
+            and chord >= 2.0 * cfg.relink_min_radius * np.sin(0.5 * turn)):
         half = 0.5 * (tb - ta)
         meet_a = xa[[X, Y]] + xa[V] * _heading(xa[YAW]) * half
         meet_b = xb[[X, Y]] - xb[V] * _heading(xb[YAW]) * half
