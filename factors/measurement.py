@@ -259,6 +259,42 @@ def normal_offset(z: np.ndarray, centre: np.ndarray, yaw: np.ndarray, radius: np
     return np.sum(np.asarray(normal) * (np.asarray(z) - p), axis=-1)
 
 
+def interior_variance(z: np.ndarray, valid: np.ndarray, points: np.ndarray,
+                      theta: np.ndarray, normal: np.ndarray, sensor: np.ndarray,
+                      sigma_range: float, sigma_azimuth: float, sigma_contour: float,
+                      sigmas: float) -> np.ndarray:
+    """Extra variance (m^2) (T, k) of the outline rows of detections z (T, k, 2) (mask valid
+    (T, k)) matched to the closed CCW polygons ``points`` (T, m, 2) -- sampled at the equally
+    spaced angles ``2 pi j / m`` -- at contour angles theta (T, k) with unit normals
+    (T, k, 2) (:func:`closest_on_chain`), seen from ``sensor`` (2,): a detection whose offset
+    along its normal lies below its track's median offset by more than ``sigmas`` std. devs.
+    of its position noise along that normal (range noise ``sigma_range`` m along the line of
+    sight, azimuth noise ``sigma_azimuth`` rad across it, ``sigma_contour`` m isotropic)
+    gains the square of that depth; else 0 (all 0 for sigmas <= 0). A roof return, seen
+    from a mast, lies inside the outline: as an outline row it would pull the seen face in."""
+    out = np.zeros(np.shape(valid))
+    if sigmas <= 0.0 or not np.any(valid):
+        return out
+    m = np.shape(points)[-2]
+    pos = np.asarray(theta) / (2.0 * np.pi / m)
+    j = np.floor(pos).astype(np.int64) % m
+    u = (pos - np.floor(pos))[..., None]
+    a = np.take_along_axis(points, j[..., None], axis=-2)
+    b = np.take_along_axis(points, ((j + 1) % m)[..., None], axis=-2)
+    offset = np.sum(normal * (z - (a + u * (b - a))), axis=-1)      # + outside
+    has = np.any(valid, axis=-1, keepdims=True)
+    med = np.nanmedian(np.where(valid | ~has, offset, np.nan), axis=-1, keepdims=True)
+    depth = np.where(valid, med - offset, 0.0)
+    los = z - sensor
+    rng = np.maximum(np.linalg.norm(los, axis=-1), 1e-6)
+    c = np.sum(normal * los, axis=-1) / rng                         # normal . line of sight
+    sd = np.sqrt(sigma_range**2 * c * c + (sigma_azimuth * rng) ** 2 * (1.0 - c * c)
+                 + sigma_contour**2)
+    deep = valid & (depth > sigmas * sd)
+    out[deep] = depth[deep] ** 2
+    return out
+
+
 def normal_offset_jacobian(yaw: np.ndarray | float, radius: np.ndarray, theta: np.ndarray,
                            H: np.ndarray, normal: np.ndarray) -> np.ndarray:
     """``(..., m, 3 + n)`` Jacobian of :func:`normal_offset` (``radius = mu* + H (f - mu)``)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from factors.gp import rectangle_radius
+from factors.measurement import closest_on_chain, contour_candidates, interior_variance
 from fgloc.evaluation.tracking import iou_polygon_rectangle
 from fgloc.geo import LocalFrame, rot_from_ypr, se3, se3_inv, transform_points, wrap_angle
 from fgloc.labels import LEFT, RIGHT, STRAIGHT
@@ -500,6 +501,39 @@ def test_a_truck_tracks_misfit_is_its_returns_distance_to_the_contour(shift: flo
         assert tracker.recs[0].misfit < min(limit, 0.7 * np.median(np.abs(excess)))
     else:
         assert tracker.recs[0].misfit > limit
+
+
+def _interior(z: np.ndarray, sigmas: float) -> np.ndarray:
+    """The extra variance (m^2) of the outline rows of detections z (k, 2) on a 4.5 x 1.8 m
+    car track at (30, 0) heading +x away from the sensor at the origin (its rear face at
+    x = 27.75 m faces it), ``interior_sigmas`` = sigmas."""
+    cfg = TrackingConfig(interior_sigmas=sigmas)
+    tracker = _one_track((30.0, 0.0, 8.0), (4.5, 1.8), np.diag(np.full(N_STATE, 1e-4)), cfg)
+    _, pts = tracker._dense_contour(tracker.x)
+    sensor = tracker.fov.sensor
+    theta, normal = closest_on_chain(z[None], pts, tracker.cand_theta,
+                                     contour_candidates(pts, sensor))
+    valid = np.ones((1, len(z)), dtype=bool)
+    return interior_variance(z[None], valid, pts, theta, normal, sensor, cfg.sigma_range,
+                             np.deg2rad(cfg.sigma_azimuth_deg), cfg.sigma_contour,
+                             sigmas)[0]
+
+
+@pytest.mark.parametrize("sigmas", [1.0, 0.0])
+def test_returns_deep_inside_the_contour_weigh_less(sigmas: float) -> None:
+    """Eight returns on the car's rear face and two from its roof, 1 and 2 m behind it: the
+    roof rows gain about the square of their depth below the face's median offset as
+    variance (1 and 4 m^2; the face rows none); off (0), nothing. Returns that all lie 0.8 m
+    inside the contour (a contour too long) gain none: the depth counts from their median."""
+    face = np.column_stack([np.full(8, 27.75), np.linspace(-0.7, 0.7, 8)])
+    roof = np.array([[28.75, 0.1], [29.75, -0.1]])
+    extra = _interior(np.vstack([face, roof]), sigmas)
+    if sigmas == 0.0:
+        assert np.all(extra == 0.0)
+        return
+    np.testing.assert_allclose(extra[:8], 0.0)
+    np.testing.assert_allclose(extra[8:], [1.0, 4.0], rtol=0.1)
+    np.testing.assert_allclose(_interior(face + [0.8, 0.0], sigmas), 0.0)
 
 
 @pytest.mark.parametrize("towards", [True, False])

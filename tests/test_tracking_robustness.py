@@ -208,3 +208,30 @@ def test_trucks_first_seen_late_get_their_length() -> None:
         length, _ = _extent_along_heading(tr.states)
         last = tr.t >= tr.t[-1] - 1.0
         assert abs(np.median(length[last]) - gt.length) <= 1.5, (gt.id, gt.length)
+
+
+def test_roof_returns_do_not_carry_a_car_track_away_from_the_sensor() -> None:
+    """Straight road, two cars (seed 1) with a tenth of their returns from their roofs (the
+    independent generator's share): with the deep returns weighed down the tracks' mean
+    error along the heading stays below 0.35 m (0.16 and 0.27 m measured; without roof
+    returns 0.08 and 0.10 m); without it one car's track runs 1.15 m ahead of its car."""
+    sim = from_dict(SimConfig, {"traffic": {"class_mix": [1.0, 0.0, 0.0]},
+                                "radar": {"roof_fraction": 0.1}}, None)
+    scn = simulate_detailed("straight", 1, 25.0, vehicles=2, config=sim).scenario
+    worst = {}
+    for sigmas in (1.0, 0.0):
+        cfg = Config()
+        cfg.tracking.interior_sigmas = sigmas
+        along = []
+        for tr in track(scn, cfg, oracle_pose=True).tracks.in_local().tracks:
+            for gt in scn.truth.tracks:
+                k = (tr.t >= gt.states[0, 0]) & (tr.t <= gt.states[-1, 0])
+                if k.sum() < 20:
+                    continue
+                g = [np.interp(tr.t[k], gt.states[:, 0], gt.states[:, c]) for c in (1, 2, 3)]
+                if np.hypot(tr.states[k, 0] - g[0], tr.states[k, 1] - g[1]).mean() < 3.0:
+                    along.append(abs(np.mean((tr.states[k, 0] - g[0]) * np.cos(g[2])
+                                             + (tr.states[k, 1] - g[1]) * np.sin(g[2]))))
+        assert len(along) == 2
+        worst[sigmas] = max(along)
+    assert worst[1.0] < 0.35 and worst[0.0] > 0.9

@@ -38,6 +38,7 @@ from factors.measurement import (
     contour_candidates,
     contour_distance,
     contour_point,
+    interior_variance,
     range_rate,
     unit,
     visibility_slack,
@@ -471,6 +472,9 @@ class Tracker:
         slack = visibility_slack(z, sensor, cfg.sigma_range, np.deg2rad(cfg.sigma_azimuth_deg),
                                  cfg.visible_slack)
         theta, normal = closest_on_chain(z, pts, self.cand_theta, vis, slack)
+        interior = interior_variance(z, valid, pts, theta, normal, sensor, cfg.sigma_range,
+                                     np.deg2rad(cfg.sigma_azimuth_deg), cfg.sigma_contour,
+                                     cfg.interior_sigmas)
         zr = np.concatenate([z, np.zeros((T, 4, 2))], axis=1)
         th = np.concatenate([theta, np.zeros((T, 4))], axis=1)
         nm = np.concatenate([normal, np.zeros((T, 4, 2))], axis=1)
@@ -543,6 +547,7 @@ class Tracker:
                     self.P[tracks, :2, :2] += ((0.25 * ex**2)[:, None, None]
                                                * ax[:, :, None] * ax[:, None, :])
         extra_var = np.where(dop_ok, 0.0, cfg.sigma_extent**2)
+        extra_var[:, :K] += interior
         return zr, th, nm, ok, dop_ok, extra_var, jidx
 
     def _reanchor(self, det: _Frame, owner: np.ndarray) -> None:
